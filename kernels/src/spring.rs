@@ -1,0 +1,199 @@
+//! Spring elements: Hooke force with damping along the spring, and their Jacobians.
+//!
+//! Course notes, section 4: for a spring from B to A, `L = A - B`, rest length `R`,
+//! the force on A is
+//!
+//! ```text
+//! F_A = -k (|L| - R) L/|L|  -  kd ((v_A - v_B) . L/|L|) L/|L|,      F_B = -F_A.
+//! ```
+//!
+//! Jacobians (l = L/|L|): the elastic part gives
+//! `dF_A/dx_A = -k [ l l^T + (1 - R/|L|)(I - l l^T) ]` (symmetric), and the damping part
+//! `dF_A/dv_A = -kd l l^T`. Element matrices are `[[J, -J], [-J, J]]` for both.
+//!
+//! Two choices, both stated in the docs:
+//! - The damping force also depends on positions; that derivative is not symmetric and is
+//!   left out, as Baraff and Witkin do (1998, section 5.2). So `dF/dx` is the elastic
+//!   Jacobian (exact), `dF/dv` the damping Jacobian (exact).
+//! - Under compression (`|L| < R`) the term `(1 - R/|L|)(I - l l^T)` is negative-definite
+//!   in the wrong sense and can make `M - h^2 dF/dx` indefinite. With
+//!   [`SpringParams::definiteness_fix`] that term is clamped to zero when negative
+//!   (Choi and Ko 2002, "Stable but responsive cloth"); the Jacobian is then exact only for
+//!   stretched springs.
+//!
+//! Coincident endpoints (`|L| = 0`) have no direction: the element gives zero force and
+//! zero Jacobians there. Units: positions m, velocities m/s, k N/m, kd N s/m, force N.
+
+use rayon::prelude::*;
+
+/// Options of the spring element.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SpringParams {
+    /// Clamp the compression term of the elastic Jacobian so it stays negative
+    /// semi-definite (see the module docs).
+    pub definiteness_fix: bool,
+}
+
+/// One spring: force on endpoint A, and the 3x3 blocks `dF_A/dx_A` and `dF_A/dv_A`
+/// (row-major), computed from endpoint positions and velocities.
+#[inline]
+#[allow(clippy::too_many_arguments)]
+pub fn spring_element(
+    xa: [f64; 3],
+    xb: [f64; 3],
+    va: [f64; 3],
+    vb: [f64; 3],
+    k: f64,
+    kd: f64,
+    rest: f64,
+    p: SpringParams,
+) -> ([f64; 3], [f64; 9], [f64; 9]) {
+    let l = [xa[0] - xb[0], xa[1] - xb[1], xa[2] - xb[2]];
+    let len = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
+    if len == 0.0 {
+        return ([0.0; 3], [0.0; 9], [0.0; 9]);
+    }
+    let d = [l[0] / len, l[1] / len, l[2] / len];
+    let rel = (va[0] - vb[0]) * d[0] + (va[1] - vb[1]) * d[1] + (va[2] - vb[2]) * d[2];
+    let s = -k * (len - rest) - kd * rel;
+    let f = [s * d[0], s * d[1], s * d[2]];
+    let mut t = 1.0 - rest / len;
+    if p.definiteness_fix && t < 0.0 {
+        t = 0.0;
+    }
+    let mut kx = [0.0; 9];
+    let mut kv = [0.0; 9];
+    for r in 0..3 {
+        for c in 0..3 {
+            let dd = d[r] * d[c];
+            let id = if r == c { 1.0 } else { 0.0 };
+            kx[3 * r + c] = -k * (dd + t * (id - dd));
+            kv[3 * r + c] = -kd * dd;
+        }
+    }
+    (f, kx, kv)
+}
+
+/// Elastic energy `k/2 (|L| - R)^2` of one spring (J).
+#[inline]
+pub fn spring_energy(xa: [f64; 3], xb: [f64; 3], k: f64, rest: f64) -> f64 {
+    let l = [xa[0] - xb[0], xa[1] - xb[1], xa[2] - xb[2]];
+    let len = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
+    0.5 * k * (len - rest) * (len - rest)
+}
+
+/// Borrowed spring set: endpoints and per-spring constants (SoA).
+#[derive(Clone, Copy, Debug)]
+pub struct Springs<'a> {
+    /// Endpoint vertex indices (A, B) of each spring.
+    pub ends: &'a [[u32; 2]],
+    /// Stiffness k per spring (N/m), >= 0.
+    pub k: &'a [f64],
+    /// Damping kd per spring (N s/m), >= 0.
+    pub kd: &'a [f64],
+    /// Rest length R per spring (m), >= 0.
+    pub rest: &'a [f64],
+}
+
+impl Springs<'_> {
+    /// Number of springs.
+    pub fn len(&self) -> usize {
+        self.ends.len()
+    }
+    /// Whether there are no springs.
+    pub fn is_empty(&self) -> bool {
+        self.ends.is_empty()
+    }
+    fn check(&self) {
+        let m = self.ends.len();
+        assert!(self.k.len() == m && self.kd.len() == m && self.rest.len() == m);
+    }
+    #[inline]
+    fn eval(&self, e: usize, x: &[f64], v: &[f64], n: usize, p: SpringParams) -> ([f64; 3], [f64; 9], [f64; 9]) {
+        let [a, b] = self.ends[e];
+        let (a, b) = (a as usize, b as usize);
+        let g = |s: &[f64], i: usize| [s[i], s[n + i], s[2 * n + i]];
+        spring_element(g(x, a), g(x, b), g(v, a), g(v, b), self.k[e], self.kd[e], self.rest[e], p)
+    }
+}
+
+/// Springs per parallel task: fixed, so the output does not depend on the thread count.
+const SPRING_CHUNK: usize = 4096;
+
+/// Force on endpoint A of every spring, `fa[3e..3e+3]` (element-major; the force on B is
+/// the negative). `x`, `v` are component-major Vec3s data of the n vertices.
+pub fn spring_forces(fa: &mut [f64], x: &[f64], v: &[f64], s: Springs<'_>) {
+    s.check();
+    let n = x.len() / 3;
+    assert!(x.len() == 3 * n && v.len() == 3 * n && fa.len() == 3 * s.len());
+    fa.par_chunks_mut(3 * SPRING_CHUNK)
+        .enumerate()
+        .for_each(|(c, out)| {
+            let e0 = c * SPRING_CHUNK;
+            for (le, f) in out.chunks_exact_mut(3).enumerate() {
+                let (fe, _, _) = s.eval(e0 + le, x, v, n, SpringParams::default());
+                f.copy_from_slice(&fe);
+            }
+        });
+}
+
+/// Forces on endpoint A (`fa[3e..]`) and the blocks `dF_A/dx_A` (`kx[9e..]`) and, when
+/// `kv` is given, `dF_A/dv_A` (`kv[9e..]`) of every spring; see [`spring_forces`] for the
+/// layout.
+pub fn spring_forces_jacobians(
+    fa: &mut [f64],
+    kx: &mut [f64],
+    kv: Option<&mut [f64]>,
+    x: &[f64],
+    v: &[f64],
+    s: Springs<'_>,
+    p: SpringParams,
+) {
+    s.check();
+    let n = x.len() / 3;
+    let m = s.len();
+    assert!(x.len() == 3 * n && v.len() == 3 * n);
+    assert!(fa.len() == 3 * m && kx.len() == 9 * m);
+    let run = |c: usize, fo: &mut [f64], kxo: &mut [f64], mut kvo: Option<&mut [f64]>| {
+        let e0 = c * SPRING_CHUNK;
+        for le in 0..fo.len() / 3 {
+            let (fe, kxe, kve) = s.eval(e0 + le, x, v, n, p);
+            fo[3 * le..3 * le + 3].copy_from_slice(&fe);
+            kxo[9 * le..9 * le + 9].copy_from_slice(&kxe);
+            if let Some(kvo) = kvo.as_deref_mut() {
+                kvo[9 * le..9 * le + 9].copy_from_slice(&kve);
+            }
+        }
+    };
+    let fk = fa
+        .par_chunks_mut(3 * SPRING_CHUNK)
+        .zip(kx.par_chunks_mut(9 * SPRING_CHUNK))
+        .enumerate();
+    match kv {
+        Some(kv) => {
+            assert_eq!(kv.len(), 9 * m);
+            fk.zip(kv.par_chunks_mut(9 * SPRING_CHUNK))
+                .for_each(|((c, (fo, kxo)), kvo)| run(c, fo, kxo, Some(kvo)));
+        }
+        None => fk.for_each(|(c, (fo, kxo))| run(c, fo, kxo, None)),
+    }
+}
+
+/// Total elastic energy of the springs (J); deterministic parallel sum.
+pub fn springs_energy(x: &[f64], s: Springs<'_>) -> f64 {
+    s.check();
+    let n = x.len() / 3;
+    assert_eq!(x.len(), 3 * n);
+    let m = s.len();
+    let [e] = crate::par::par_reduce(crate::par::chunk_count(m, SPRING_CHUNK), &|c| {
+        let mut sum = 0.0;
+        for e in crate::par::chunk_range(c, m, SPRING_CHUNK) {
+            let [a, b] = s.ends[e];
+            let (a, b) = (a as usize, b as usize);
+            let g = |i: usize| [x[i], x[n + i], x[2 * n + i]];
+            sum += spring_energy(g(a), g(b), s.k[e], s.rest[e]);
+        }
+        [sum]
+    });
+    e
+}

@@ -1,0 +1,601 @@
+//! Mechanical systems `M x'' = f(t, x, v)` with a lumped (diagonal) mass matrix.
+//!
+//! Explicit Runge-Kutta methods run on the first-order form `y = [x; v]`,
+//! `y' = [v; M^-1 f]`; symplectic Euler updates `v` with the old force, then `x` with the
+//! new `v`. Constraints ([`Filter`]) are applied to velocities and accelerations.
+//!
+//! The three Newton-solved implicit methods share one residual in the unknown end
+//! velocity `v1`:
+//!
+//! ```text
+//! x* = x0 + h (a v0 + b v1),   v* = c v0 + d v1,
+//! R(v1) = M (v1 - v0) - h (w0 f(t, x0, v0) + w1 f(t*, x*, v*))
+//! dR/dv1 = M - h w1 (h b K + d D),     K = df/dx, D = df/dv at (x*, v*)
+//! ```
+//!
+//! | method | a | b | c | d | w0 | w1 | t* | x1 |
+//! |---|---|---|---|---|---|---|---|---|
+//! | backward Euler | 0 | 1 | 0 | 1 | 0 | 1 | t + h | x0 + h v1 |
+//! | implicit midpoint | 1/4 | 1/4 | 1/2 | 1/2 | 0 | 1 | t + h/2 | x0 + h (v0 + v1)/2 |
+//! | Newmark (1/4, 1/2) | 1/2 | 1/2 | 0 | 1 | 1/2 | 1/2 | t + h | x0 + h (v0 + v1)/2 |
+//!
+//! (Newmark's `x1 = x0 + h v0 + h^2/4 (a0 + a1)`, `v1 = v0 + h/2 (a0 + a1)` give exactly
+//! this.) The linearised backward Euler of Baraff and Witkin (1998, eq. 16) solves
+//! `(M - h D - h^2 K) dv = h (f0 + h K v0)` once with K, D, f0 at `(x0, v0)`; it is one
+//! Newton step of backward Euler in `(x, v)` from `(x0, v0)`.
+//! Forces are evaluated at time `t + h` in the linearised step, as in one Newton step of
+//! backward Euler.
+
+use super::explicit::RkWork;
+use super::{hint, IntegrateError, Method, StepInfo};
+use crate::solve::{
+    Filter, Newton, NewtonParams, NewtonProblem, Pcg, PcgParams, SolveError, SolveInfo,
+    SparseCholesky,
+};
+use crate::sparse::{Bsr3, Bsr3Pattern, SparseError};
+use largestep_kernels::vec as kv;
+use std::sync::Arc;
+
+/// A mechanical system with lumped masses; positions and velocities are component-major
+/// Vec3s data of its n vertices (3n values each).
+pub trait Mechanical {
+    /// Number of vertices n.
+    fn vertex_count(&self) -> usize;
+    /// Mass per vertex (kg), length n: > 0, or 0 for vertices the filter pins.
+    fn mass(&self) -> &[f64];
+    /// Constraints on vertex velocities (pinned vertices, planes, lines), if any.
+    fn filter(&self) -> Option<&Filter> {
+        None
+    }
+    /// `f = total force` (N) at time t, positions x (m) and velocities v (m/s).
+    fn force(&mut self, t: f64, x: &[f64], v: &[f64], f: &mut [f64]);
+    /// Potential energy (J) of the conservative forces at x, for energy reports.
+    fn potential_energy(&self, x: &[f64]) -> f64 {
+        let _ = x;
+        0.0
+    }
+    /// Prepares Jacobian assembly (element maps, buffers) and returns the block pattern of
+    /// `df/dx` and `df/dv`; `None` if the system provides no Jacobians (then only explicit
+    /// methods run). Called once, by implicit steppers only, so explicit runs build nothing.
+    fn prepare_jacobians(&mut self) -> Result<Option<Arc<Bsr3Pattern>>, SparseError> {
+        Ok(None)
+    }
+    /// Whether `df/dv` can be non-zero (damping); if not, no damping matrix is built.
+    fn has_velocity_jacobian(&self) -> bool {
+        false
+    }
+    /// `f = force`, `dfdx = df/dx`, and `dfdv = df/dv` when asked, over the pattern of
+    /// [`Mechanical::prepare_jacobians`] (values overwritten).
+    fn force_jacobians(
+        &mut self,
+        t: f64,
+        x: &[f64],
+        v: &[f64],
+        f: &mut [f64],
+        dfdx: &mut Bsr3,
+        dfdv: Option<&mut Bsr3>,
+    ) -> Result<(), IntegrateError> {
+        let _ = (t, x, v, f, dfdx, dfdv);
+        Err(IntegrateError::Unsupported {
+            method: Method::BackwardEuler,
+            reason: "the system provides no Jacobians",
+        })
+    }
+}
+
+/// Kinetic energy `1/2 sum m |v|^2` (J).
+pub fn kinetic_energy(mass: &[f64], v: &[f64]) -> f64 {
+    let n = mass.len();
+    assert_eq!(v.len(), 3 * n);
+    (0..n)
+        .map(|i| 0.5 * mass[i] * (v[i] * v[i] + v[n + i] * v[n + i] + v[2 * n + i] * v[2 * n + i]))
+        .sum()
+}
+
+/// Which linear solver implicit steps use.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum LinearSolverKind {
+    /// Preconditioned conjugate gradients (with the constraint filter inside).
+    Pcg(PcgParams),
+    /// Sparse Cholesky (constraints by projecting the system).
+    Cholesky,
+    /// Cholesky up to [`AUTO_CHOLESKY_MAX_DOFS`] unknowns, PCG (block-Jacobi) above.
+    Auto,
+}
+
+/// Largest system (unknowns) for which [`LinearSolverKind::Auto`] picks Cholesky: beyond
+/// it, the fill of 3-D problems makes PCG faster per solve.
+pub const AUTO_CHOLESKY_MAX_DOFS: usize = 30_000;
+
+/// Settings of a [`MechStepper`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MechSettings {
+    /// The method.
+    pub method: Method,
+    /// Linear solver for implicit methods.
+    pub linear: LinearSolverKind,
+    /// Newton settings for the Newton-solved implicit methods.
+    pub newton: NewtonParams,
+}
+
+impl MechSettings {
+    /// Defaults for `method`: automatic linear solver, default Newton settings.
+    pub fn new(method: Method) -> Self {
+        Self {
+            method,
+            linear: LinearSolverKind::Auto,
+            newton: NewtonParams {
+                tolerance: 1e-9,
+                ..NewtonParams::default()
+            },
+        }
+    }
+}
+
+enum Linear {
+    Pcg(Pcg),
+    Cholesky(SparseCholesky),
+}
+
+impl Linear {
+    /// Solves `a x = b` under the filter. PCG starts from zero; Cholesky projects `a`.
+    fn solve(
+        &mut self,
+        a: &mut Bsr3,
+        b: &[f64],
+        x: &mut [f64],
+        filter: Option<&Filter>,
+    ) -> Result<SolveInfo, SolveError> {
+        match self {
+            Linear::Pcg(p) => {
+                x.fill(0.0);
+                p.solve(a, b, x, filter)
+            }
+            Linear::Cholesky(c) => {
+                x.copy_from_slice(b);
+                if let Some(f) = filter {
+                    f.project_matrix(a);
+                    f.apply(x);
+                }
+                c.factorize(a)?;
+                c.solve_in_place(x)?;
+                Ok(SolveInfo::default())
+            }
+        }
+    }
+}
+
+struct Implicit {
+    dfdx: Bsr3,
+    dfdv: Option<Bsr3>,
+    a: Bsr3,
+    linear: Linear,
+    newton: Newton,
+    v1: Vec<f64>,
+    xe: Vec<f64>,
+    ve: Vec<f64>,
+    f: Vec<f64>,
+    f0: Vec<f64>,
+    rhs: Vec<f64>,
+}
+
+/// Steps mechanical systems with one method. All buffers are allocated in
+/// [`MechStepper::new`]; matrices only for implicit methods, the damping Jacobian only for
+/// systems with velocity-dependent forces.
+pub struct MechStepper {
+    settings: MechSettings,
+    n: usize,
+    inv_mass: Vec<f64>,
+    mass: Vec<f64>,
+    filter: Option<Filter>,
+    y: Vec<f64>,
+    rk: Option<RkWork>,
+    f: Vec<f64>,
+    implicit: Option<Implicit>,
+    steps: u64,
+}
+
+impl MechStepper {
+    /// A stepper for `sys` (its size and masses are read here; implicit methods also ask it
+    /// to prepare its Jacobians).
+    pub fn new(settings: MechSettings, sys: &mut dyn Mechanical) -> Result<Self, IntegrateError> {
+        let method = settings.method;
+        let n = sys.vertex_count();
+        let mass = sys.mass().to_vec();
+        assert_eq!(mass.len(), n, "one mass per vertex");
+        let inv_mass = mass.iter().map(|&m| if m > 0.0 { 1.0 / m } else { 0.0 }).collect();
+        let rk = matches!(method, Method::ExplicitEuler | Method::Midpoint | Method::Rk4)
+            .then(|| RkWork::new(method, 6 * n));
+        let y = if rk.is_some() { vec![0.0; 6 * n] } else { Vec::new() };
+        let f = if method == Method::SymplecticEuler { vec![0.0; 3 * n] } else { Vec::new() };
+        let implicit = if method.is_implicit() {
+            let pattern = sys
+                .prepare_jacobians()
+                .map_err(IntegrateError::Sparse)?
+                .ok_or(IntegrateError::Unsupported {
+                    method,
+                    reason: "the system provides no Jacobians; use an explicit method",
+                })?;
+            assert_eq!(pattern.n(), n, "Jacobian pattern size");
+            let linear = match settings.linear {
+                LinearSolverKind::Pcg(p) => Linear::Pcg(Pcg::new(n, p)),
+                LinearSolverKind::Auto if 3 * n > AUTO_CHOLESKY_MAX_DOFS => {
+                    Linear::Pcg(Pcg::new(n, PcgParams::default()))
+                }
+                LinearSolverKind::Cholesky | LinearSolverKind::Auto => {
+                    Linear::Cholesky(SparseCholesky::new(&pattern).map_err(|source| {
+                        IntegrateError::Solve {
+                            step: 0,
+                            method,
+                            source,
+                        }
+                    })?)
+                }
+            };
+            let v3 = || vec![0.0; 3 * n];
+            Some(Implicit {
+                dfdx: Bsr3::zeros(pattern.clone()),
+                dfdv: sys.has_velocity_jacobian().then(|| Bsr3::zeros(pattern.clone())),
+                a: Bsr3::zeros(pattern),
+                linear,
+                newton: Newton::new(3 * n),
+                v1: v3(),
+                xe: v3(),
+                ve: v3(),
+                f: v3(),
+                f0: if method == Method::Newmark { v3() } else { Vec::new() },
+                rhs: v3(),
+            })
+        } else {
+            None
+        };
+        Ok(Self {
+            settings,
+            n,
+            inv_mass,
+            mass,
+            filter: sys.filter().cloned(),
+            y,
+            rk,
+            f,
+            implicit,
+            steps: 0,
+        })
+    }
+
+    /// The settings.
+    pub fn settings(&self) -> &MechSettings {
+        &self.settings
+    }
+
+    /// Steps taken so far.
+    pub fn steps(&self) -> u64 {
+        self.steps
+    }
+
+    /// Which linear solver implicit steps use (`None` for explicit methods).
+    pub fn linear_solver_name(&self) -> Option<&'static str> {
+        self.implicit.as_ref().map(|w| match w.linear {
+            Linear::Pcg(_) => "pcg",
+            Linear::Cholesky(_) => "cholesky",
+        })
+    }
+
+    /// Whether a system matrix was built (false for explicit methods).
+    pub fn has_matrix(&self) -> bool {
+        self.implicit.is_some()
+    }
+
+    /// Whether a damping Jacobian was built.
+    pub fn has_damping_matrix(&self) -> bool {
+        self.implicit.as_ref().is_some_and(|w| w.dfdv.is_some())
+    }
+
+    /// Advances `(x, v)` from `t` to `t + h`.
+    pub fn step(
+        &mut self,
+        sys: &mut dyn Mechanical,
+        t: f64,
+        x: &mut [f64],
+        v: &mut [f64],
+        h: f64,
+    ) -> Result<StepInfo, IntegrateError> {
+        let n = self.n;
+        assert!(x.len() == 3 * n && v.len() == 3 * n, "state length 3n");
+        self.steps += 1;
+        let step = self.steps;
+        let method = self.settings.method;
+        match (sys.filter(), &mut self.filter) {
+            (Some(src), Some(dst)) => dst.clone_from(src),
+            (src, dst) => *dst = src.cloned(),
+        }
+        let filter = self.filter.as_ref();
+        if let Some(f) = filter {
+            f.apply(v);
+        }
+        let solve_err = |source: SolveError| IntegrateError::Solve {
+            step,
+            method,
+            source,
+        };
+        let mut info = StepInfo::default();
+        match method {
+            Method::ExplicitEuler | Method::Midpoint | Method::Rk4 => {
+                let (y, rk) = (&mut self.y, self.rk.as_mut().expect("explicit buffers"));
+                y[..3 * n].copy_from_slice(x);
+                y[3 * n..].copy_from_slice(v);
+                let inv_mass = &self.inv_mass;
+                let mut g = |t: f64, y: &[f64], d: &mut [f64]| {
+                    let (yx, yv) = y.split_at(3 * n);
+                    let (dx, dv) = d.split_at_mut(3 * n);
+                    dx.copy_from_slice(yv);
+                    sys.force(t, yx, yv, dv);
+                    scale_by_inverse_mass(dv, inv_mass);
+                    if let Some(f) = filter {
+                        f.apply(dx);
+                        f.apply(dv);
+                    }
+                    Ok(())
+                };
+                rk.step(method, t, y, h, &mut g)?;
+                x.copy_from_slice(&y[..3 * n]);
+                v.copy_from_slice(&y[3 * n..]);
+            }
+            Method::SymplecticEuler => {
+                sys.force(t, x, v, &mut self.f);
+                scale_by_inverse_mass(&mut self.f, &self.inv_mass);
+                if let Some(f) = filter {
+                    f.apply(&mut self.f);
+                }
+                kv::axpy(v, h, &self.f);
+                kv::axpy(x, h, v);
+            }
+            Method::LinearizedBackwardEuler => {
+                let w = self.implicit.as_mut().expect("implicit buffers");
+                sys.force_jacobians(t + h, x, v, &mut w.f, &mut w.dfdx, w.dfdv.as_mut())?;
+                // rhs = h (f0 + h K v0)
+                w.dfdx.spmv(&mut w.rhs, v);
+                kv::scale_copy(&mut w.xe, h, &w.f);
+                kv::axpy(&mut w.xe, h * h, &w.rhs);
+                w.rhs.copy_from_slice(&w.xe);
+                system_matrix(&mut w.a, &w.dfdx, w.dfdv.as_ref(), &self.mass, h * h, h);
+                let li = w
+                    .linear
+                    .solve(&mut w.a, &w.rhs, &mut w.v1, filter)
+                    .map_err(solve_err)?;
+                kv::axpy(v, 1.0, &w.v1);
+                kv::axpy(x, h, v);
+                info = StepInfo {
+                    newton_iterations: 1,
+                    linear_iterations: li.iterations,
+                    residual: li.residual,
+                };
+            }
+            Method::BackwardEuler | Method::ImplicitMidpoint | Method::Newmark => {
+                let c = Coeffs::of(method);
+                let w = self.implicit.as_mut().expect("implicit buffers");
+                if method == Method::Newmark {
+                    sys.force(t, x, v, &mut w.f0);
+                }
+                w.v1.copy_from_slice(v);
+                let Implicit {
+                    dfdx,
+                    dfdv,
+                    a,
+                    linear,
+                    newton,
+                    v1,
+                    xe,
+                    ve,
+                    f,
+                    f0,
+                    rhs,
+                } = w;
+                let mut prob = Residual {
+                    sys,
+                    c,
+                    t: t + c.t * h,
+                    h,
+                    x0: x,
+                    v0: v,
+                    mass: &self.mass,
+                    filter,
+                    xe,
+                    ve,
+                    f,
+                    f0,
+                    rhs,
+                    dfdx,
+                    dfdv: dfdv.as_mut(),
+                    a,
+                    linear,
+                    linear_iterations: 0,
+                    residual: 0.0,
+                    noise: 0.0,
+                    err: None,
+                };
+                let res = newton.solve(&mut prob, v1, &self.settings.newton);
+                if let Some(e) = prob.err.take() {
+                    return Err(e);
+                }
+                let ni = res.map_err(solve_err)?;
+                info = StepInfo {
+                    newton_iterations: ni.iterations,
+                    linear_iterations: prob.linear_iterations,
+                    residual: prob.residual,
+                };
+                // x1 from v1 (table in the module docs).
+                if method == Method::BackwardEuler {
+                    kv::axpy(x, h, v1);
+                } else {
+                    kv::axpy(x, 0.5 * h, v);
+                    kv::axpy(x, 0.5 * h, v1);
+                }
+                v.copy_from_slice(v1);
+            }
+        }
+        for (field, s) in [("position", &*x), ("velocity", &*v)] {
+            if !kv::all_finite(s) {
+                return Err(IntegrateError::NonFinite {
+                    step,
+                    field,
+                    hint: hint(method),
+                });
+            }
+        }
+        Ok(info)
+    }
+}
+
+fn scale_by_inverse_mass(f: &mut [f64], inv_mass: &[f64]) {
+    let n = inv_mass.len();
+    for c in 0..3 {
+        for (fi, im) in f[c * n..(c + 1) * n].iter_mut().zip(inv_mass) {
+            *fi *= im;
+        }
+    }
+}
+
+/// `a = M - ck K - cd D` from the assembled Jacobians.
+fn system_matrix(a: &mut Bsr3, dfdx: &Bsr3, dfdv: Option<&Bsr3>, mass: &[f64], ck: f64, cd: f64) {
+    match dfdv {
+        Some(d) => a.assign_lincomb(&[(-ck, dfdx), (-cd, d)]),
+        None => a.assign_lincomb(&[(-ck, dfdx)]),
+    }
+    a.add_diagonal(mass, 1.0);
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Coeffs {
+    a: f64,
+    b: f64,
+    c: f64,
+    d: f64,
+    w0: f64,
+    w1: f64,
+    t: f64,
+}
+
+impl Coeffs {
+    fn of(method: Method) -> Self {
+        match method {
+            Method::BackwardEuler => Self {
+                a: 0.0,
+                b: 1.0,
+                c: 0.0,
+                d: 1.0,
+                w0: 0.0,
+                w1: 1.0,
+                t: 1.0,
+            },
+            Method::ImplicitMidpoint => Self {
+                a: 0.25,
+                b: 0.25,
+                c: 0.5,
+                d: 0.5,
+                w0: 0.0,
+                w1: 1.0,
+                t: 0.5,
+            },
+            Method::Newmark => Self {
+                a: 0.5,
+                b: 0.5,
+                c: 0.0,
+                d: 1.0,
+                w0: 0.5,
+                w1: 0.5,
+                t: 1.0,
+            },
+            _ => unreachable!("not a Newton-solved mechanical method"),
+        }
+    }
+}
+
+/// The implicit step residual `R(v1)` as a Newton problem (see the module docs).
+struct Residual<'a> {
+    sys: &'a mut dyn Mechanical,
+    c: Coeffs,
+    t: f64,
+    h: f64,
+    x0: &'a [f64],
+    v0: &'a [f64],
+    mass: &'a [f64],
+    filter: Option<&'a Filter>,
+    xe: &'a mut Vec<f64>,
+    ve: &'a mut Vec<f64>,
+    f: &'a mut Vec<f64>,
+    f0: &'a [f64],
+    rhs: &'a mut Vec<f64>,
+    dfdx: &'a mut Bsr3,
+    dfdv: Option<&'a mut Bsr3>,
+    a: &'a mut Bsr3,
+    linear: &'a mut Linear,
+    linear_iterations: usize,
+    residual: f64,
+    noise: f64,
+    err: Option<IntegrateError>,
+}
+
+impl Residual<'_> {
+    fn eval_point(&mut self, v1: &[f64]) {
+        let (c, h) = (self.c, self.h);
+        for i in 0..v1.len() {
+            self.xe[i] = self.x0[i] + h * (c.a * self.v0[i] + c.b * v1[i]);
+            self.ve[i] = c.c * self.v0[i] + c.d * v1[i];
+        }
+    }
+}
+
+impl NewtonProblem for Residual<'_> {
+    fn residual(&mut self, v1: &[f64], r: &mut [f64]) -> Result<(), SolveError> {
+        self.eval_point(v1);
+        self.sys.force(self.t, self.xe, self.ve, self.f);
+        let (n, h, c) = (self.mass.len(), self.h, self.c);
+        let mut scale2 = 0.0f64;
+        for comp in 0..3 {
+            for i in 0..n {
+                let k = comp * n + i;
+                let m = self.mass[i];
+                let f0 = if c.w0 != 0.0 { self.f0[k] } else { 0.0 };
+                let force = h * (c.w0 * f0 + c.w1 * self.f[k]);
+                r[k] = m * (v1[k] - self.v0[k]) - force;
+                let size = (m * v1[k]).abs() + (m * self.v0[k]).abs() + force.abs();
+                scale2 += size * size;
+            }
+        }
+        if let Some(f) = self.filter {
+            f.apply(r);
+        }
+        // Rounding in each entry is a few eps times the size of its terms; below this norm
+        // the residual is noise and Newton cannot reduce it further.
+        self.noise = 16.0 * f64::EPSILON * scale2.sqrt();
+        Ok(())
+    }
+
+    fn newton_step(&mut self, v1: &[f64], r: &[f64], dy: &mut [f64]) -> Result<SolveInfo, SolveError> {
+        self.eval_point(v1);
+        if let Err(e) = self.sys.force_jacobians(
+            self.t,
+            self.xe,
+            self.ve,
+            self.f,
+            self.dfdx,
+            self.dfdv.as_deref_mut(),
+        ) {
+            self.err = Some(e);
+            return Err(SolveError::Factorization("Jacobian assembly failed".into()));
+        }
+        let (h, c) = (self.h, self.c);
+        let (ck, cd) = (h * c.w1 * h * c.b, h * c.w1 * c.d);
+        system_matrix(self.a, self.dfdx, self.dfdv.as_deref(), self.mass, ck, cd);
+        kv::scale_copy(self.rhs, -1.0, r);
+        let li = self.linear.solve(self.a, self.rhs, dy, self.filter)?;
+        self.linear_iterations += li.iterations;
+        self.residual = li.residual;
+        Ok(li)
+    }
+
+    fn noise_floor(&self) -> f64 {
+        self.noise
+    }
+}

@@ -1,0 +1,464 @@
+//! Generic mass-spring systems (course notes, section 4).
+//!
+//! Particles with lumped masses, springs with Hooke's force and damping along the spring,
+//! uniform gravity and pinned particles. An editable [`MassSpringDesc`] is validated into
+//! an immutable [`MassSpring`] (per-spring constants as SoA arrays) plus its initial
+//! [`MassSpringState`]. The model implements [`Mechanical`], so every integrator runs it.
+//!
+//! What is built depends on what is used: forces need only the per-vertex gather of spring
+//! forces; the Jacobian pattern, element -> slot maps and element Jacobian buffers are
+//! built when an implicit stepper asks for them ([`Mechanical::prepare_jacobians`]); the
+//! damping Jacobian only when some spring has damping.
+
+mod generators;
+
+pub use generators::{chain, grid, GridOptions};
+
+use crate::integrate::{IntegrateError, Mechanical};
+use crate::soa::Vec3s;
+use crate::solve::Filter;
+use crate::sparse::{Bsr3, Bsr3Pattern, ElementAssembly, LocalLayout, SparseError, VectorGather};
+use largestep_kernels::spring::{self as ks, SpringParams, Springs};
+use std::sync::Arc;
+
+/// A spring as described by a user: endpoints, stiffness (N/m), damping (N s/m) and an
+/// optional rest length (m; the initial distance if absent).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SpringDesc {
+    /// First endpoint (particle index).
+    pub a: usize,
+    /// Second endpoint (particle index).
+    pub b: usize,
+    /// Hooke stiffness k (N/m), >= 0.
+    pub stiffness: f64,
+    /// Damping along the spring kd (N s/m), >= 0.
+    pub damping: f64,
+    /// Rest length (m), >= 0; `None`: the distance between the endpoints' initial positions.
+    pub rest_length: Option<f64>,
+}
+
+/// The editable description of a mass-spring system.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct MassSpringDesc {
+    /// Initial positions (m).
+    pub positions: Vec<[f64; 3]>,
+    /// Initial velocities (m/s); empty means all zero.
+    pub velocities: Vec<[f64; 3]>,
+    /// Masses (kg), > 0, or 0 for pinned particles.
+    pub masses: Vec<f64>,
+    /// Springs.
+    pub springs: Vec<SpringDesc>,
+    /// Uniform gravitational acceleration (m/s^2).
+    pub gravity: [f64; 3],
+    /// Pinned particles (they never move).
+    pub pinned: Vec<usize>,
+    /// Clamp the compression term of spring Jacobians (keeps implicit systems definite).
+    pub definiteness_fix: bool,
+    /// Triangles over the particles for surface output (optional; not used by the physics).
+    pub triangles: Vec<[u32; 3]>,
+}
+
+/// Invalid model input, naming the item and its index.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum ModelError {
+    /// A model needs at least one particle.
+    #[error("the model has no particles")]
+    Empty,
+    /// Array lengths disagree.
+    #[error("{what} has {got} entries, expected {expected} (one per particle)")]
+    Length {
+        /// The array.
+        what: &'static str,
+        /// Its length.
+        got: usize,
+        /// The particle count.
+        expected: usize,
+    },
+    /// A value is out of its range.
+    #[error("{item} {index}: {field} = {value} is invalid ({why})")]
+    Value {
+        /// `particle`, `spring`, `pinned`, `gravity`.
+        item: &'static str,
+        /// Its index.
+        index: usize,
+        /// The field.
+        field: &'static str,
+        /// The value.
+        value: f64,
+        /// What is expected.
+        why: &'static str,
+    },
+    /// A spring or pin names a particle that does not exist.
+    #[error("{item} {index} names particle {particle}, but there are only {n} particles")]
+    MissingParticle {
+        /// `spring` or `pinned`.
+        item: &'static str,
+        /// Its index.
+        index: usize,
+        /// The particle named.
+        particle: usize,
+        /// Particle count.
+        n: usize,
+    },
+    /// A spring connects a particle to itself.
+    #[error("spring {index} connects particle {particle} to itself")]
+    SelfSpring {
+        /// Spring index.
+        index: usize,
+        /// The particle.
+        particle: usize,
+    },
+    /// The connectivity is too large to index.
+    #[error("{0}")]
+    Sparse(String),
+}
+
+/// Positions and velocities (m, m/s) of the particles.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MassSpringState {
+    /// Positions (m).
+    pub x: Vec3s,
+    /// Velocities (m/s).
+    pub v: Vec3s,
+}
+
+/// A validated mass-spring system (immutable constants; see the module docs).
+#[derive(Clone, Debug)]
+pub struct MassSpring {
+    n: usize,
+    mass: Vec<f64>,
+    ends: Vec<[u32; 2]>,
+    k: Vec<f64>,
+    kd: Vec<f64>,
+    rest: Vec<f64>,
+    gravity: [f64; 3],
+    filter: Option<Filter>,
+    params: SpringParams,
+    triangles: Vec<[u32; 3]>,
+    has_damping: bool,
+    gather: VectorGather,
+    elem_f: Vec<f64>,
+    jac: Option<Jacobians>,
+}
+
+#[derive(Clone, Debug)]
+struct Jacobians {
+    assembly: ElementAssembly,
+    kx: Vec<f64>,
+    kv: Vec<f64>,
+}
+
+fn check(item: &'static str, index: usize, field: &'static str, value: f64, ok: bool, why: &'static str) -> Result<(), ModelError> {
+    if ok {
+        Ok(())
+    } else {
+        Err(ModelError::Value {
+            item,
+            index,
+            field,
+            value,
+            why,
+        })
+    }
+}
+
+impl MassSpringDesc {
+    /// Validates the description and builds the model and its initial state.
+    pub fn build(&self) -> Result<(MassSpring, MassSpringState), ModelError> {
+        let n = self.positions.len();
+        if n == 0 {
+            return Err(ModelError::Empty);
+        }
+        if self.masses.len() != n {
+            return Err(ModelError::Length {
+                what: "masses",
+                got: self.masses.len(),
+                expected: n,
+            });
+        }
+        if !self.velocities.is_empty() && self.velocities.len() != n {
+            return Err(ModelError::Length {
+                what: "velocities",
+                got: self.velocities.len(),
+                expected: n,
+            });
+        }
+        let mut pinned = vec![false; n];
+        for (k, &p) in self.pinned.iter().enumerate() {
+            if p >= n {
+                return Err(ModelError::MissingParticle {
+                    item: "pinned",
+                    index: k,
+                    particle: p,
+                    n,
+                });
+            }
+            pinned[p] = true;
+        }
+        for (i, p) in self.positions.iter().enumerate() {
+            for (c, &x) in p.iter().enumerate() {
+                check("particle", i, ["position.x", "position.y", "position.z"][c], x, x.is_finite(), "must be finite")?;
+            }
+        }
+        for (i, p) in self.velocities.iter().enumerate() {
+            for (c, &x) in p.iter().enumerate() {
+                check("particle", i, ["velocity.x", "velocity.y", "velocity.z"][c], x, x.is_finite(), "must be finite")?;
+            }
+        }
+        for (i, &m) in self.masses.iter().enumerate() {
+            check("particle", i, "mass", m, m.is_finite() && m >= 0.0, "must be finite and >= 0")?;
+            check("particle", i, "mass", m, m > 0.0 || pinned[i], "only pinned particles may have zero mass")?;
+        }
+        for (c, &g) in self.gravity.iter().enumerate() {
+            check("gravity", c, "component", g, g.is_finite(), "must be finite")?;
+        }
+        let m = self.springs.len();
+        let (mut ends, mut k, mut kd, mut rest) =
+            (Vec::with_capacity(m), Vec::with_capacity(m), Vec::with_capacity(m), Vec::with_capacity(m));
+        for (e, s) in self.springs.iter().enumerate() {
+            for p in [s.a, s.b] {
+                if p >= n {
+                    return Err(ModelError::MissingParticle {
+                        item: "spring",
+                        index: e,
+                        particle: p,
+                        n,
+                    });
+                }
+            }
+            if s.a == s.b {
+                return Err(ModelError::SelfSpring {
+                    index: e,
+                    particle: s.a,
+                });
+            }
+            check("spring", e, "stiffness", s.stiffness, s.stiffness.is_finite() && s.stiffness >= 0.0, "must be finite and >= 0")?;
+            check("spring", e, "damping", s.damping, s.damping.is_finite() && s.damping >= 0.0, "must be finite and >= 0")?;
+            let r = match s.rest_length {
+                Some(r) => {
+                    check("spring", e, "rest_length", r, r.is_finite() && r >= 0.0, "must be finite and >= 0")?;
+                    r
+                }
+                None => {
+                    let (pa, pb) = (self.positions[s.a], self.positions[s.b]);
+                    ((pa[0] - pb[0]).powi(2) + (pa[1] - pb[1]).powi(2) + (pa[2] - pb[2]).powi(2)).sqrt()
+                }
+            };
+            ends.push([s.a as u32, s.b as u32]);
+            k.push(s.stiffness);
+            kd.push(s.damping);
+            rest.push(r);
+        }
+        for (t, tri) in self.triangles.iter().enumerate() {
+            if let Some(&p) = tri.iter().find(|&&p| p as usize >= n) {
+                return Err(ModelError::MissingParticle {
+                    item: "triangle",
+                    index: t,
+                    particle: p as usize,
+                    n,
+                });
+            }
+        }
+        let filter = (!self.pinned.is_empty()).then(|| {
+            let mut f = Filter::new(n);
+            for &p in &self.pinned {
+                f.fix(p);
+            }
+            f
+        });
+        let gather = VectorGather::new(n, &ends, &LocalLayout::pair())
+            .map_err(|e| ModelError::Sparse(e.to_string()))?;
+        let has_damping = kd.iter().any(|&d| d > 0.0);
+        let model = MassSpring {
+            n,
+            mass: self.masses.clone(),
+            elem_f: vec![0.0; gather.vector_buffer_len()],
+            gather,
+            ends,
+            k,
+            kd,
+            rest,
+            gravity: self.gravity,
+            filter,
+            params: SpringParams {
+                definiteness_fix: self.definiteness_fix,
+            },
+            triangles: self.triangles.clone(),
+            has_damping,
+            jac: None,
+        };
+        let mut v = if self.velocities.is_empty() {
+            Vec3s::zeros(n)
+        } else {
+            Vec3s::from_aos(&self.velocities)
+        };
+        if let Some(f) = &model.filter {
+            f.apply(v.as_mut_slice());
+        }
+        let state = MassSpringState {
+            x: Vec3s::from_aos(&self.positions),
+            v,
+        };
+        Ok((model, state))
+    }
+}
+
+impl MassSpring {
+    /// Number of particles.
+    pub fn particle_count(&self) -> usize {
+        self.n
+    }
+
+    /// Number of springs.
+    pub fn spring_count(&self) -> usize {
+        self.ends.len()
+    }
+
+    /// Spring endpoints.
+    pub fn spring_ends(&self) -> &[[u32; 2]] {
+        &self.ends
+    }
+
+    /// Rest lengths (m).
+    pub fn rest_lengths(&self) -> &[f64] {
+        &self.rest
+    }
+
+    /// Surface triangles for output (may be empty).
+    pub fn triangles(&self) -> &[[u32; 3]] {
+        &self.triangles
+    }
+
+    /// Gravity (m/s^2).
+    pub fn gravity(&self) -> [f64; 3] {
+        self.gravity
+    }
+
+    /// Whether any spring has damping (and so a damping Jacobian is assembled).
+    pub fn has_damping(&self) -> bool {
+        self.has_damping
+    }
+
+    /// Number of pinned particles.
+    pub fn pinned_count(&self) -> usize {
+        self.filter.as_ref().map_or(0, |f| f.vertices().len())
+    }
+
+    /// Whether Jacobian structures have been built.
+    pub fn has_jacobians(&self) -> bool {
+        self.jac.is_some()
+    }
+
+    fn springs(&self) -> Springs<'_> {
+        Springs {
+            ends: &self.ends,
+            k: &self.k,
+            kd: &self.kd,
+            rest: &self.rest,
+        }
+    }
+
+    fn gravity_force(&self, f: &mut [f64]) {
+        let n = self.n;
+        for c in 0..3 {
+            for (fi, m) in f[c * n..(c + 1) * n].iter_mut().zip(&self.mass) {
+                *fi = m * self.gravity[c];
+            }
+        }
+    }
+}
+
+impl Mechanical for MassSpring {
+    fn vertex_count(&self) -> usize {
+        self.n
+    }
+
+    fn mass(&self) -> &[f64] {
+        &self.mass
+    }
+
+    fn filter(&self) -> Option<&Filter> {
+        self.filter.as_ref()
+    }
+
+    fn force(&mut self, _t: f64, x: &[f64], v: &[f64], f: &mut [f64]) {
+        self.gravity_force(f);
+        if !self.ends.is_empty() {
+            let springs = Springs {
+                ends: &self.ends,
+                k: &self.k,
+                kd: &self.kd,
+                rest: &self.rest,
+            };
+            ks::spring_forces(&mut self.elem_f, x, v, springs);
+            self.gather.gather_vectors_add(&self.elem_f, f);
+        }
+    }
+
+    fn potential_energy(&self, x: &[f64]) -> f64 {
+        let n = self.n;
+        let g = self.gravity;
+        let gravity: f64 = (0..n)
+            .map(|i| -self.mass[i] * (g[0] * x[i] + g[1] * x[n + i] + g[2] * x[2 * n + i]))
+            .sum();
+        gravity + ks::springs_energy(x, self.springs())
+    }
+
+    fn prepare_jacobians(&mut self) -> Result<Option<Arc<Bsr3Pattern>>, SparseError> {
+        if self.jac.is_none() {
+            let assembly = ElementAssembly::new(self.n, &self.ends, LocalLayout::pair())?;
+            let m = self.ends.len();
+            self.jac = Some(Jacobians {
+                assembly,
+                kx: vec![0.0; 9 * m],
+                kv: vec![0.0; if self.has_damping { 9 * m } else { 0 }],
+            });
+        }
+        Ok(self.jac.as_ref().map(|j| j.assembly.pattern().clone()))
+    }
+
+    fn has_velocity_jacobian(&self) -> bool {
+        self.has_damping
+    }
+
+    fn force_jacobians(
+        &mut self,
+        _t: f64,
+        x: &[f64],
+        v: &[f64],
+        f: &mut [f64],
+        dfdx: &mut Bsr3,
+        dfdv: Option<&mut Bsr3>,
+    ) -> Result<(), IntegrateError> {
+        self.prepare_jacobians().map_err(IntegrateError::Sparse)?;
+        self.gravity_force(f);
+        let springs = Springs {
+            ends: &self.ends,
+            k: &self.k,
+            kd: &self.kd,
+            rest: &self.rest,
+        };
+        let jac = self.jac.as_mut().expect("prepared above");
+        let want_kv = dfdv.is_some() && self.has_damping;
+        ks::spring_forces_jacobians(
+            &mut self.elem_f,
+            &mut jac.kx,
+            want_kv.then_some(&mut jac.kv[..]),
+            x,
+            v,
+            springs,
+            self.params,
+        );
+        self.gather.gather_vectors_add(&self.elem_f, f);
+        jac.assembly.gather_blocks(&jac.kx, dfdx);
+        if let Some(d) = dfdv {
+            if want_kv {
+                jac.assembly.gather_blocks(&jac.kv, d);
+            } else {
+                d.set_zero();
+            }
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,128 @@
+//! Sparse Cholesky (LL^T) of Bsr3 matrices through faer, with no allocation after setup.
+//!
+//! Built once per pattern: the lower-triangular CSC copy and its value map
+//! ([`FaerCsc`]), faer's symbolic factorization with an AMD fill-reducing ordering
+//! (`factorize_symbolic_cholesky`), the factor's value buffer (`len_val`) and one scratch
+//! buffer sized for both factorization and solve. Each [`SparseCholesky::factorize`] then
+//! refills the CSC values and runs `factorize_numeric_llt` into the owned buffers;
+//! [`SparseCholesky::solve_in_place`] runs the two triangular solves in the owned scratch.
+//! Sequential (`Par::Seq`), so results do not depend on the thread count.
+
+use super::{SolveError, SolveInfo};
+use crate::sparse::{Bsr3, Bsr3Pattern, FaerCsc, Triangle};
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::linalg::cholesky::llt::factor::LltError as DenseLltError;
+use faer::sparse::linalg::cholesky::{
+    factorize_symbolic_cholesky, CholeskySymbolicParams, LltRef, SymbolicCholesky,
+    SymmetricOrdering,
+};
+use faer::{Conj, MatMut, Par, Side};
+use std::time::Instant;
+
+/// A sparse Cholesky factorization reused across numeric refactorizations.
+pub struct SparseCholesky {
+    csc: FaerCsc,
+    symbolic: SymbolicCholesky<usize>,
+    l: Vec<f64>,
+    mem: MemBuffer,
+    factored: bool,
+}
+
+impl std::fmt::Debug for SparseCholesky {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SparseCholesky")
+            .field("n", &self.symbolic.nrows())
+            .field("factor_nnz", &self.l.len())
+            .field("factored", &self.factored)
+            .finish()
+    }
+}
+
+impl SparseCholesky {
+    /// Symbolic analysis of `pattern` (AMD ordering); allocates every buffer used later.
+    pub fn new(pattern: &Bsr3Pattern) -> Result<Self, SolveError> {
+        let csc = FaerCsc::new(pattern, Triangle::Lower);
+        let symbolic = factorize_symbolic_cholesky(
+            csc.symbolic(),
+            Side::Lower,
+            SymmetricOrdering::Amd,
+            CholeskySymbolicParams::default(),
+        )
+        .map_err(|e| SolveError::Factorization(format!("{e:?}")))?;
+        let req = symbolic
+            .factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default())
+            .or(symbolic.solve_in_place_scratch::<f64>(1, Par::Seq));
+        let l = vec![0.0; symbolic.len_val()];
+        Ok(Self {
+            csc,
+            symbolic,
+            l,
+            mem: MemBuffer::new(req),
+            factored: false,
+        })
+    }
+
+    /// Number of stored values of the factor L (its fill).
+    pub fn factor_nnz(&self) -> usize {
+        self.l.len()
+    }
+
+    /// Numeric factorization of `a` (same pattern as at creation).
+    pub fn factorize(&mut self, a: &Bsr3) -> Result<SolveInfo, SolveError> {
+        let start = Instant::now();
+        self.factored = false;
+        self.csc.refill(a);
+        let res = self.symbolic.factorize_numeric_llt(
+            &mut self.l,
+            self.csc.as_ref(),
+            Side::Lower,
+            Default::default(),
+            Par::Seq,
+            MemStack::new(&mut self.mem),
+            Default::default(),
+        );
+        match res {
+            Ok(_) => {
+                if !self.l.iter().all(|v| v.is_finite()) {
+                    return Err(SolveError::NonFinite {
+                        what: "Cholesky factor",
+                        iteration: 0,
+                    });
+                }
+                self.factored = true;
+                Ok(SolveInfo {
+                    iterations: 0,
+                    residual: 0.0,
+                    seconds: start.elapsed().as_secs_f64(),
+                })
+            }
+            Err(DenseLltError::NonPositivePivot { index }) => Err(SolveError::NotPositiveDefinite {
+                what: "Cholesky pivot (in fill-reducing order)",
+                at: index,
+                value: f64::NAN,
+            }),
+        }
+    }
+
+    /// Overwrites `b` with `A^-1 b` using the last factorization.
+    pub fn solve_in_place(&mut self, b: &mut [f64]) -> Result<(), SolveError> {
+        assert!(self.factored, "solve_in_place needs a successful factorize first");
+        let n = self.symbolic.nrows();
+        assert_eq!(b.len(), n, "right-hand side length");
+        let llt = LltRef::new(&self.symbolic, &self.l);
+        llt.solve_in_place_with_conj(
+            Conj::No,
+            MatMut::from_column_major_slice_mut(b, n, 1),
+            Par::Seq,
+            MemStack::new(&mut self.mem),
+        );
+        if b.iter().all(|v| v.is_finite()) {
+            Ok(())
+        } else {
+            Err(SolveError::NonFinite {
+                what: "Cholesky solution",
+                iteration: 0,
+            })
+        }
+    }
+}

@@ -1,0 +1,165 @@
+//! Per-vertex constraint filter of Baraff and Witkin (1998, section 5.1).
+//!
+//! A constrained vertex i has a 3x3 projection `S_i`: `I - p p^T` with one constrained
+//! direction p (moves in a plane), `I - p p^T - q q^T` with two (moves along a line), `0`
+//! with three (pinned); free vertices have `S_i = I` and are not stored. Filtering a vector
+//! applies `S_i` to its vertex blocks, which removes the constrained components.
+//!
+//! For iterative solves the filter goes inside CG (see [`crate::solve::Pcg`]). For direct
+//! solves the system is projected instead: `A' = S A S + (I - S)`, `b' = S b`. Its solution
+//! `y` has `(I - S) y = 0` and `S A S y = S b`, the same as the filtered CG, and `A'` is
+//! positive definite whenever A is.
+
+use crate::sparse::Bsr3;
+
+/// Projections `S_i` for the constrained vertices (see the module docs).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Filter {
+    n: usize,
+    verts: Vec<u32>,
+    s: Vec<[f64; 9]>,
+    index_of: Vec<u32>,
+}
+
+const FREE: u32 = u32::MAX;
+
+impl Filter {
+    /// No constraints on n vertices.
+    pub fn new(n: usize) -> Self {
+        Self {
+            n,
+            verts: Vec::new(),
+            s: Vec::new(),
+            index_of: vec![FREE; n],
+        }
+    }
+
+    /// Number of vertices.
+    pub fn n(&self) -> usize {
+        self.n
+    }
+
+    /// Whether no vertex is constrained.
+    pub fn is_empty(&self) -> bool {
+        self.verts.is_empty()
+    }
+
+    /// Constrained vertices, in the order they were first constrained.
+    pub fn vertices(&self) -> &[u32] {
+        &self.verts
+    }
+
+    /// The projection of vertex i (identity if free).
+    pub fn projection(&self, i: usize) -> [f64; 9] {
+        match self.index_of[i] {
+            FREE => [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+            k => self.s[k as usize],
+        }
+    }
+
+    fn set(&mut self, i: usize, s: [f64; 9]) {
+        assert!(i < self.n, "vertex {i} out of range ({} vertices)", self.n);
+        match self.index_of[i] {
+            FREE => {
+                self.index_of[i] = self.verts.len() as u32;
+                self.verts.push(i as u32);
+                self.s.push(s);
+            }
+            k => self.s[k as usize] = s,
+        }
+    }
+
+    /// Pins vertex i (all three directions constrained).
+    pub fn fix(&mut self, i: usize) {
+        self.set(i, [0.0; 9]);
+    }
+
+    /// Constrains vertex i to move in the plane normal to `normal` (need not be unit).
+    pub fn constrain_normal(&mut self, i: usize, normal: [f64; 3]) {
+        let p = unit(normal);
+        let mut s = [0.0; 9];
+        for r in 0..3 {
+            for c in 0..3 {
+                s[3 * r + c] = if r == c { 1.0 } else { 0.0 } - p[r] * p[c];
+            }
+        }
+        self.set(i, s);
+    }
+
+    /// Constrains vertex i to move along `dir` only (need not be unit).
+    pub fn constrain_line(&mut self, i: usize, dir: [f64; 3]) {
+        let d = unit(dir);
+        let mut s = [0.0; 9];
+        for r in 0..3 {
+            for c in 0..3 {
+                s[3 * r + c] = d[r] * d[c];
+            }
+        }
+        self.set(i, s);
+    }
+
+    /// `v = S v` for component-major Vec3s data v.
+    pub fn apply(&self, v: &mut [f64]) {
+        let n = self.n;
+        assert_eq!(v.len(), 3 * n);
+        for (&i, s) in self.verts.iter().zip(&self.s) {
+            let i = i as usize;
+            let x = [v[i], v[n + i], v[2 * n + i]];
+            for r in 0..3 {
+                v[r * n + i] = s[3 * r] * x[0] + s[3 * r + 1] * x[1] + s[3 * r + 2] * x[2];
+            }
+        }
+    }
+
+    /// Projects a matrix in place: `A <- S A S + (I - S)` (see the module docs).
+    pub fn project_matrix(&self, a: &mut Bsr3) {
+        if self.is_empty() {
+            return;
+        }
+        let pattern = a.pattern().clone();
+        let (row_ptr, col) = (pattern.row_ptr(), pattern.col());
+        for i in 0..pattern.n() {
+            let si = self.index_of[i];
+            for k in row_ptr[i] as usize..row_ptr[i + 1] as usize {
+                let sj = self.index_of[col[k] as usize];
+                if si == FREE && sj == FREE {
+                    continue;
+                }
+                let b: [f64; 9] = a.block(k).try_into().expect("nine values");
+                let mut m = b;
+                if si != FREE {
+                    m = mul3(&self.s[si as usize], &m);
+                }
+                if sj != FREE {
+                    m = mul3(&m, &self.s[sj as usize]);
+                }
+                a.block_mut(k).copy_from_slice(&m);
+            }
+        }
+        for (&i, s) in self.verts.iter().zip(&self.s) {
+            let slot = pattern.diag_slots()[i as usize] as usize;
+            let blk = a.block_mut(slot);
+            for r in 0..3 {
+                for c in 0..3 {
+                    blk[3 * r + c] += if r == c { 1.0 } else { 0.0 } - s[3 * r + c];
+                }
+            }
+        }
+    }
+}
+
+fn unit(v: [f64; 3]) -> [f64; 3] {
+    let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    assert!(l > 0.0 && l.is_finite(), "constraint direction must be non-zero and finite");
+    [v[0] / l, v[1] / l, v[2] / l]
+}
+
+fn mul3(a: &[f64; 9], b: &[f64; 9]) -> [f64; 9] {
+    let mut m = [0.0; 9];
+    for r in 0..3 {
+        for c in 0..3 {
+            m[3 * r + c] = a[3 * r] * b[c] + a[3 * r + 1] * b[3 + c] + a[3 * r + 2] * b[6 + c];
+        }
+    }
+    m
+}

@@ -1,0 +1,176 @@
+//! Newton's method with a backtracking line search.
+//!
+//! Solves `F(y) = 0`: at each iterate the problem supplies the step `dy` with `J dy = -F`
+//! (it may reassemble and refactor there), then the step length `alpha` is halved from 1
+//! until `|F(y + alpha dy)| <= (1 - c alpha) |F(y)|` (Armijo on the residual norm, c = 1e-4).
+//! If no acceptable length above `min_step` exists the method stops with
+//! [`SolveError::LineSearchFailed`]: the residual cannot be reduced along the Newton
+//! direction, which is what happens when the equation has no real solution (course notes:
+//! backward Euler on `y' = 4 y^2`, `y0 = 1`, `h = 1`).
+//!
+//! Convergence: `|F| <= max(abs_tolerance, tolerance |F(y0)|)`, or a full step with
+//! `|dy| <= step_tolerance (1 + |y|)`.
+
+use super::{SolveError, SolveInfo};
+use largestep_kernels::vec as kv;
+
+/// Newton settings.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NewtonParams {
+    /// Iteration limit.
+    pub max_iterations: usize,
+    /// Residual reduction to reach, relative to the initial residual.
+    pub tolerance: f64,
+    /// Residual norm that counts as converged whatever the initial one.
+    pub abs_tolerance: f64,
+    /// Relative step length that counts as converged.
+    pub step_tolerance: f64,
+    /// Smallest line-search step length tried.
+    pub min_step: f64,
+}
+
+impl Default for NewtonParams {
+    fn default() -> Self {
+        Self {
+            max_iterations: 50,
+            tolerance: 1e-10,
+            abs_tolerance: 1e-300,
+            step_tolerance: 1e-13,
+            min_step: 1.0 / 1024.0,
+        }
+    }
+}
+
+/// What Newton's method reports.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct NewtonInfo {
+    /// Newton iterations (steps taken).
+    pub iterations: usize,
+    /// Linear-solver iterations summed over the steps.
+    pub linear_iterations: usize,
+    /// Final residual norm `|F|`.
+    pub residual: f64,
+}
+
+/// A nonlinear system for [`Newton`].
+pub trait NewtonProblem {
+    /// `r = F(y)`.
+    fn residual(&mut self, y: &[f64], r: &mut [f64]) -> Result<(), SolveError>;
+    /// Solves `J(y) dy = -r` for `dy`, where `r = F(y)`.
+    fn newton_step(&mut self, y: &[f64], r: &[f64], dy: &mut [f64]) -> Result<SolveInfo, SolveError>;
+    /// Residual norm below which rounding dominates at the last evaluated point (0 if
+    /// unknown): reaching it counts as converged.
+    fn noise_floor(&self) -> f64 {
+        0.0
+    }
+}
+
+/// Newton workspace for systems of a given dimension (allocated once).
+#[derive(Clone, Debug)]
+pub struct Newton {
+    r: Vec<f64>,
+    rt: Vec<f64>,
+    yt: Vec<f64>,
+    dy: Vec<f64>,
+}
+
+impl Newton {
+    /// Workspace for `dim` unknowns.
+    pub fn new(dim: usize) -> Self {
+        Self {
+            r: vec![0.0; dim],
+            rt: vec![0.0; dim],
+            yt: vec![0.0; dim],
+            dy: vec![0.0; dim],
+        }
+    }
+
+    /// One full Newton step `y += dy`, `J dy = -F(y)`, with no line search and no
+    /// convergence test (a linearly implicit method). Reports the residual before the step.
+    pub fn single_step(
+        &mut self,
+        problem: &mut dyn NewtonProblem,
+        y: &mut [f64],
+    ) -> Result<NewtonInfo, SolveError> {
+        assert_eq!(y.len(), self.r.len());
+        problem.residual(y, &mut self.r)?;
+        let lin = problem.newton_step(y, &self.r, &mut self.dy)?;
+        kv::axpy(y, 1.0, &self.dy);
+        Ok(NewtonInfo {
+            iterations: 1,
+            linear_iterations: lin.iterations,
+            residual: kv::norm2(&self.r),
+        })
+    }
+
+    /// Solves `F(y) = 0` from the initial guess in `y`; the root is left in `y`.
+    pub fn solve(
+        &mut self,
+        problem: &mut dyn NewtonProblem,
+        y: &mut [f64],
+        params: &NewtonParams,
+    ) -> Result<NewtonInfo, SolveError> {
+        assert_eq!(y.len(), self.r.len());
+        problem.residual(y, &mut self.r)?;
+        let mut fnorm = kv::norm2(&self.r);
+        if !fnorm.is_finite() {
+            return Err(SolveError::NonFinite {
+                what: "Newton residual",
+                iteration: 0,
+            });
+        }
+        let rel_target = params.abs_tolerance.max(params.tolerance * fnorm);
+        let target = |p: &dyn NewtonProblem| rel_target.max(p.noise_floor());
+        let mut info = NewtonInfo {
+            residual: fnorm,
+            ..Default::default()
+        };
+        for it in 1..=params.max_iterations {
+            if fnorm <= target(problem) {
+                return Ok(info);
+            }
+            let lin = problem.newton_step(y, &self.r, &mut self.dy)?;
+            info.linear_iterations += lin.iterations;
+            if !kv::all_finite(&self.dy) {
+                return Err(SolveError::NonFinite {
+                    what: "Newton step",
+                    iteration: it,
+                });
+            }
+            let mut alpha = 1.0;
+            loop {
+                kv::waxpy(&mut self.yt, y, alpha, &self.dy);
+                problem.residual(&self.yt, &mut self.rt)?;
+                let trial = kv::norm2(&self.rt);
+                if trial.is_finite() && trial <= (1.0 - 1e-4 * alpha) * fnorm {
+                    fnorm = trial;
+                    break;
+                }
+                alpha *= 0.5;
+                if alpha < params.min_step {
+                    // Close to the rounding floor a decrease may be impossible: converged.
+                    if fnorm <= 1e3 * problem.noise_floor() {
+                        return Ok(info);
+                    }
+                    return Err(SolveError::LineSearchFailed {
+                        iteration: it,
+                        residual: fnorm,
+                    });
+                }
+            }
+            y.copy_from_slice(&self.yt);
+            std::mem::swap(&mut self.r, &mut self.rt);
+            info.iterations = it;
+            info.residual = fnorm;
+            let step = alpha * kv::norm2(&self.dy);
+            if fnorm <= target(problem) || (alpha == 1.0 && step <= params.step_tolerance * (1.0 + kv::norm2(y))) {
+                return Ok(info);
+            }
+        }
+        Err(SolveError::NotConverged {
+            iterations: params.max_iterations,
+            residual: fnorm,
+            tolerance: rel_target,
+        })
+    }
+}

@@ -1,0 +1,323 @@
+//! Preconditioned conjugate gradients with the Baraff-Witkin constraint filter.
+//!
+//! The modified PCG of Baraff and Witkin (1998, section 5.3) with target `z = 0`: the
+//! initial guess, the residual, every search direction and every `A p` are filtered, so the
+//! iterate satisfies the constraints exactly at every iteration, whatever the count.
+//!
+//! Each iteration is three passes over memory (see `largestep-kernels::vec`):
+//! 1. `q = A p` with `p . q` fused into the product,
+//! 2. `x += alpha p`, `r -= alpha q`, `z = P^-1 r`, returning `r . z` and `r . r`,
+//! 3. `p = z + beta p` (Jacobi recomputes `z = d * r` here instead of storing it).
+//!
+//! Stopping test: `|S r| <= tolerance |S b|` (relative 2-norm of the filtered residual).
+//! All reductions use fixed chunks and a fixed tree, so iterates are bitwise the same for
+//! any number of threads.
+
+use super::{filter::Filter, SolveError, SolveInfo};
+use crate::sparse::Bsr3;
+use largestep_kernels::vec as kv;
+use std::time::Instant;
+
+/// Preconditioner choice.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Preconditioner {
+    /// None (plain CG).
+    None,
+    /// Inverse of the scalar diagonal.
+    Jacobi,
+    /// Inverse of each vertex's 3x3 diagonal block (the default: it absorbs the
+    /// anisotropy of springs and elements at a vertex).
+    #[default]
+    BlockJacobi,
+}
+
+/// PCG settings.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PcgParams {
+    /// Relative residual to reach, `|S r| / |S b|`.
+    pub tolerance: f64,
+    /// Iteration limit.
+    pub max_iterations: usize,
+    /// Preconditioner.
+    pub preconditioner: Preconditioner,
+}
+
+impl Default for PcgParams {
+    fn default() -> Self {
+        Self {
+            tolerance: 1e-8,
+            max_iterations: 1000,
+            preconditioner: Preconditioner::BlockJacobi,
+        }
+    }
+}
+
+/// A PCG solver with its workspace for systems of n vertices (3n unknowns). Allocates
+/// once, in [`Pcg::new`].
+#[derive(Clone, Debug)]
+pub struct Pcg {
+    n: usize,
+    params: PcgParams,
+    r: Vec<f64>,
+    p: Vec<f64>,
+    q: Vec<f64>,
+    z: Vec<f64>,
+    d: Vec<f64>,
+}
+
+impl Pcg {
+    /// Workspace for n vertices.
+    pub fn new(n: usize, params: PcgParams) -> Self {
+        let block = params.preconditioner == Preconditioner::BlockJacobi;
+        Self {
+            n,
+            params,
+            r: vec![0.0; 3 * n],
+            p: vec![0.0; 3 * n],
+            q: vec![0.0; 3 * n],
+            z: vec![0.0; if block { 3 * n } else { 0 }],
+            d: vec![
+                0.0;
+                match params.preconditioner {
+                    Preconditioner::None => 0,
+                    Preconditioner::Jacobi => 3 * n,
+                    Preconditioner::BlockJacobi => 6 * n,
+                }
+            ],
+        }
+    }
+
+    /// The settings.
+    pub fn params(&self) -> &PcgParams {
+        &self.params
+    }
+
+    /// Changes tolerance and iteration limit (the preconditioner is fixed at creation).
+    pub fn set_limits(&mut self, tolerance: f64, max_iterations: usize) {
+        self.params.tolerance = tolerance;
+        self.params.max_iterations = max_iterations;
+    }
+
+    /// Bytes one iteration moves at least: the matrix product and the two vector passes.
+    pub fn iteration_bytes(&self, a: &Bsr3) -> usize {
+        let n = self.n;
+        let vec_doubles = match self.params.preconditioner {
+            Preconditioner::None => 9 * 3 * n,
+            Preconditioner::Jacobi => 11 * 3 * n,
+            Preconditioner::BlockJacobi => 36 * n,
+        };
+        a.as_kernel().spmv_bytes() + 8 * vec_doubles
+    }
+
+    fn setup(&mut self, a: &Bsr3, filter: Option<&Filter>) -> Result<(), SolveError> {
+        let n = self.n;
+        let diag = a.pattern().diag_slots();
+        let constrained = |i: usize| filter.is_some_and(|f| f.projection(i) != IDENTITY);
+        match self.params.preconditioner {
+            Preconditioner::None => {}
+            Preconditioner::Jacobi => {
+                for i in 0..n {
+                    let b = a.block(diag[i] as usize);
+                    for c in 0..3 {
+                        let v = b[4 * c];
+                        self.d[c * n + i] = if v > 0.0 {
+                            1.0 / v
+                        } else if constrained(i) {
+                            1.0
+                        } else {
+                            return Err(not_pd("diagonal", c * n + i, v));
+                        };
+                    }
+                }
+            }
+            Preconditioner::BlockJacobi => {
+                for i in 0..n {
+                    let b = a.block(diag[i] as usize);
+                    let inv = match inverse_spd3(b) {
+                        Some(inv) => inv,
+                        None if constrained(i) => [1.0, 0.0, 0.0, 1.0, 0.0, 1.0],
+                        None => return Err(not_pd("diagonal block of vertex", i, b[0])),
+                    };
+                    for (k, v) in inv.into_iter().enumerate() {
+                        self.d[k * n + i] = v;
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Solves `A x = b` (with the filter: `S A S x = S b`, `(I - S) x = 0`). `x` holds the
+    /// initial guess on entry (it is filtered first) and the solution on return.
+    pub fn solve(
+        &mut self,
+        a: &Bsr3,
+        b: &[f64],
+        x: &mut [f64],
+        filter: Option<&Filter>,
+    ) -> Result<SolveInfo, SolveError> {
+        let start = Instant::now();
+        let n = self.n;
+        assert_eq!(a.n(), n, "matrix and solver sizes differ");
+        assert!(b.len() == 3 * n && x.len() == 3 * n);
+        self.setup(a, filter)?;
+        let filt = |v: &mut [f64]| {
+            if let Some(f) = filter {
+                f.apply(v)
+            }
+        };
+        let pre = self.params.preconditioner;
+        filt(x);
+        // r = S (b - A x); |S b| measured in p, which is overwritten below.
+        a.spmv(&mut self.q, x);
+        kv::waxpy(&mut self.r, b, -1.0, &self.q);
+        filt(&mut self.r);
+        self.p.copy_from_slice(b);
+        filt(&mut self.p);
+        let bnorm = kv::norm2(&self.p);
+        if !bnorm.is_finite() || !kv::all_finite(x) {
+            return Err(SolveError::NonFinite {
+                what: "right-hand side or initial guess",
+                iteration: 0,
+            });
+        }
+        if bnorm == 0.0 {
+            x.fill(0.0);
+            return Ok(SolveInfo {
+                iterations: 0,
+                residual: 0.0,
+                seconds: start.elapsed().as_secs_f64(),
+            });
+        }
+        // p = S P^-1 r
+        let mut rz = match pre {
+            Preconditioner::None => {
+                self.p.copy_from_slice(&self.r);
+                kv::dot(&self.r, &self.r)
+            }
+            Preconditioner::Jacobi => {
+                for ((p, r), d) in self.p.iter_mut().zip(&self.r).zip(&self.d) {
+                    *p = d * r;
+                }
+                kv::dot(&self.r, &self.p)
+            }
+            Preconditioner::BlockJacobi => {
+                let [rz, _] = kv::block_jacobi_apply(&mut self.z, &self.r, &self.d);
+                self.p.copy_from_slice(&self.z);
+                rz
+            }
+        };
+        filt(&mut self.p);
+        let mut residual = kv::norm2(&self.r) / bnorm;
+        let tol = self.params.tolerance;
+        if residual <= tol {
+            return Ok(SolveInfo {
+                iterations: 0,
+                residual,
+                seconds: start.elapsed().as_secs_f64(),
+            });
+        }
+        for it in 1..=self.params.max_iterations {
+            // p is filtered, so p . S A p = p . A p: the fused dot stays valid.
+            let pq = a.spmv_dot(&mut self.q, &self.p);
+            filt(&mut self.q);
+            if !(pq > 0.0) {
+                return Err(if pq.is_nan() {
+                    SolveError::NonFinite {
+                        what: "curvature p.Ap",
+                        iteration: it,
+                    }
+                } else {
+                    not_pd("curvature p.Ap at iteration", it, pq)
+                });
+            }
+            let alpha = rz / pq;
+            let [rz_new, rr] = match pre {
+                Preconditioner::BlockJacobi => kv::pcg_update_block_jacobi_par(
+                    x, &mut self.r, &mut self.z, &self.p, &self.q, &self.d, alpha,
+                ),
+                Preconditioner::Jacobi => kv::pcg_update_jacobi_par(
+                    x,
+                    &mut self.r,
+                    &self.p,
+                    &self.q,
+                    Some(&self.d),
+                    alpha,
+                ),
+                Preconditioner::None => {
+                    kv::pcg_update_jacobi_par(x, &mut self.r, &self.p, &self.q, None, alpha)
+                }
+            };
+            residual = rr.sqrt() / bnorm;
+            if !residual.is_finite() || !rz_new.is_finite() {
+                return Err(SolveError::NonFinite {
+                    what: "residual",
+                    iteration: it,
+                });
+            }
+            if residual <= tol {
+                return Ok(SolveInfo {
+                    iterations: it,
+                    residual,
+                    seconds: start.elapsed().as_secs_f64(),
+                });
+            }
+            let beta = rz_new / rz;
+            rz = rz_new;
+            match pre {
+                Preconditioner::BlockJacobi => kv::xpay_par(&mut self.p, &self.z, beta),
+                Preconditioner::Jacobi => {
+                    kv::pcg_direction_jacobi_par(&mut self.p, &self.r, Some(&self.d), beta)
+                }
+                Preconditioner::None => kv::pcg_direction_jacobi_par(&mut self.p, &self.r, None, beta),
+            }
+            filt(&mut self.p);
+        }
+        Err(SolveError::NotConverged {
+            iterations: self.params.max_iterations,
+            residual,
+            tolerance: tol,
+        })
+    }
+}
+
+const IDENTITY: [f64; 9] = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+
+fn not_pd(what: &'static str, at: usize, value: f64) -> SolveError {
+    SolveError::NotPositiveDefinite { what, at, value }
+}
+
+/// Inverse of the symmetric part of a 3x3 block, as `[b00, b01, b02, b11, b12, b22]`, or
+/// `None` if it is not positive definite (a Cholesky pivot <= 0 or not finite).
+pub(crate) fn inverse_spd3(b: &[f64]) -> Option<[f64; 6]> {
+    let a00 = b[0];
+    let a01 = 0.5 * (b[1] + b[3]);
+    let a02 = 0.5 * (b[2] + b[6]);
+    let a11 = b[4];
+    let a12 = 0.5 * (b[5] + b[7]);
+    let a22 = b[8];
+    // Cholesky pivots decide definiteness robustly; the adjugate gives the inverse.
+    let l00 = a00;
+    if !(l00 > 0.0) {
+        return None;
+    }
+    let p1 = a11 - a01 * a01 / l00;
+    if !(p1 > 0.0) {
+        return None;
+    }
+    let l21 = a12 - a01 * a02 / l00;
+    let p2 = a22 - a02 * a02 / l00 - l21 * l21 / p1;
+    if !(p2 > 0.0) {
+        return None;
+    }
+    let c00 = a11 * a22 - a12 * a12;
+    let c01 = a02 * a12 - a01 * a22;
+    let c02 = a01 * a12 - a02 * a11;
+    let c11 = a00 * a22 - a02 * a02;
+    let c12 = a01 * a02 - a00 * a12;
+    let c22 = a00 * a11 - a01 * a01;
+    let det = a00 * c00 + a01 * c01 + a02 * c02;
+    let inv = 1.0 / det;
+    let out = [c00 * inv, c01 * inv, c02 * inv, c11 * inv, c12 * inv, c22 * inv];
+    out.iter().all(|v| v.is_finite()).then_some(out)
+}

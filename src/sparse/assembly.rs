@@ -1,0 +1,327 @@
+//! Element assembly into Bsr3 matrices and Vec3s vectors by precomputed gathers.
+//!
+//! An element kernel writes, per element, a few *unique* 3x3 blocks and 3-vectors into an
+//! element-major buffer (`(e * blocks + b) * 9 + 3 r + c`, `(e * vectors + u) * 3 + c`).
+//! A [`LocalLayout`] says how the element's K x K local blocks and K local vectors derive
+//! from those (a spring has one block J and the local matrix `[[J, -J], [-J, J]]`; its
+//! force on B is minus its force on A).
+//!
+//! [`ElementAssembly`] is built once from the connectivity: the element -> slot scatter map
+//! (`elem_slots`), and its inverse, a CSR list of sources for every matrix slot and every
+//! vertex, in element order. Assembly is then a gather: each slot (each vertex) sums its
+//! sources in that fixed order. Slots are disjoint, so the gather runs in parallel with no
+//! atomics and no colouring, and the sums are bitwise the same for any thread count (and
+//! the same as a serial element-by-element scatter).
+
+use super::{Bsr3, Bsr3Pattern, SparseError};
+use largestep_kernels::par::{chunk_count, chunk_range, par_reduce, Disjoint};
+use rayon::prelude::*;
+use std::sync::Arc;
+
+/// Where a local block or vector comes from among an element's unique ones.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Src {
+    /// Index of the unique block (vector) in the element's output.
+    pub index: u16,
+    /// Use its negative.
+    pub negate: bool,
+    /// Use its transpose (blocks only).
+    pub transpose: bool,
+}
+
+impl Src {
+    /// The unique item `index` as it is.
+    pub const fn plus(index: u16) -> Self {
+        Self {
+            index,
+            negate: false,
+            transpose: false,
+        }
+    }
+    /// The negative of unique item `index`.
+    pub const fn minus(index: u16) -> Self {
+        Self {
+            index,
+            negate: true,
+            transpose: false,
+        }
+    }
+}
+
+/// How an element type's K x K local blocks and K local vectors derive from the unique
+/// blocks and vectors its kernel writes.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct LocalLayout {
+    /// Vertices per element.
+    pub k: usize,
+    /// Unique blocks written per element.
+    pub blocks: usize,
+    /// Source of local block (p, q), row-major, K x K entries.
+    pub block_src: Vec<Src>,
+    /// Unique vectors written per element.
+    pub vectors: usize,
+    /// Source of the local vector of vertex p, K entries.
+    pub vector_src: Vec<Src>,
+}
+
+impl LocalLayout {
+    /// A two-vertex element with one block J (local matrix `[[J, -J], [-J, J]]`) and one
+    /// vector f (local vectors `(f, -f)`): springs.
+    pub fn pair() -> Self {
+        Self {
+            k: 2,
+            blocks: 1,
+            block_src: vec![Src::plus(0), Src::minus(0), Src::minus(0), Src::plus(0)],
+            vectors: 1,
+            vector_src: vec![Src::plus(0), Src::minus(0)],
+        }
+    }
+
+    /// K vertices, every local block and vector written explicitly.
+    pub fn dense(k: usize) -> Self {
+        Self {
+            k,
+            blocks: k * k,
+            block_src: (0..k * k).map(|i| Src::plus(i as u16)).collect(),
+            vectors: k,
+            vector_src: (0..k).map(|i| Src::plus(i as u16)).collect(),
+        }
+    }
+}
+
+const NEG: u32 = 1 << 31;
+const TRANS: u32 = 1 << 30;
+const INDEX: u32 = TRANS - 1;
+
+/// Slots per parallel task in the gathers (fixed: thread-count independent).
+const GATHER_CHUNK: usize = 4096;
+
+/// Per-vertex gather of element vectors (forces): what explicit methods need, with no
+/// matrix pattern.
+#[derive(Clone, Debug)]
+pub struct VectorGather {
+    n: usize,
+    vectors: usize,
+    elements: usize,
+    ptr: Vec<u32>,
+    src: Vec<u32>,
+}
+
+/// Precomputed element -> slot maps and their inverse gathers (see the module docs).
+#[derive(Clone, Debug)]
+pub struct ElementAssembly {
+    pattern: Arc<Bsr3Pattern>,
+    layout: LocalLayout,
+    elements: usize,
+    elem_slots: Vec<u32>,
+    block_ptr: Vec<u32>,
+    block_src: Vec<u32>,
+}
+
+fn encode(global: usize, s: Src) -> u32 {
+    let mut code = global as u32;
+    if s.negate {
+        code |= NEG;
+    }
+    if s.transpose {
+        code |= TRANS;
+    }
+    code
+}
+
+/// CSR of sources from (target, source code) pairs given in element order.
+fn csr(targets: usize, pairs: impl Iterator<Item = (usize, u32)> + Clone) -> (Vec<u32>, Vec<u32>) {
+    let mut ptr = vec![0u32; targets + 1];
+    for (t, _) in pairs.clone() {
+        ptr[t + 1] += 1;
+    }
+    for t in 0..targets {
+        ptr[t + 1] += ptr[t];
+    }
+    let mut fill = ptr.clone();
+    let mut src = vec![0u32; ptr[targets] as usize];
+    for (t, code) in pairs {
+        src[fill[t] as usize] = code;
+        fill[t] += 1;
+    }
+    (ptr, src)
+}
+
+impl ElementAssembly {
+    /// Builds the pattern of `elements` over n vertices and the maps for `layout`.
+    pub fn new<const K: usize>(
+        n: usize,
+        elements: &[[u32; K]],
+        layout: LocalLayout,
+    ) -> Result<Self, SparseError> {
+        assert_eq!(layout.k, K, "layout and elements disagree on vertices per element");
+        assert_eq!(layout.block_src.len(), K * K);
+        assert_eq!(layout.vector_src.len(), K);
+        let total = elements.len() * layout.blocks;
+        if total > INDEX as usize {
+            return Err(SparseError::TooLarge { blocks: total });
+        }
+        let pattern = Arc::new(Bsr3Pattern::from_elements(n, elements)?);
+        let mut elem_slots = Vec::with_capacity(elements.len() * K * K);
+        for el in elements {
+            for &a in el {
+                for &b in el {
+                    let s = pattern
+                        .slot(a as usize, b as usize)
+                        .expect("pattern holds every element pair");
+                    elem_slots.push(s as u32);
+                }
+            }
+        }
+        let kk = K * K;
+        let nb = layout.blocks;
+        let bsrc = &layout.block_src;
+        let block_pairs = elem_slots.iter().enumerate().map(move |(g, &slot)| {
+            let (e, l) = (g / kk, g % kk);
+            let s = bsrc[l];
+            (slot as usize, encode(e * nb + s.index as usize, s))
+        });
+        let (block_ptr, block_src) = csr(pattern.nnz_blocks(), block_pairs);
+        Ok(Self {
+            pattern,
+            layout,
+            elements: elements.len(),
+            elem_slots,
+            block_ptr,
+            block_src,
+        })
+    }
+
+    /// The shared pattern (every matrix assembled here uses it).
+    pub fn pattern(&self) -> &Arc<Bsr3Pattern> {
+        &self.pattern
+    }
+
+    /// The local layout.
+    pub fn layout(&self) -> &LocalLayout {
+        &self.layout
+    }
+
+    /// Number of elements.
+    pub fn elements(&self) -> usize {
+        self.elements
+    }
+
+    /// Length of the element block buffer the kernels write (`elements * blocks * 9`).
+    pub fn block_buffer_len(&self) -> usize {
+        self.elements * self.layout.blocks * 9
+    }
+
+    /// The element -> slot map: slot of local block (p, q) of element e at
+    /// `e * K * K + p * K + q`.
+    pub fn elem_slots(&self) -> &[u32] {
+        &self.elem_slots
+    }
+
+    /// Overwrites `out` with the assembled matrix of the element blocks.
+    pub fn gather_blocks(&self, elem_blocks: &[f64], out: &mut Bsr3) {
+        assert_eq!(elem_blocks.len(), self.block_buffer_len());
+        assert!(Arc::ptr_eq(out.pattern(), &self.pattern) || **out.pattern() == *self.pattern);
+        let (ptr, src) = (&self.block_ptr, &self.block_src);
+        out.values_mut()
+            .par_chunks_mut(9 * GATHER_CHUNK)
+            .enumerate()
+            .for_each(|(c, vals)| {
+                let s0 = c * GATHER_CHUNK;
+                for (ls, v) in vals.chunks_exact_mut(9).enumerate() {
+                    let s = s0 + ls;
+                    let mut acc = [0.0f64; 9];
+                    for &code in &src[ptr[s] as usize..ptr[s + 1] as usize] {
+                        let b = &elem_blocks[9 * (code & INDEX) as usize..][..9];
+                        let sign = if code & NEG != 0 { -1.0 } else { 1.0 };
+                        if code & TRANS != 0 {
+                            for r in 0..3 {
+                                for cc in 0..3 {
+                                    acc[3 * r + cc] += sign * b[3 * cc + r];
+                                }
+                            }
+                        } else {
+                            for (a, bb) in acc.iter_mut().zip(b) {
+                                *a += sign * bb;
+                            }
+                        }
+                    }
+                    v.copy_from_slice(&acc);
+                }
+            });
+    }
+}
+
+impl VectorGather {
+    /// The per-vertex source lists of `elements` over n vertices for `layout`.
+    pub fn new<const K: usize>(
+        n: usize,
+        elements: &[[u32; K]],
+        layout: &LocalLayout,
+    ) -> Result<Self, SparseError> {
+        assert_eq!(layout.k, K, "layout and elements disagree on vertices per element");
+        let nv = layout.vectors;
+        if elements.len() * nv > INDEX as usize {
+            return Err(SparseError::TooLarge {
+                blocks: elements.len() * nv,
+            });
+        }
+        for (e, el) in elements.iter().enumerate() {
+            if let Some(&a) = el.iter().find(|&&a| a as usize >= n) {
+                return Err(SparseError::VertexOutOfRange {
+                    element: e,
+                    vertex: a as usize,
+                    n,
+                });
+            }
+        }
+        let vsrc = &layout.vector_src;
+        let pairs = elements.iter().enumerate().flat_map(move |(e, el)| {
+            el.iter().enumerate().map(move |(p, &a)| {
+                let s = vsrc[p];
+                (a as usize, encode(e * nv + s.index as usize, s))
+            })
+        });
+        let (ptr, src) = csr(n, pairs);
+        Ok(Self {
+            n,
+            vectors: nv,
+            elements: elements.len(),
+            ptr,
+            src,
+        })
+    }
+
+    /// Length of the element vector buffer the kernels write (`elements * vectors * 3`).
+    pub fn vector_buffer_len(&self) -> usize {
+        self.elements * self.vectors * 3
+    }
+
+    /// Adds the assembled element vectors to `out` (component-major, 3n).
+    pub fn gather_vectors_add(&self, elem_vecs: &[f64], out: &mut [f64]) {
+        assert_eq!(elem_vecs.len(), self.vector_buffer_len());
+        let n = self.n;
+        assert_eq!(out.len(), 3 * n);
+        let (ptr, src) = (&self.ptr, &self.src);
+        let od = Disjoint::new(out);
+        par_reduce::<0, _>(chunk_count(n, GATHER_CHUNK), &|c| {
+            let vr = chunk_range(c, n, GATHER_CHUNK);
+            // SAFETY: vertex ranges of distinct chunks are disjoint.
+            let [ox, oy, oz] = unsafe { od.components(n, vr.clone()) };
+            for (li, i) in vr.enumerate() {
+                let mut acc = [0.0f64; 3];
+                for &code in &src[ptr[i] as usize..ptr[i + 1] as usize] {
+                    let f = &elem_vecs[3 * (code & INDEX) as usize..][..3];
+                    let sign = if code & NEG != 0 { -1.0 } else { 1.0 };
+                    for a in 0..3 {
+                        acc[a] += sign * f[a];
+                    }
+                }
+                ox[li] += acc[0];
+                oy[li] += acc[1];
+                oz[li] += acc[2];
+            }
+            []
+        });
+    }
+}
