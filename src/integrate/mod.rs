@@ -20,6 +20,7 @@
 mod explicit;
 mod mechanical;
 mod ode;
+pub mod problems;
 
 pub use mechanical::{
     kinetic_energy, LinearSolverKind, MechSettings, MechStepper, Mechanical, AUTO_CHOLESKY_MAX_DOFS,

@@ -120,6 +120,7 @@ impl OdeStepper {
                     lu: &mut self.lu,
                     ymid: &mut self.ymid,
                     g: &mut self.g,
+                    noise: 0.0,
                 };
                 let ni = if method == Method::LinearizedBackwardEuler {
                     self.newton.single_step(&mut prob, &mut self.y1)
@@ -154,6 +155,7 @@ struct Implicit<'a> {
     lu: &'a mut DenseLu,
     ymid: &'a mut [f64],
     g: &'a mut [f64],
+    noise: f64,
 }
 
 impl Implicit<'_> {
@@ -168,10 +170,20 @@ impl NewtonProblem for Implicit<'_> {
     fn residual(&mut self, y1: &[f64], r: &mut [f64]) -> Result<(), SolveError> {
         self.mid(y1);
         self.sys.rhs(self.t_eval, self.ymid, self.g);
+        let mut scale2 = 0.0;
         for i in 0..r.len() {
-            r[i] = y1[i] - self.y0[i] - self.h * self.g[i];
+            let hg = self.h * self.g[i];
+            r[i] = y1[i] - self.y0[i] - hg;
+            let size = y1[i].abs() + self.y0[i].abs() + hg.abs();
+            scale2 += size * size;
         }
+        // Below this the residual is rounding noise (see Newton's convergence test).
+        self.noise = 16.0 * f64::EPSILON * f64::sqrt(scale2);
         Ok(())
+    }
+
+    fn noise_floor(&self) -> f64 {
+        self.noise
     }
 
     fn newton_step(&mut self, y1: &[f64], r: &[f64], dy: &mut [f64]) -> Result<SolveInfo, SolveError> {

@@ -1,0 +1,291 @@
+//! Sparse layer and solver tests.
+
+use largestep::solve::{Filter, Pcg, PcgParams, Preconditioner, SolveError, SparseCholesky};
+use largestep::sparse::examples::{grid_pairs, grid_spd};
+use largestep::sparse::*;
+use std::io::Cursor;
+
+fn dense_mul(d: &[f64], x: &[f64]) -> Vec<f64> {
+    let m = x.len();
+    (0..m).map(|r| (0..m).map(|c| d[r * m + c] * x[c]).sum()).collect()
+}
+
+fn residual(a: &Bsr3, x: &[f64], b: &[f64]) -> f64 {
+    let mut ax = vec![0.0; b.len()];
+    a.spmv(&mut ax, x);
+    let r: f64 = ax.iter().zip(b).map(|(p, q)| (p - q) * (p - q)).sum();
+    let bn: f64 = b.iter().map(|q| q * q).sum();
+    (r / bn).sqrt()
+}
+
+fn rhs(n: usize) -> Vec<f64> {
+    (0..3 * n).map(|i| ((i * 13 % 29) as f64 - 14.0) / 7.0).collect()
+}
+
+#[test]
+fn pattern_from_elements_is_symmetric_sorted_with_diagonal() {
+    let p = Bsr3Pattern::from_elements(5, &[[0u32, 3], [3, 1], [0, 3]]).unwrap();
+    assert_eq!(p.nnz_blocks(), 5 + 4);
+    for i in 0..5 {
+        assert_eq!(p.slot(i, i), Some(p.diag_slots()[i] as usize));
+        let cols = &p.col()[p.row_ptr()[i] as usize..p.row_ptr()[i + 1] as usize];
+        assert!(cols.windows(2).all(|w| w[0] < w[1]));
+    }
+    assert!(p.slot(0, 3).is_some() && p.slot(3, 0).is_some() && p.slot(0, 1).is_none());
+    let err = Bsr3Pattern::from_elements(2, &[[0u32, 1], [1, 7]]).unwrap_err();
+    assert!(err.to_string().contains("element 1 names vertex 7"), "{err}");
+}
+
+#[test]
+fn gather_assembly_equals_serial_scatter_and_dense() {
+    let pairs = grid_pairs(&[3, 3]);
+    let n = 9;
+    let asm = ElementAssembly::new(n, &pairs, LocalLayout::pair()).unwrap();
+    let blocks: Vec<f64> = (0..asm.block_buffer_len()).map(|i| (i as f64 * 0.731).sin()).collect();
+    let mut a = Bsr3::zeros(asm.pattern().clone());
+    asm.gather_blocks(&blocks, &mut a);
+    // Serial scatter through the element -> slot map, in element order.
+    let mut b = Bsr3::zeros(asm.pattern().clone());
+    let slots = asm.elem_slots();
+    for e in 0..pairs.len() {
+        for l in 0..4 {
+            let sign = if l == 0 || l == 3 { 1.0 } else { -1.0 };
+            let s = slots[4 * e + l] as usize;
+            for k in 0..9 {
+                b.block_mut(s)[k] += sign * blocks[9 * e + k];
+            }
+        }
+    }
+    assert_eq!(a.values(), b.values(), "gather = scatter, bitwise");
+    // Vectors: f on A, -f on B.
+    let gather = VectorGather::new(n, &pairs, &LocalLayout::pair()).unwrap();
+    let fe: Vec<f64> = (0..gather.vector_buffer_len()).map(|i| i as f64).collect();
+    let mut f = vec![1.0; 3 * n];
+    gather.gather_vectors_add(&fe, &mut f);
+    let mut expect = vec![1.0; 3 * n];
+    for (e, [p, q]) in pairs.iter().enumerate() {
+        for c in 0..3 {
+            expect[c * n + *p as usize] += fe[3 * e + c];
+            expect[c * n + *q as usize] -= fe[3 * e + c];
+        }
+    }
+    assert_eq!(f, expect);
+}
+
+#[test]
+fn faer_and_nalgebra_exports_match_dense() {
+    let a = grid_spd(&[3, 2, 2], 2.0, 0.5);
+    let n3 = 3 * a.n();
+    let dense = a.to_dense();
+    let mut full = FaerCsc::new(a.pattern(), Triangle::Full);
+    full.refill(&a);
+    let mut lower = FaerCsc::new(a.pattern(), Triangle::Lower);
+    lower.refill(&a);
+    let (fd, ld) = (full.as_ref().to_dense(), lower.as_ref().to_dense());
+    let csr = to_csr(&a);
+    let mut csr_dense = vec![0.0; n3 * n3];
+    for (r, c, v) in csr.triplet_iter() {
+        csr_dense[r * n3 + c] += v;
+    }
+    for r in 0..n3 {
+        for c in 0..n3 {
+            let d = dense[r * n3 + c];
+            assert_eq!(fd[(r, c)], d);
+            assert_eq!(ld[(r, c)], if r >= c { d } else { 0.0 });
+            assert_eq!(csr_dense[r * n3 + c], d);
+        }
+    }
+    // A refill with new values reuses the structure.
+    let mut b = a.clone();
+    for v in b.values_mut() {
+        *v *= 2.0;
+    }
+    full.refill(&b);
+    assert_eq!(full.as_ref().to_dense()[(0, 0)], 2.0 * dense[0]);
+    assert!(a.max_asymmetry() == 0.0);
+}
+
+#[test]
+fn matrix_market_round_trip_is_exact() {
+    let mut a = grid_spd(&[2, 3], 1.0 / 3.0, 0.1);
+    a.values_mut()[5] = 1e-300; // extreme values survive the text form
+    let mut buf = Vec::new();
+    write_matrix_market(&mut buf, &a).unwrap();
+    let mm = read_matrix_market(Cursor::new(&buf), "a.mtx").unwrap();
+    let b = mm.to_bsr3("a.mtx").unwrap();
+    assert_eq!(a.to_dense(), b.to_dense());
+}
+
+#[test]
+fn matrix_market_errors_name_the_line() {
+    let cases = [
+        ("", 1, "empty file"),
+        ("%%MatrixMarket matrix array real general\n2 2\n", 1, "coordinate"),
+        ("%%MatrixMarket matrix coordinate complex general\n", 1, "real"),
+        ("%%MatrixMarket matrix coordinate real general\n% c\n3 3\n", 3, "rows cols entries"),
+        ("%%MatrixMarket matrix coordinate real general\n3 3 2\n1 1 1.0\n4 1 2.0\n", 4, "outside"),
+        ("%%MatrixMarket matrix coordinate real general\n3 3 2\n1 1 x\n", 3, "expected a number"),
+        ("%%MatrixMarket matrix coordinate real general\n3 3 2\n1 1 nan\n", 3, "not finite"),
+        ("%%MatrixMarket matrix coordinate real general\n3 3 3\n1 1 1\n2 2 1\n", 5, "2 of the 3"),
+    ];
+    for (text, line, what) in cases {
+        let err = read_matrix_market(Cursor::new(text), "m.mtx").unwrap_err();
+        let msg = err.to_string();
+        assert!(msg.starts_with(&format!("m.mtx:{line}:")), "{msg}");
+        assert!(msg.contains(what), "{msg}");
+    }
+}
+
+#[test]
+fn pcg_converges_with_every_preconditioner() {
+    // Symmetric scaling D A D with D spanning a decade: badly scaled, as with mixed
+    // masses, where the diagonal preconditioners earn their keep.
+    let mut a = grid_spd(&[8, 7, 6], 1.0, 0.05);
+    let n = a.n();
+    let d = |i: usize| if i % 3 == 0 { 10.0 } else { 1.0 };
+    let p = a.pattern().clone();
+    for i in 0..n {
+        for k in p.row_ptr()[i] as usize..p.row_ptr()[i + 1] as usize {
+            let j = p.col()[k] as usize;
+            for v in a.block_mut(k) {
+                *v *= d(i) * d(j);
+            }
+        }
+    }
+    let b = rhs(n);
+    let mut iters = Vec::new();
+    for pre in [Preconditioner::None, Preconditioner::Jacobi, Preconditioner::BlockJacobi] {
+        let mut pcg = Pcg::new(
+            n,
+            PcgParams {
+                tolerance: 1e-10,
+                max_iterations: 5000,
+                preconditioner: pre,
+            },
+        );
+        let mut x = vec![0.0; 3 * n];
+        let info = pcg.solve(&a, &b, &mut x, None).unwrap();
+        assert!(info.residual <= 1e-10);
+        assert!(residual(&a, &x, &b) < 1e-9, "{pre:?}: true residual");
+        iters.push(info.iterations);
+    }
+    assert!(2 * iters[1] < iters[0] && 2 * iters[2] < iters[0], "preconditioning helps: {iters:?}");
+}
+
+#[test]
+fn filtered_pcg_holds_constraints_exactly_at_any_iteration_count() {
+    let a = grid_spd(&[6, 6], 1.0, 0.05);
+    let n = a.n();
+    let b = rhs(n);
+    let mut f = Filter::new(n);
+    f.fix(0);
+    f.constrain_normal(7, [1.0, 2.0, 0.5]);
+    f.constrain_line(20, [0.0, 1.0, 1.0]);
+    let unit = |v: [f64; 3]| {
+        let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        v.map(|c| c / l)
+    };
+    for max in [1, 3, 1000] {
+        let mut pcg = Pcg::new(
+            n,
+            PcgParams {
+                tolerance: 1e-12,
+                max_iterations: max,
+                preconditioner: Preconditioner::BlockJacobi,
+            },
+        );
+        let mut x = vec![1.0; 3 * n];
+        let res = pcg.solve(&a, &b, &mut x, Some(&f));
+        let g = |i: usize| [x[i], x[n + i], x[2 * n + i]];
+        assert_eq!(g(0), [0.0; 3], "pinned vertex never moves");
+        let p = unit([1.0, 2.0, 0.5]);
+        let xn = g(7);
+        assert!((xn[0] * p[0] + xn[1] * p[1] + xn[2] * p[2]).abs() < 1e-15);
+        let xl = g(20);
+        assert!((xl[1] - xl[2]).abs() < 1e-15 && xl[0].abs() < 1e-15);
+        if max == 1000 {
+            res.unwrap();
+            // Same answer by Cholesky on the projected system.
+            let mut ap = a.clone();
+            f.project_matrix(&mut ap);
+            let mut chol = SparseCholesky::new(ap.pattern()).unwrap();
+            chol.factorize(&ap).unwrap();
+            let mut y = b.clone();
+            f.apply(&mut y);
+            chol.solve_in_place(&mut y).unwrap();
+            let err = x.iter().zip(&y).map(|(p, q)| (p - q).abs()).fold(0.0, f64::max);
+            assert!(err < 1e-8, "PCG and projected Cholesky agree: {err}");
+        } else {
+            assert!(matches!(res, Err(SolveError::NotConverged { .. })));
+        }
+    }
+}
+
+#[test]
+fn cholesky_solves_and_refactorizes() {
+    for dims in [vec![10, 10], vec![5, 5, 5]] {
+        let a = grid_spd(&dims, 1.0, 0.2);
+        let n = a.n();
+        let b = rhs(n);
+        let mut chol = SparseCholesky::new(a.pattern()).unwrap();
+        for scale in [1.0, 3.0] {
+            let mut s = a.clone();
+            for v in s.values_mut() {
+                *v *= scale;
+            }
+            chol.factorize(&s).unwrap();
+            let mut x = b.clone();
+            chol.solve_in_place(&mut x).unwrap();
+            assert!(residual(&s, &x, &b) < 1e-12, "residual at scale {scale}");
+        }
+        let dense = a.to_dense();
+        let mut x = b.clone();
+        chol.factorize(&a).unwrap();
+        chol.solve_in_place(&mut x).unwrap();
+        let ax = dense_mul(&dense, &x);
+        assert!(ax.iter().zip(&b).all(|(p, q)| (p - q).abs() < 1e-10));
+    }
+}
+
+#[test]
+fn indefinite_matrices_give_clear_errors() {
+    let mut a = grid_spd(&[4, 4], 1.0, 0.2);
+    let n = a.n();
+    a.add_diagonal(&vec![-10.0; n], 1.0);
+    let mut chol = SparseCholesky::new(a.pattern()).unwrap();
+    let e = chol.factorize(&a).unwrap_err();
+    assert!(matches!(e, SolveError::NotPositiveDefinite { .. }), "{e}");
+    for pre in [Preconditioner::Jacobi, Preconditioner::BlockJacobi] {
+        let mut pcg = Pcg::new(n, PcgParams { preconditioner: pre, ..Default::default() });
+        let mut x = vec![0.0; 3 * n];
+        let e = pcg.solve(&a, &rhs(n), &mut x, None).unwrap_err();
+        assert!(e.to_string().contains("not positive definite"), "{e}");
+    }
+    // Indefinite but with a positive diagonal: PCG meets negative curvature.
+    let mut b = grid_spd(&[4, 4], 1.0, 0.2);
+    for v in b.values_mut() {
+        *v = -*v;
+    }
+    b.add_diagonal(&vec![0.5; n], 1.0);
+    let mut pcg = Pcg::new(n, PcgParams { preconditioner: Preconditioner::None, ..Default::default() });
+    let mut x = vec![0.0; 3 * n];
+    let e = pcg.solve(&b, &rhs(n), &mut x, None).unwrap_err();
+    assert!(matches!(e, SolveError::NotPositiveDefinite { .. }), "{e}");
+}
+
+#[test]
+fn pcg_iterates_are_thread_count_independent() {
+    let a = grid_spd(&[24, 24, 12], 1.0, 0.05);
+    let n = a.n();
+    let b = rhs(n);
+    let run = || {
+        let mut pcg = Pcg::new(n, PcgParams::default());
+        let mut x = vec![0.0; 3 * n];
+        let info = pcg.solve(&a, &b, &mut x, None).unwrap();
+        (x, info.iterations, info.residual)
+    };
+    let pool = |t| rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap();
+    let one = pool(1).install(run);
+    let two = pool(2).install(run);
+    assert!(one == two, "bitwise identical with 1 and 2 threads");
+}
