@@ -10,6 +10,7 @@ fn settings(method: Method, linear: LinearSolverKind) -> MechSettings {
     let mut s = MechSettings::new(method);
     s.linear = linear;
     s.newton.tolerance = 1e-13;
+    s.newton.step_tolerance = 1e-14;
     s
 }
 

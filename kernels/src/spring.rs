@@ -82,6 +82,19 @@ pub fn spring_energy(xa: [f64; 3], xb: [f64; 3], k: f64, rest: f64) -> f64 {
     0.5 * k * (len - rest) * (len - rest)
 }
 
+/// Rayleigh dissipation `kd/2 ((v_A - v_B) . L/|L|)^2` of one spring's damping (W): the
+/// damping force on A is minus its derivative in v_A.
+#[inline]
+pub fn spring_dissipation(xa: [f64; 3], xb: [f64; 3], va: [f64; 3], vb: [f64; 3], kd: f64) -> f64 {
+    let l = [xa[0] - xb[0], xa[1] - xb[1], xa[2] - xb[2]];
+    let len = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
+    if len == 0.0 {
+        return 0.0;
+    }
+    let rel = ((va[0] - vb[0]) * l[0] + (va[1] - vb[1]) * l[1] + (va[2] - vb[2]) * l[2]) / len;
+    0.5 * kd * rel * rel
+}
+
 /// Borrowed spring set: endpoints and per-spring constants (SoA).
 #[derive(Clone, Copy, Debug)]
 pub struct Springs<'a> {
@@ -179,21 +192,34 @@ pub fn spring_forces_jacobians(
     }
 }
 
-/// Total elastic energy of the springs (J); deterministic parallel sum.
-pub fn springs_energy(x: &[f64], s: Springs<'_>) -> f64 {
-    s.check();
-    let n = x.len() / 3;
-    assert_eq!(x.len(), 3 * n);
+/// Sum of `term(spring, A, B)` over the springs; deterministic parallel sum.
+fn sum_over_springs(s: &Springs<'_>, term: &(dyn Fn(usize, usize, usize) -> f64 + Sync)) -> f64 {
     let m = s.len();
     let [e] = crate::par::par_reduce(crate::par::chunk_count(m, SPRING_CHUNK), &|c| {
         let mut sum = 0.0;
         for e in crate::par::chunk_range(c, m, SPRING_CHUNK) {
             let [a, b] = s.ends[e];
-            let (a, b) = (a as usize, b as usize);
-            let g = |i: usize| [x[i], x[n + i], x[2 * n + i]];
-            sum += spring_energy(g(a), g(b), s.k[e], s.rest[e]);
+            sum += term(e, a as usize, b as usize);
         }
         [sum]
     });
     e
+}
+
+/// Total elastic energy of the springs (J); deterministic parallel sum.
+pub fn springs_energy(x: &[f64], s: Springs<'_>) -> f64 {
+    s.check();
+    let n = x.len() / 3;
+    assert_eq!(x.len(), 3 * n);
+    let g = |i: usize| [x[i], x[n + i], x[2 * n + i]];
+    sum_over_springs(&s, &|e, a, b| spring_energy(g(a), g(b), s.k[e], s.rest[e]))
+}
+
+/// Total Rayleigh dissipation of the spring damping (W); deterministic parallel sum.
+pub fn springs_dissipation(x: &[f64], v: &[f64], s: Springs<'_>) -> f64 {
+    s.check();
+    let n = x.len() / 3;
+    assert!(x.len() == 3 * n && v.len() == 3 * n);
+    let g = |u: &[f64], i: usize| [u[i], u[n + i], u[2 * n + i]];
+    sum_over_springs(&s, &|e, a, b| spring_dissipation(g(x, a), g(x, b), g(v, a), g(v, b), s.kd[e]))
 }

@@ -25,6 +25,12 @@
 //! Newton step of backward Euler in `(x, v)` from `(x0, v0)`.
 //! Forces are evaluated at time `t + h` in the linearised step, as in one Newton step of
 //! backward Euler.
+//!
+//! `R` is the gradient in `v1` of the incremental potential
+//! `phi(v1) = 1/2 |v1 - v0|_M^2 - h w0 f0 . v1 + (w1 / b) U(t*, x*) + (h w1 / d) Psi(x*, v*)`
+//! (U the potential, Psi the Rayleigh dissipation; exact up to the positions' influence
+//! on the damping forces), which Newton's line search uses as its merit when the system
+//! provides U.
 
 use super::explicit::RkWork;
 use super::{hint, IntegrateError, Method, StepInfo};
@@ -49,9 +55,17 @@ pub trait Mechanical {
     }
     /// `f = total force` (N) at time t, positions x (m) and velocities v (m/s).
     fn force(&mut self, t: f64, x: &[f64], v: &[f64], f: &mut [f64]);
-    /// Potential energy (J) of the conservative forces at x, for energy reports.
-    fn potential_energy(&self, x: &[f64]) -> f64 {
-        let _ = x;
+    /// Potential energy (J) at time t and positions x, if the non-damping forces have one
+    /// (`f_elastic = -dU/dx`). It serves energy reports and, with
+    /// [`Mechanical::dissipation`], the line search of Newton-solved implicit steps.
+    fn potential_energy(&self, t: f64, x: &[f64]) -> Option<f64> {
+        let _ = (t, x);
+        None
+    }
+    /// Rayleigh dissipation function `Psi` (W) of the damping forces, `f_damping =
+    /// -dPsi/dv` at fixed x; 0 for undamped systems.
+    fn dissipation(&self, x: &[f64], v: &[f64]) -> f64 {
+        let _ = (x, v);
         0.0
     }
     /// Prepares Jacobian assembly (element maps, buffers) and returns the block pattern of
@@ -119,13 +133,18 @@ pub struct MechSettings {
 }
 
 impl MechSettings {
-    /// Defaults for `method`: automatic linear solver, default Newton settings.
+    /// Defaults for `method`: automatic linear solver, Newton to a relative residual or
+    /// velocity change of 1e-6 (animation accuracy; studies ask for more).
     pub fn new(method: Method) -> Self {
         Self {
             method,
             linear: LinearSolverKind::Auto,
             newton: NewtonParams {
-                tolerance: 1e-9,
+                tolerance: 1e-6,
+                // Relative change of the velocities per iteration: with an approximate
+                // (definiteness-fixed) Jacobian Newton converges linearly, and velocities
+                // this close are done.
+                step_tolerance: 1e-6,
                 ..NewtonParams::default()
             },
         }
@@ -597,5 +616,26 @@ impl NewtonProblem for Residual<'_> {
 
     fn noise_floor(&self) -> f64 {
         self.noise
+    }
+
+    fn merit(&mut self, v1: &[f64]) -> Option<f64> {
+        self.eval_point(v1);
+        let (h, c) = (self.h, self.c);
+        let u = self.sys.potential_energy(self.t, self.xe)?;
+        let psi = self.sys.dissipation(self.xe, self.ve);
+        let n = self.mass.len();
+        let mut kinetic = 0.0;
+        let mut work0 = 0.0;
+        for comp in 0..3 {
+            for i in 0..n {
+                let k = comp * n + i;
+                let dv = v1[k] - self.v0[k];
+                kinetic += 0.5 * self.mass[i] * dv * dv;
+                if c.w0 != 0.0 {
+                    work0 += self.f0[k] * v1[k];
+                }
+            }
+        }
+        Some(kinetic - h * c.w0 * work0 + (c.w1 / c.b) * u + (h * c.w1 / c.d) * psi)
     }
 }

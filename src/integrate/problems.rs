@@ -99,8 +99,12 @@ impl Mechanical for Oscillator {
         }
         f[0] += w2 * self.forcing * t.cos();
     }
-    fn potential_energy(&self, x: &[f64]) -> f64 {
-        0.5 * self.omega * self.omega * (x[0] * x[0] + x[1] * x[1] + x[2] * x[2])
+    fn potential_energy(&self, t: f64, x: &[f64]) -> Option<f64> {
+        let w2 = self.omega * self.omega;
+        Some(0.5 * w2 * (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]) - w2 * self.forcing * t.cos() * x[0])
+    }
+    fn dissipation(&self, _x: &[f64], v: &[f64]) -> f64 {
+        self.zeta * self.omega * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
     }
     fn prepare_jacobians(&mut self) -> Result<Option<Arc<Bsr3Pattern>>, SparseError> {
         Ok(Some(self.pattern.clone()))
@@ -163,8 +167,8 @@ impl Mechanical for Pendulum {
         f.fill(0.0);
         f[0] = -self.g_over_l * x[0].sin();
     }
-    fn potential_energy(&self, x: &[f64]) -> f64 {
-        self.g_over_l * (1.0 - x[0].cos())
+    fn potential_energy(&self, _t: f64, x: &[f64]) -> Option<f64> {
+        Some(self.g_over_l * (1.0 - x[0].cos()))
     }
     fn prepare_jacobians(&mut self) -> Result<Option<Arc<Bsr3Pattern>>, SparseError> {
         Ok(Some(self.pattern.clone()))

@@ -396,13 +396,21 @@ impl Mechanical for MassSpring {
         }
     }
 
-    fn potential_energy(&self, x: &[f64]) -> f64 {
+    fn potential_energy(&self, _t: f64, x: &[f64]) -> Option<f64> {
         let n = self.n;
         let g = self.gravity;
         let gravity: f64 = (0..n)
             .map(|i| -self.mass[i] * (g[0] * x[i] + g[1] * x[n + i] + g[2] * x[2 * n + i]))
             .sum();
-        gravity + ks::springs_energy(x, self.springs())
+        Some(gravity + ks::springs_energy(x, self.springs()))
+    }
+
+    fn dissipation(&self, x: &[f64], v: &[f64]) -> f64 {
+        if self.has_damping {
+            ks::springs_dissipation(x, v, self.springs())
+        } else {
+            0.0
+        }
     }
 
     fn prepare_jacobians(&mut self) -> Result<Option<Arc<Bsr3Pattern>>, SparseError> {

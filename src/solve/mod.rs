@@ -35,13 +35,13 @@ pub struct SolveInfo {
 #[non_exhaustive]
 pub enum SolveError {
     /// The iteration limit was reached first.
-    #[error("not converged after {iterations} iterations: relative residual {residual:.3e} > tolerance {tolerance:.1e}")]
+    #[error("not converged after {iterations} iterations: residual {residual:.3e} > tolerance {tolerance:.1e}")]
     NotConverged {
         /// Iterations taken.
         iterations: usize,
-        /// Relative residual reached.
+        /// Residual reached (PCG: relative `|r|/|b|`; Newton: `|F|`).
         residual: f64,
-        /// Relative residual asked for.
+        /// Residual asked for (same measure).
         tolerance: f64,
     },
     /// The matrix is not positive definite (a non-positive pivot, diagonal or curvature).

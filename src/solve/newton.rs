@@ -8,6 +8,14 @@
 //! direction, which is what happens when the equation has no real solution (course notes:
 //! backward Euler on `y' = 4 y^2`, `y0 = 1`, `h = 1`).
 //!
+//! When the problem has a merit function whose gradient is F (an incremental potential,
+//! see `integrate::MechStepper`), a step is also accepted when it satisfies the Armijo
+//! condition on that merit, `phi(y + alpha dy) <= phi(y) + c alpha F.dy` (with `F.dy < 0`).
+//! Any symmetric positive definite approximation of the Jacobian gives a descent direction
+//! for the merit, so Newton with an approximate (say definiteness-fixed) Jacobian keeps
+//! making progress where the residual norm alone would stall (Gast et al. 2015,
+//! "Optimization integrator for large time steps").
+//!
 //! Convergence: `|F| <= max(abs_tolerance, tolerance |F(y0)|)`, or a full step with
 //! `|dy| <= step_tolerance (1 + |y|)`.
 
@@ -62,6 +70,11 @@ pub trait NewtonProblem {
     /// unknown): reaching it counts as converged.
     fn noise_floor(&self) -> f64 {
         0.0
+    }
+    /// A merit function whose gradient is F, if the problem has one.
+    fn merit(&mut self, y: &[f64]) -> Option<f64> {
+        let _ = y;
+        None
     }
 }
 
@@ -137,12 +150,21 @@ impl Newton {
                     iteration: it,
                 });
             }
+            let slope = kv::dot(&self.r, &self.dy);
+            let merit0 = if slope < 0.0 { problem.merit(y) } else { None };
             let mut alpha = 1.0;
             loop {
                 kv::waxpy(&mut self.yt, y, alpha, &self.dy);
                 problem.residual(&self.yt, &mut self.rt)?;
                 let trial = kv::norm2(&self.rt);
-                if trial.is_finite() && trial <= (1.0 - 1e-4 * alpha) * fnorm {
+                let residual_ok = trial.is_finite() && trial <= (1.0 - 1e-4 * alpha) * fnorm;
+                let merit_ok = trial.is_finite()
+                    && merit0.is_some_and(|m0| {
+                        problem
+                            .merit(&self.yt)
+                            .is_some_and(|m| m <= m0 + 1e-4 * alpha * slope)
+                    });
+                if residual_ok || merit_ok {
                     fnorm = trial;
                     break;
                 }

@@ -1,0 +1,478 @@
+//! Scenes: TOML files naming a system, an integrator and outputs.
+//!
+//! [`Scene::parse`] reads and validates a scene and builds its model, so every problem is
+//! reported before anything runs, as `file:line:column: field: message` followed by the
+//! offending line. Syntax and type errors come from toml's spans; range errors (NaN,
+//! negative mass, dt <= 0, springs naming missing particles) are found by the model's own
+//! validation and located by walking the span-preserving document along the field's path.
+//!
+//! [`Simulation`] holds what a scene needs and nothing more (see [`Stage`]); [`Runner`]
+//! steps it frame by frame, writing frames and an energy log.
+
+mod build;
+mod run;
+pub mod schema;
+
+pub use build::{Simulation, Stage};
+pub use run::{FrameFormat, Output, Progress, RunError, Runner, Summary};
+
+use crate::integrate::{LinearSolverKind, MechSettings, Method};
+use crate::mass_spring::{self as ms, MassSpringDesc, ModelError, SpringDesc};
+use crate::solve::{PcgParams, Preconditioner};
+use std::fmt;
+use std::path::Path;
+
+/// A located scene error.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SceneError {
+    /// File name as given.
+    pub file: String,
+    /// 1-based line (0 if unknown).
+    pub line: usize,
+    /// 1-based column (0 if unknown).
+    pub column: usize,
+    /// Dotted field path (`mass_spring.spring[3].a`), empty for syntax errors.
+    pub field: String,
+    /// What is wrong and what is expected.
+    pub message: String,
+    /// The source line, if known.
+    pub snippet: Option<String>,
+}
+
+impl fmt::Display for SceneError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.file)?;
+        if self.line > 0 {
+            write!(f, ":{}:{}", self.line, self.column)?;
+        }
+        if self.field.is_empty() {
+            write!(f, ": {}", self.message)?;
+        } else {
+            write!(f, ": {}: {}", self.field, self.message)?;
+        }
+        if let Some(s) = &self.snippet {
+            write!(f, "\n{:>5} | {}", self.line, s)?;
+        }
+        Ok(())
+    }
+}
+
+impl std::error::Error for SceneError {}
+
+/// One step of a path into the TOML document.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Key {
+    /// A table key.
+    Field(String),
+    /// An array index.
+    Index(usize),
+}
+
+fn path(keys: &[&dyn PathPart]) -> Vec<Key> {
+    keys.iter().map(|k| k.key()).collect()
+}
+
+trait PathPart {
+    fn key(&self) -> Key;
+}
+impl PathPart for &str {
+    fn key(&self) -> Key {
+        Key::Field(self.to_string())
+    }
+}
+impl PathPart for usize {
+    fn key(&self) -> Key {
+        Key::Index(*self)
+    }
+}
+
+fn dotted(p: &[Key]) -> String {
+    let mut s = String::new();
+    for k in p {
+        match k {
+            Key::Field(f) => {
+                if !s.is_empty() {
+                    s.push('.');
+                }
+                s.push_str(f);
+            }
+            Key::Index(i) => s.push_str(&format!("[{i}]")),
+        }
+    }
+    s
+}
+
+/// Line and column (1-based) of a byte offset.
+fn line_col(src: &str, offset: usize) -> (usize, usize) {
+    let offset = offset.min(src.len());
+    let before = &src[..offset];
+    let line = before.matches('\n').count() + 1;
+    let col = before.rfind('\n').map_or(offset, |p| offset - p - 1) + 1;
+    (line, col)
+}
+
+/// The byte span of the value at `p` in the document, or of the deepest prefix found.
+fn locate(src: &str, p: &[Key]) -> Option<std::ops::Range<usize>> {
+    use toml::de::{DeTable, DeValue};
+    let root = DeTable::parse(src).ok()?;
+    let root_span = root.span();
+    let root = DeValue::Table(root.into_inner());
+    let mut cur: Option<&toml::Spanned<DeValue<'_>>> = None;
+    let mut best = root_span;
+    for k in p {
+        let value = cur.map_or(&root, |c| c.get_ref());
+        let next = match k {
+            Key::Field(f) => value.get(f.as_str()),
+            Key::Index(i) => value.get(*i),
+        };
+        match next {
+            Some(n) => {
+                best = n.span();
+                cur = Some(n);
+            }
+            None => break,
+        }
+    }
+    Some(best)
+}
+
+fn located(file: &str, src: &str, p: &[Key], message: String) -> SceneError {
+    let span = locate(src, p);
+    let (line, column) = span.map_or((0, 0), |s| line_col(src, s.start));
+    SceneError {
+        file: file.to_string(),
+        line,
+        column,
+        field: dotted(p),
+        message,
+        snippet: (line > 0).then(|| src.lines().nth(line - 1).unwrap_or("").to_string()),
+    }
+}
+
+/// A validated scene with its model built.
+#[derive(Debug)]
+pub struct Scene {
+    /// File name.
+    pub file: String,
+    /// Scene name.
+    pub name: String,
+    /// Time step (s).
+    pub dt: f64,
+    /// Simulated time (s).
+    pub duration: f64,
+    /// Integrator and solver settings.
+    pub settings: MechSettings,
+    /// The system.
+    pub system: System,
+    /// Outputs.
+    pub output: Output,
+}
+
+/// The systems a scene can hold.
+#[derive(Debug)]
+pub enum System {
+    /// A mass-spring system.
+    MassSpring(ms::MassSpring, ms::MassSpringState),
+}
+
+impl Scene {
+    /// Reads and validates a scene file.
+    pub fn load(path: &Path) -> Result<Scene, SceneError> {
+        let file = path.display().to_string();
+        let src = std::fs::read_to_string(path).map_err(|e| SceneError {
+            file: file.clone(),
+            line: 0,
+            column: 0,
+            field: String::new(),
+            message: format!("cannot read the scene: {e}"),
+            snippet: None,
+        })?;
+        Self::parse(&src, &file)
+    }
+
+    /// Parses and validates scene text; `file` names it in errors.
+    pub fn parse(src: &str, file: &str) -> Result<Scene, SceneError> {
+        let raw: schema::File = toml::from_str(src).map_err(|e| {
+            let (line, column) = e.span().map_or((0, 0), |s| line_col(src, s.start));
+            SceneError {
+                file: file.to_string(),
+                line,
+                column,
+                field: String::new(),
+                message: e.message().trim().to_string(),
+                snippet: (line > 0).then(|| src.lines().nth(line - 1).unwrap_or("").to_string()),
+            }
+        })?;
+        let err = |p: Vec<Key>, m: String| located(file, src, &p, m);
+        let s = &raw.scene;
+        let positive = |v: f64, name: &str| -> Result<f64, SceneError> {
+            if v.is_finite() && v > 0.0 {
+                Ok(v)
+            } else {
+                Err(err(path(&[&"scene", &name]), format!("must be a finite number > 0, not {v}")))
+            }
+        };
+        let dt = positive(s.dt, "dt")?;
+        let duration = positive(s.duration, "duration")?;
+        let method = Method::from_name(&s.integrator).ok_or_else(|| {
+            err(
+                path(&[&"scene", &"integrator"]),
+                format!("unknown integrator `{}`; expected one of {}", s.integrator, Method::names()),
+            )
+        })?;
+        let gravity = s.gravity.unwrap_or([0.0; 3]);
+        let settings = solver_settings(method, raw.solver.as_ref(), &err)?;
+        let output = output_settings(raw.output.as_ref(), dt, &err)?;
+
+        let Some(table) = &raw.mass_spring else {
+            return Err(err(path(&[&"scene"]), "the scene has no system: add a [mass_spring] table".into()));
+        };
+        let (desc, pinned_from_table) = mass_spring_desc(table, gravity, &err)?;
+        let (model, state) = desc.build().map_err(|e| {
+            let p = model_error_path(&e, table, pinned_from_table);
+            err(p, e.to_string())
+        })?;
+        Ok(Scene {
+            file: file.to_string(),
+            name: s.name.clone().unwrap_or_else(|| {
+                Path::new(file).file_stem().map_or("scene".into(), |x| x.to_string_lossy().into_owned())
+            }),
+            dt,
+            duration,
+            settings,
+            system: System::MassSpring(model, state),
+            output,
+        })
+    }
+}
+
+type ErrFn<'a> = dyn Fn(Vec<Key>, String) -> SceneError + 'a;
+
+fn solver_settings(method: Method, t: Option<&schema::SolverTable>, err: &ErrFn<'_>) -> Result<MechSettings, SceneError> {
+    let mut settings = MechSettings::new(method);
+    let Some(t) = t else { return Ok(settings) };
+    let at = |f: &str| path(&[&"solver", &f]);
+    let mut pcg = PcgParams::default();
+    if let Some(tol) = t.tolerance {
+        if !(tol.is_finite() && tol > 0.0 && tol < 1.0) {
+            return Err(err(at("tolerance"), format!("must be in (0, 1), not {tol}")));
+        }
+        pcg.tolerance = tol;
+    }
+    if let Some(m) = t.max_iterations {
+        if m < 1 {
+            return Err(err(at("max_iterations"), format!("must be >= 1, not {m}")));
+        }
+        pcg.max_iterations = m as usize;
+    }
+    if let Some(p) = &t.preconditioner {
+        pcg.preconditioner = match p.as_str() {
+            "none" => Preconditioner::None,
+            "jacobi" => Preconditioner::Jacobi,
+            "block-jacobi" => Preconditioner::BlockJacobi,
+            other => {
+                return Err(err(
+                    at("preconditioner"),
+                    format!("unknown preconditioner `{other}`; expected none, jacobi or block-jacobi"),
+                ))
+            }
+        };
+    }
+    settings.linear = match t.linear.as_deref() {
+        None | Some("auto") if t.tolerance.is_none() && t.max_iterations.is_none() && t.preconditioner.is_none() => {
+            LinearSolverKind::Auto
+        }
+        None | Some("pcg") | Some("auto") => LinearSolverKind::Pcg(pcg),
+        Some("cholesky") => LinearSolverKind::Cholesky,
+        Some(other) => {
+            return Err(err(at("linear"), format!("unknown linear solver `{other}`; expected auto, pcg or cholesky")))
+        }
+    };
+    if let Some(tol) = t.newton_tolerance {
+        if !(tol.is_finite() && tol > 0.0 && tol < 1.0) {
+            return Err(err(at("newton_tolerance"), format!("must be in (0, 1), not {tol}")));
+        }
+        // Relative residual reduction, and relative velocity change per iteration.
+        settings.newton.tolerance = tol;
+        settings.newton.step_tolerance = tol;
+    }
+    if let Some(m) = t.newton_max_iterations {
+        if m < 1 {
+            return Err(err(at("newton_max_iterations"), format!("must be >= 1, not {m}")));
+        }
+        settings.newton.max_iterations = m as usize;
+    }
+    Ok(settings)
+}
+
+fn output_settings(t: Option<&schema::OutputTable>, dt: f64, err: &ErrFn<'_>) -> Result<Output, SceneError> {
+    let default_every = ((1.0 / 30.0) / dt).round().max(1.0) as usize;
+    let Some(t) = t else {
+        return Ok(Output {
+            frames: FrameFormat::Obj,
+            every: default_every,
+        });
+    };
+    let frames = match t.frames.as_deref() {
+        None | Some("obj") => FrameFormat::Obj,
+        Some("ply") => FrameFormat::Ply,
+        Some("none") => FrameFormat::None,
+        Some(other) => {
+            return Err(err(path(&[&"output", &"frames"]), format!("unknown frame format `{other}`; expected obj, ply or none")))
+        }
+    };
+    let every = match t.every {
+        None => default_every,
+        Some(e) if e >= 1 => e as usize,
+        Some(e) => return Err(err(path(&[&"output", &"every"]), format!("must be >= 1 step per frame, not {e}"))),
+    };
+    Ok(Output { frames, every })
+}
+
+fn finite_positive(v: f64, p: Vec<Key>, what: &str, err: &ErrFn<'_>) -> Result<f64, SceneError> {
+    if v.is_finite() && v > 0.0 {
+        Ok(v)
+    } else {
+        Err(err(p, format!("{what} must be a finite number > 0, not {v}")))
+    }
+}
+
+fn finite_nonneg(v: f64, p: Vec<Key>, what: &str, err: &ErrFn<'_>) -> Result<f64, SceneError> {
+    if v.is_finite() && v >= 0.0 {
+        Ok(v)
+    } else {
+        Err(err(p, format!("{what} must be a finite number >= 0, not {v}")))
+    }
+}
+
+fn index(v: i64, p: Vec<Key>, err: &ErrFn<'_>) -> Result<usize, SceneError> {
+    usize::try_from(v).map_err(|_| err(p, format!("a particle index must be >= 0, not {v}")))
+}
+
+/// The mass-spring description, and how many of its pinned entries come from the
+/// `pinned` list (the rest come from `particle.pinned` flags).
+fn mass_spring_desc(
+    t: &schema::MassSpringTable,
+    gravity: [f64; 3],
+    err: &ErrFn<'_>,
+) -> Result<(MassSpringDesc, usize), SceneError> {
+    let at = |f: &[&dyn PathPart]| {
+        let mut p = path(&[&"mass_spring"]);
+        p.extend(path(f));
+        p
+    };
+    let sources = t.chain.is_some() as usize + t.grid.is_some() as usize + (!t.particle.is_empty()) as usize;
+    if sources != 1 {
+        return Err(err(
+            at(&[]),
+            "give exactly one of [mass_spring.chain], [mass_spring.grid] or [[mass_spring.particle]] lists".into(),
+        ));
+    }
+    let mut desc = if let Some(c) = &t.chain {
+        if c.count < 2 {
+            return Err(err(at(&[&"chain", &"count"]), format!("a chain needs at least 2 particles, not {}", c.count)));
+        }
+        let spacing = finite_positive(c.spacing, at(&[&"chain", &"spacing"]), "spacing", err)?;
+        let mass = finite_positive(c.mass, at(&[&"chain", &"mass"]), "mass", err)?;
+        let k = finite_nonneg(c.stiffness, at(&[&"chain", &"stiffness"]), "stiffness", err)?;
+        let kd = finite_nonneg(c.damping, at(&[&"chain", &"damping"]), "damping", err)?;
+        let dir = c.direction.unwrap_or([1.0, 0.0, 0.0]);
+        if !dir.iter().all(|v| v.is_finite()) || dir.iter().all(|&v| v == 0.0) {
+            return Err(err(at(&[&"chain", &"direction"]), "must be a finite, non-zero vector".into()));
+        }
+        ms::chain(c.count as usize, c.anchor.unwrap_or([0.0; 3]), dir, spacing, mass, k, kd)
+    } else if let Some(g) = &t.grid {
+        for (name, v) in [("nu", g.nu), ("nv", g.nv)] {
+            if v < 2 {
+                return Err(err(at(&[&"grid", &name]), format!("a grid needs at least 2 particles per side, not {v}")));
+            }
+        }
+        for (i, &s) in g.size.iter().enumerate() {
+            finite_positive(s, at(&[&"grid", &"size", &i]), "size", err)?;
+        }
+        let mass = finite_positive(g.mass, at(&[&"grid", &"mass"]), "mass", err)?;
+        let structural = finite_nonneg(g.structural, at(&[&"grid", &"structural"]), "stiffness", err)?;
+        let shear = finite_nonneg(g.shear, at(&[&"grid", &"shear"]), "stiffness", err)?;
+        let bend = finite_nonneg(g.bend, at(&[&"grid", &"bend"]), "stiffness", err)?;
+        let damping = finite_nonneg(g.damping, at(&[&"grid", &"damping"]), "damping", err)?;
+        let d = ms::grid(&ms::GridOptions {
+            nu: g.nu as usize,
+            nv: g.nv as usize,
+            size: g.size,
+            origin: g.origin.unwrap_or([0.0; 3]),
+            u_axis: g.u_axis.unwrap_or([1.0, 0.0, 0.0]),
+            v_axis: g.v_axis.unwrap_or([0.0, -1.0, 0.0]),
+            total_mass: mass,
+            structural,
+            shear,
+            bend,
+            damping,
+        });
+        if !d.positions.iter().flatten().all(|v| v.is_finite()) {
+            return Err(err(at(&[&"grid"]), "origin and axes must be finite".into()));
+        }
+        d
+    } else {
+        let mut d = MassSpringDesc::default();
+        for p in &t.particle {
+            d.positions.push(p.position);
+            d.velocities.push(p.velocity.unwrap_or([0.0; 3]));
+            d.masses.push(p.mass);
+        }
+        d
+    };
+    if (t.chain.is_some() || t.grid.is_some()) && !t.spring.is_empty() {
+        return Err(err(at(&[&"spring"]), "springs come from the generator; list springs only with explicit particles".into()));
+    }
+    for (k, s) in t.spring.iter().enumerate() {
+        let a = index(s.a, at(&[&"spring", &k, &"a"]), err)?;
+        let b = index(s.b, at(&[&"spring", &k, &"b"]), err)?;
+        desc.springs.push(SpringDesc {
+            a,
+            b,
+            stiffness: s.stiffness,
+            damping: s.damping,
+            rest_length: s.rest_length,
+        });
+    }
+    let mut pinned = Vec::new();
+    for (k, &p) in t.pinned.iter().enumerate() {
+        pinned.push(index(p, at(&[&"pinned", &k]), err)?);
+    }
+    let from_table = pinned.len();
+    pinned.extend(t.particle.iter().enumerate().filter(|(_, p)| p.pinned).map(|(i, _)| i));
+    // An explicit list wins; otherwise the generator's default stands (a chain pins its
+    // first particle, a grid nothing).
+    if !pinned.is_empty() {
+        desc.pinned = pinned;
+    }
+    desc.gravity = gravity;
+    desc.definiteness_fix = t.definiteness_fix.unwrap_or(true);
+    Ok((desc, from_table))
+}
+
+/// The TOML path a model validation error refers to.
+fn model_error_path(e: &ModelError, t: &schema::MassSpringTable, pinned_from_table: usize) -> Vec<Key> {
+    let ms = |rest: &[&dyn PathPart]| {
+        let mut p = path(&[&"mass_spring"]);
+        p.extend(path(rest));
+        p
+    };
+    match e {
+        ModelError::Value { item: "particle", index, field, .. } => {
+            let f = field.split('.').next().unwrap_or(field);
+            ms(&[&"particle", index, &f])
+        }
+        ModelError::Value { item: "spring", index, field, .. } => ms(&[&"spring", index, field]),
+        ModelError::Value { item: "gravity", index, .. } => path(&[&"scene", &"gravity", index]),
+        ModelError::MissingParticle { item: "spring", index, particle, .. } => {
+            let end = if t.spring.get(*index).is_some_and(|s| s.a == *particle as i64) { "a" } else { "b" };
+            ms(&[&"spring", index, &end])
+        }
+        ModelError::SelfSpring { index, .. } => ms(&[&"spring", index, &"b"]),
+        ModelError::MissingParticle { item: "pinned", index, .. } if *index < pinned_from_table => {
+            ms(&[&"pinned", index])
+        }
+        _ => ms(&[]),
+    }
+}

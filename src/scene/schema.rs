@@ -1,0 +1,209 @@
+//! The TOML scene schema (serde), exactly as users write it. Unknown fields are errors.
+//!
+//! ```toml
+//! [scene]
+//! name = "hanging-chain"
+//! dt = 0.0005                 # s, > 0
+//! duration = 3.0              # s, > 0
+//! integrator = "rk4"          # see `largestep::integrate::Method`
+//! gravity = [0.0, -9.81, 0.0] # m/s^2
+//!
+//! [solver]                    # implicit integrators only (all optional)
+//! linear = "auto"             # auto | pcg | cholesky
+//! tolerance = 1e-8            # PCG relative residual
+//! max_iterations = 1000       # PCG
+//! preconditioner = "block-jacobi"  # none | jacobi | block-jacobi
+//! newton_tolerance = 1e-9
+//! newton_max_iterations = 50
+//!
+//! [mass_spring]               # one of: chain, grid, or particle + spring lists
+//! pinned = [0]
+//! definiteness_fix = true
+//! [mass_spring.chain]
+//! count = 20
+//! ...
+//!
+//! [output]
+//! frames = "obj"              # obj | ply | none
+//! every = 33                  # steps per frame (default: about 30 frames per second)
+//! ```
+
+use serde::Deserialize;
+
+/// The whole file.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct File {
+    /// `[scene]`
+    pub scene: SceneTable,
+    /// `[solver]`
+    #[serde(default)]
+    pub solver: Option<SolverTable>,
+    /// `[mass_spring]`
+    #[serde(default)]
+    pub mass_spring: Option<MassSpringTable>,
+    /// `[output]`
+    #[serde(default)]
+    pub output: Option<OutputTable>,
+}
+
+/// `[scene]`
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneTable {
+    /// Name used in reports.
+    #[serde(default)]
+    pub name: Option<String>,
+    /// Time step (s).
+    pub dt: f64,
+    /// Simulated time (s).
+    pub duration: f64,
+    /// Integrator name.
+    pub integrator: String,
+    /// Gravity (m/s^2).
+    #[serde(default)]
+    pub gravity: Option<[f64; 3]>,
+}
+
+/// `[solver]`
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SolverTable {
+    /// `auto`, `pcg` or `cholesky`.
+    pub linear: Option<String>,
+    /// PCG tolerance.
+    pub tolerance: Option<f64>,
+    /// PCG iteration limit.
+    pub max_iterations: Option<i64>,
+    /// `none`, `jacobi`, `block-jacobi`.
+    pub preconditioner: Option<String>,
+    /// Newton relative tolerance.
+    pub newton_tolerance: Option<f64>,
+    /// Newton iteration limit.
+    pub newton_max_iterations: Option<i64>,
+}
+
+/// `[mass_spring]`
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MassSpringTable {
+    /// Pinned particle indices.
+    #[serde(default)]
+    pub pinned: Vec<i64>,
+    /// Clamp the compression term of spring Jacobians (default true).
+    #[serde(default)]
+    pub definiteness_fix: Option<bool>,
+    /// A chain generator.
+    #[serde(default)]
+    pub chain: Option<ChainTable>,
+    /// A grid generator.
+    #[serde(default)]
+    pub grid: Option<GridTable>,
+    /// Explicit particles.
+    #[serde(default)]
+    pub particle: Vec<ParticleTable>,
+    /// Explicit springs.
+    #[serde(default)]
+    pub spring: Vec<SpringTable>,
+}
+
+/// `[mass_spring.chain]`
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ChainTable {
+    /// Particles (>= 2).
+    pub count: i64,
+    /// First particle (m).
+    #[serde(default)]
+    pub anchor: Option<[f64; 3]>,
+    /// Direction of the chain.
+    #[serde(default)]
+    pub direction: Option<[f64; 3]>,
+    /// Distance between particles (m).
+    pub spacing: f64,
+    /// Mass of each particle (kg).
+    pub mass: f64,
+    /// Spring stiffness (N/m).
+    pub stiffness: f64,
+    /// Spring damping (N s/m).
+    #[serde(default)]
+    pub damping: f64,
+}
+
+/// `[mass_spring.grid]`
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GridTable {
+    /// Particles along the first axis (>= 2).
+    pub nu: i64,
+    /// Particles along the second axis (>= 2).
+    pub nv: i64,
+    /// Extent (m).
+    pub size: [f64; 2],
+    /// Corner particle position (m).
+    #[serde(default)]
+    pub origin: Option<[f64; 3]>,
+    /// First axis direction.
+    #[serde(default)]
+    pub u_axis: Option<[f64; 3]>,
+    /// Second axis direction.
+    #[serde(default)]
+    pub v_axis: Option<[f64; 3]>,
+    /// Total mass (kg).
+    pub mass: f64,
+    /// Structural stiffness (N/m).
+    pub structural: f64,
+    /// Shear stiffness (N/m).
+    #[serde(default)]
+    pub shear: f64,
+    /// Bend stiffness (N/m).
+    #[serde(default)]
+    pub bend: f64,
+    /// Damping of every spring (N s/m).
+    #[serde(default)]
+    pub damping: f64,
+}
+
+/// `[[mass_spring.particle]]`
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ParticleTable {
+    /// Position (m).
+    pub position: [f64; 3],
+    /// Velocity (m/s).
+    #[serde(default)]
+    pub velocity: Option<[f64; 3]>,
+    /// Mass (kg).
+    pub mass: f64,
+    /// Pinned.
+    #[serde(default)]
+    pub pinned: bool,
+}
+
+/// `[[mass_spring.spring]]`
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SpringTable {
+    /// First particle.
+    pub a: i64,
+    /// Second particle.
+    pub b: i64,
+    /// Stiffness (N/m).
+    pub stiffness: f64,
+    /// Damping (N s/m).
+    #[serde(default)]
+    pub damping: f64,
+    /// Rest length (m); default the initial distance.
+    #[serde(default)]
+    pub rest_length: Option<f64>,
+}
+
+/// `[output]`
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OutputTable {
+    /// `obj`, `ply` or `none`.
+    pub frames: Option<String>,
+    /// Steps per frame.
+    pub every: Option<i64>,
+}

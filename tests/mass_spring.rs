@@ -1,0 +1,216 @@
+//! Mass-spring model: assembled Jacobians against finite differences, validation errors,
+//! every integrator on the chain, pinned particles, thread-count determinism.
+
+use largestep::integrate::*;
+use largestep::mass_spring::*;
+use largestep::sparse::Bsr3;
+use proptest::prelude::*;
+
+fn random_system(seed: &[f64], damping: f64) -> (MassSpring, MassSpringState) {
+    let mut desc = grid(&GridOptions {
+        nu: 4,
+        nv: 3,
+        size: [1.0, 0.6],
+        origin: [0.0, 0.0, 0.0],
+        u_axis: [1.0, 0.0, 0.0],
+        v_axis: [0.0, 0.0, 1.0],
+        total_mass: 1.2,
+        structural: 50.0,
+        shear: 20.0,
+        bend: 5.0,
+        damping,
+    });
+    // Deform and move the particles; springs keep their rest lengths from the grid.
+    for s in &mut desc.springs {
+        let (a, b) = (desc.positions[s.a], desc.positions[s.b]);
+        s.rest_length = Some(((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt());
+    }
+    let mut k = 0;
+    let mut next = || {
+        k += 1;
+        seed[k % seed.len()]
+    };
+    for p in &mut desc.positions {
+        for c in p.iter_mut() {
+            *c += 0.15 * next();
+        }
+    }
+    desc.velocities = (0..desc.positions.len()).map(|_| [next(), next(), next()]).collect();
+    desc.gravity = [0.0, -9.81, 0.0];
+    desc.build().unwrap()
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(48))]
+    #[test]
+    fn assembled_jacobians_are_symmetric_and_match_finite_differences(
+        seed in prop::collection::vec(-1f64..1.0, 7..23),
+        damping in prop_oneof![Just(0.0), 0.1f64..2.0],
+    ) {
+        let (mut m, st) = random_system(&seed, damping);
+        let n = m.particle_count();
+        let pattern = m.prepare_jacobians().unwrap().unwrap();
+        let (mut kx, mut dv) = (Bsr3::zeros(pattern.clone()), Bsr3::zeros(pattern));
+        let mut f = vec![0.0; 3 * n];
+        let (x, v) = (st.x.as_slice().to_vec(), st.v.as_slice().to_vec());
+        m.force_jacobians(0.0, &x, &v, &mut f, &mut kx, Some(&mut dv)).unwrap();
+        prop_assert!(kx.max_asymmetry() <= 1e-12 * 50.0);
+        prop_assert!(dv.max_asymmetry() == 0.0);
+        // Forces from force() and force_jacobians() agree.
+        let mut f2 = vec![0.0; 3 * n];
+        m.force(0.0, &x, &v, &mut f2);
+        prop_assert_eq!(&f, &f2);
+        // Columns against central differences: dF/dx of the elastic force (damping off),
+        // dF/dv of the full force.
+        let (kd, dd) = (kx.to_dense(), dv.to_dense());
+        let (mut m0, _) = random_system(&seed, 0.0);
+        let h = 1e-6;
+        let mut fp = vec![0.0; 3 * n];
+        let mut fm = vec![0.0; 3 * n];
+        for col in 0..3 * n {
+            let (mut xp, mut xm) = (x.clone(), x.clone());
+            xp[col] += h;
+            xm[col] -= h;
+            m0.force(0.0, &xp, &v, &mut fp);
+            m0.force(0.0, &xm, &v, &mut fm);
+            for row in 0..3 * n {
+                let fd = (fp[row] - fm[row]) / (2.0 * h);
+                prop_assert!((kd[row * 3 * n + col] - fd).abs() < 1e-5 * 50.0, "K[{row},{col}]");
+            }
+            let (mut vp, mut vm) = (v.clone(), v.clone());
+            vp[col] += h;
+            vm[col] -= h;
+            m.force(0.0, &x, &vp, &mut fp);
+            m.force(0.0, &x, &vm, &mut fm);
+            for row in 0..3 * n {
+                let fd = (fp[row] - fm[row]) / (2.0 * h);
+                prop_assert!((dd[row * 3 * n + col] - fd).abs() < 1e-6 * (1.0 + damping), "D[{row},{col}]");
+            }
+        }
+    }
+
+    #[test]
+    fn internal_forces_sum_to_zero(seed in prop::collection::vec(-1f64..1.0, 7..23)) {
+        let (mut m, st) = random_system(&seed, 0.7);
+        let n = m.particle_count();
+        let mut f = vec![0.0; 3 * n];
+        m.force(0.0, st.x.as_slice(), st.v.as_slice(), &mut f);
+        // Subtract gravity: the springs alone carry no net force.
+        let total_mass: f64 = m.mass().iter().sum();
+        let sum_y: f64 = f[n..2 * n].iter().sum::<f64>() + 9.81 * total_mass;
+        let sum_x: f64 = f[..n].iter().sum();
+        let sum_z: f64 = f[2 * n..].iter().sum();
+        prop_assert!(sum_x.abs() < 1e-10 && sum_y.abs() < 1e-10 && sum_z.abs() < 1e-10);
+    }
+}
+
+fn hanging_chain() -> MassSpringDesc {
+    let mut d = chain(12, [0.0, 0.0, 0.0], [1.0, 0.0, 0.0], 0.1, 0.01, 200.0, 0.01);
+    d.gravity = [0.0, -9.81, 0.0];
+    d.definiteness_fix = true;
+    d
+}
+
+#[test]
+fn every_integrator_runs_the_chain_and_keeps_the_pin() {
+    for method in Method::ALL {
+        let (mut m, mut st) = hanging_chain().build().unwrap();
+        let mut stepper = MechStepper::new(MechSettings::new(method), &mut m).unwrap();
+        assert_eq!(stepper.has_matrix(), method.is_implicit(), "{method}: matrix only when implicit");
+        let h = if method.is_implicit() { 1e-3 } else { 2e-4 };
+        let steps = (0.5 / h) as usize;
+        let e0 = m.potential_energy(0.0, st.x.as_slice()).unwrap() + kinetic_energy(m.mass(), st.v.as_slice());
+        for k in 0..steps {
+            stepper
+                .step(&mut m, k as f64 * h, st.x.as_mut_slice(), st.v.as_mut_slice(), h)
+                .unwrap_or_else(|e| panic!("{method}: {e}"));
+        }
+        assert_eq!(st.x.get(0), [0.0, 0.0, 0.0], "{method}: the pinned particle never moves");
+        assert!(st.x.get(11)[1] < -0.2, "{method}: the chain swings down");
+        let e1 = m.potential_energy(0.0, st.x.as_slice()).unwrap() + kinetic_energy(m.mass(), st.v.as_slice());
+        // Backward Euler (either form) dissipates; explicit Euler's growth (1 + h^2 w^2 per
+        // step) can beat the small damping, which is why it is not checked here.
+        if matches!(method, Method::BackwardEuler | Method::LinearizedBackwardEuler) {
+            assert!(e1 <= e0, "{method}: damped chain gains no energy ({e0} -> {e1})");
+        }
+    }
+}
+
+#[test]
+fn explicit_runs_build_no_jacobian_structures() {
+    let (mut m, _) = hanging_chain().build().unwrap();
+    let _ = MechStepper::new(MechSettings::new(Method::Rk4), &mut m).unwrap();
+    assert!(!m.has_jacobians());
+    let _ = MechStepper::new(MechSettings::new(Method::BackwardEuler), &mut m).unwrap();
+    assert!(m.has_jacobians());
+    let mut no_damp = hanging_chain();
+    for s in &mut no_damp.springs {
+        s.damping = 0.0;
+    }
+    let (mut m, _) = no_damp.build().unwrap();
+    let st = MechStepper::new(MechSettings::new(Method::BackwardEuler), &mut m).unwrap();
+    assert!(!st.has_damping_matrix(), "no damping matrix without damping");
+}
+
+#[test]
+fn results_do_not_depend_on_the_thread_count() {
+    let desc = {
+        let mut d = grid(&GridOptions {
+            nu: 40,
+            nv: 40,
+            size: [1.0, 1.0],
+            origin: [0.0; 3],
+            u_axis: [1.0, 0.0, 0.0],
+            v_axis: [0.0, -1.0, 0.0],
+            total_mass: 1.0,
+            structural: 400.0,
+            shear: 100.0,
+            bend: 10.0,
+            damping: 0.05,
+        });
+        d.gravity = [0.0, 0.0, -9.81];
+        d.pinned = vec![0, 39];
+        d
+    };
+    for method in [Method::Rk4, Method::BackwardEuler, Method::LinearizedBackwardEuler] {
+        let run = || {
+            let (mut m, mut st) = desc.build().unwrap();
+            let mut s = MechSettings::new(method);
+            s.linear = LinearSolverKind::Pcg(Default::default());
+            let mut stepper = MechStepper::new(s, &mut m).unwrap();
+            for k in 0..20 {
+                stepper.step(&mut m, k as f64 * 1e-3, st.x.as_mut_slice(), st.v.as_mut_slice(), 1e-3).unwrap();
+            }
+            st
+        };
+        let pool = |t| rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap();
+        let one = pool(1).install(run);
+        let two = pool(2).install(run);
+        assert!(one == two, "{method}: 1 thread = 2 threads, bitwise");
+    }
+}
+
+#[test]
+fn invalid_models_name_the_item() {
+    let base = hanging_chain();
+    let cases: Vec<(Box<dyn Fn(&mut MassSpringDesc)>, &str)> = vec![
+        (Box::new(|d| d.masses[3] = -1.0), "particle 3: mass = -1"),
+        (Box::new(|d| d.masses[3] = f64::NAN), "particle 3: mass = NaN"),
+        (Box::new(|d| d.masses[3] = 0.0), "only pinned particles may have zero mass"),
+        (Box::new(|d| d.springs[2].stiffness = -5.0), "spring 2: stiffness = -5"),
+        (Box::new(|d| d.springs[4].damping = f64::INFINITY), "spring 4: damping = inf"),
+        (Box::new(|d| d.springs[1].b = 99), "spring 1 names particle 99, but there are only 12"),
+        (Box::new(|d| d.springs[1].b = d.springs[1].a), "spring 1 connects particle"),
+        (Box::new(|d| d.springs[0].rest_length = Some(-0.1)), "spring 0: rest_length"),
+        (Box::new(|d| d.positions[5][1] = f64::NAN), "particle 5: position.y = NaN"),
+        (Box::new(|d| d.pinned.push(40)), "pinned 1 names particle 40"),
+        (Box::new(|d| d.gravity[2] = f64::NAN), "gravity 2"),
+        (Box::new(|d| d.positions.clear()), "no particles"),
+    ];
+    for (edit, expected) in cases {
+        let mut d = base.clone();
+        edit(&mut d);
+        let err = d.build().err().expect("invalid input must be rejected").to_string();
+        assert!(err.contains(expected), "`{err}` should contain `{expected}`");
+    }
+}
