@@ -49,9 +49,11 @@ pub trait Mechanical {
     fn vertex_count(&self) -> usize;
     /// Mass per vertex (kg), length n: > 0, or 0 for vertices the filter pins.
     fn mass(&self) -> &[f64];
-    /// Constraints on vertex velocities (pinned vertices, planes, lines), if any.
-    fn filter(&self) -> Option<&Filter> {
-        None
+    /// Writes the current constraints on vertex velocities (pinned vertices, planes,
+    /// lines) into `filter`, which the stepper owns and clears before every step. Called
+    /// before every step, so constraints may change (contacts); the default adds none.
+    fn constraints(&self, filter: &mut Filter) {
+        let _ = filter;
     }
     /// `f = total force` (N) at time t, positions x (m) and velocities v (m/s).
     fn force(&mut self, t: f64, x: &[f64], v: &[f64], f: &mut [f64]);
@@ -206,7 +208,7 @@ pub struct MechStepper {
     n: usize,
     inv_mass: Vec<f64>,
     mass: Vec<f64>,
-    filter: Option<Filter>,
+    filter: Filter,
     y: Vec<f64>,
     rk: Option<RkWork>,
     f: Vec<f64>,
@@ -273,7 +275,7 @@ impl MechStepper {
             n,
             inv_mass,
             mass,
-            filter: sys.filter().cloned(),
+            filter: Filter::new(n),
             y,
             rk,
             f,
@@ -324,11 +326,9 @@ impl MechStepper {
         self.steps += 1;
         let step = self.steps;
         let method = self.settings.method;
-        match (sys.filter(), &mut self.filter) {
-            (Some(src), Some(dst)) => dst.clone_from(src),
-            (src, dst) => *dst = src.cloned(),
-        }
-        let filter = self.filter.as_ref();
+        self.filter.clear();
+        sys.constraints(&mut self.filter);
+        let filter = (!self.filter.is_empty()).then_some(&self.filter);
         if let Some(f) = filter {
             f.apply(v);
         }

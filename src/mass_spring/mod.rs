@@ -133,7 +133,7 @@ pub struct MassSpring {
     kd: Vec<f64>,
     rest: Vec<f64>,
     gravity: [f64; 3],
-    filter: Option<Filter>,
+    pinned: Vec<u32>,
     params: SpringParams,
     triangles: Vec<[u32; 3]>,
     has_damping: bool,
@@ -260,13 +260,9 @@ impl MassSpringDesc {
                 });
             }
         }
-        let filter = (!self.pinned.is_empty()).then(|| {
-            let mut f = Filter::new(n);
-            for &p in &self.pinned {
-                f.fix(p);
-            }
-            f
-        });
+        let mut pinned: Vec<u32> = self.pinned.iter().map(|&p| p as u32).collect();
+        pinned.sort_unstable();
+        pinned.dedup();
         let gather = VectorGather::new(n, &ends, &LocalLayout::pair())
             .map_err(|e| ModelError::Sparse(e.to_string()))?;
         let has_damping = kd.iter().any(|&d| d > 0.0);
@@ -280,7 +276,7 @@ impl MassSpringDesc {
             kd,
             rest,
             gravity: self.gravity,
-            filter,
+            pinned,
             params: SpringParams {
                 definiteness_fix: self.definiteness_fix,
             },
@@ -293,8 +289,8 @@ impl MassSpringDesc {
         } else {
             Vec3s::from_aos(&self.velocities)
         };
-        if let Some(f) = &model.filter {
-            f.apply(v.as_mut_slice());
+        for &p in &model.pinned {
+            v.set(p as usize, [0.0; 3]);
         }
         let state = MassSpringState {
             x: Vec3s::from_aos(&self.positions),
@@ -342,7 +338,7 @@ impl MassSpring {
 
     /// Number of pinned particles.
     pub fn pinned_count(&self) -> usize {
-        self.filter.as_ref().map_or(0, |f| f.vertices().len())
+        self.pinned.len()
     }
 
     /// Whether Jacobian structures have been built.
@@ -378,8 +374,10 @@ impl Mechanical for MassSpring {
         &self.mass
     }
 
-    fn filter(&self) -> Option<&Filter> {
-        self.filter.as_ref()
+    fn constraints(&self, filter: &mut Filter) {
+        for &p in &self.pinned {
+            filter.fix(p as usize);
+        }
     }
 
     fn force(&mut self, _t: f64, x: &[f64], v: &[f64], f: &mut [f64]) {

@@ -69,6 +69,15 @@ impl Filter {
         }
     }
 
+    /// Frees every vertex (cost proportional to the constrained ones).
+    pub fn clear(&mut self) {
+        for &i in &self.verts {
+            self.index_of[i as usize] = FREE;
+        }
+        self.verts.clear();
+        self.s.clear();
+    }
+
     /// Pins vertex i (all three directions constrained).
     pub fn fix(&mut self, i: usize) {
         self.set(i, [0.0; 9]);

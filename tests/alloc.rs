@@ -1,0 +1,115 @@
+//! No hidden allocation: after setup and a first call, Cholesky refactorizations and
+//! solves, PCG solves and whole time steps (explicit and implicit) allocate nothing.
+//!
+//! A counting global allocator sees every thread, so this binary holds one test and runs
+//! the checks in sequence, inside the rayon pool (jobs injected from outside a pool may
+//! allocate queue blocks in rayon itself, which is not ours to count).
+
+use largestep::integrate::{LinearSolverKind, MechSettings, MechStepper, Method};
+use largestep::mass_spring::{grid, GridOptions};
+use largestep::solve::{Pcg, PcgParams, SparseCholesky};
+use largestep::sparse::examples::grid_spd;
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+struct Counting;
+
+static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+fn allocations_during(f: impl FnOnce()) -> usize {
+    let before = ALLOCATIONS.load(Ordering::SeqCst);
+    f();
+    ALLOCATIONS.load(Ordering::SeqCst) - before
+}
+
+#[test]
+fn steady_state_work_does_not_allocate() {
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+    pool.install(|| {
+        // Cholesky: refactorize with new values, solve.
+        let a = grid_spd(&[30, 30], 1.0, 0.1);
+        let n = a.n();
+        let mut b2 = a.clone();
+        for v in b2.values_mut() {
+            *v *= 1.5;
+        }
+        let mut chol = SparseCholesky::new(a.pattern()).unwrap();
+        let mut x = vec![1.0; 3 * n];
+        chol.factorize(&a).unwrap();
+        chol.solve_in_place(&mut x).unwrap();
+        let count = allocations_during(|| {
+            for m in [&b2, &a, &b2] {
+                chol.factorize(m).unwrap();
+                chol.solve_in_place(&mut x).unwrap();
+            }
+        });
+        assert_eq!(count, 0, "Cholesky refactorization and solve allocated {count} times");
+
+        // PCG.
+        let a = grid_spd(&[40, 40, 4], 1.0, 0.05);
+        let n = a.n();
+        let b = vec![1.0; 3 * n];
+        let mut pcg = Pcg::new(n, PcgParams::default());
+        let mut x = vec![0.0; 3 * n];
+        pcg.solve(&a, &b, &mut x, None).unwrap();
+        let count = allocations_during(|| {
+            x.fill(0.0);
+            pcg.solve(&a, &b, &mut x, None).unwrap();
+        });
+        assert_eq!(count, 0, "PCG allocated {count} times");
+
+        // Whole steps of a pinned spring grid, each method with each linear solver.
+        let mut desc = grid(&GridOptions {
+            nu: 20,
+            nv: 20,
+            size: [1.0, 1.0],
+            origin: [0.0; 3],
+            u_axis: [1.0, 0.0, 0.0],
+            v_axis: [0.0, 0.0, 1.0],
+            total_mass: 0.5,
+            structural: 200.0,
+            shear: 50.0,
+            bend: 1.0,
+            damping: 0.02,
+        });
+        desc.gravity = [0.0, -9.81, 0.0];
+        desc.pinned = vec![0, 19];
+        desc.definiteness_fix = true;
+        for method in Method::ALL {
+            for linear in [LinearSolverKind::Cholesky, LinearSolverKind::Pcg(PcgParams::default())] {
+                let (mut m, mut st) = desc.build().unwrap();
+                let mut settings = MechSettings::new(method);
+                settings.linear = linear;
+                let mut stepper = MechStepper::new(settings, &mut m).unwrap();
+                let h = if method.is_implicit() { 1.0 / 120.0 } else { 2e-4 };
+                stepper.step(&mut m, 0.0, st.x.as_mut_slice(), st.v.as_mut_slice(), h).unwrap();
+                let count = allocations_during(|| {
+                    for k in 1..4 {
+                        stepper.step(&mut m, k as f64 * h, st.x.as_mut_slice(), st.v.as_mut_slice(), h).unwrap();
+                    }
+                });
+                assert_eq!(count, 0, "{method} with {linear:?} allocated {count} times in 3 steps");
+                if !method.is_implicit() {
+                    break; // the linear solver is irrelevant
+                }
+            }
+        }
+    });
+}
