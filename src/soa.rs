@@ -147,7 +147,11 @@ impl<'a> Vec3sRef<'a> {
     /// Vector i.
     #[inline]
     pub fn get(&self, i: usize) -> [f64; 3] {
-        [self.data[i], self.data[self.n + i], self.data[2 * self.n + i]]
+        [
+            self.data[i],
+            self.data[self.n + i],
+            self.data[2 * self.n + i],
+        ]
     }
     /// The flat data.
     pub fn as_slice(&self) -> &'a [f64] {

@@ -41,7 +41,10 @@ fn allocations_during(f: impl FnOnce()) -> usize {
 
 #[test]
 fn steady_state_work_does_not_allocate() {
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .unwrap();
     pool.install(|| {
         // Cholesky: refactorize with new values, solve.
         let a = grid_spd(&[30, 30], 1.0, 0.1);
@@ -60,7 +63,10 @@ fn steady_state_work_does_not_allocate() {
                 chol.solve_in_place(&mut x).unwrap();
             }
         });
-        assert_eq!(count, 0, "Cholesky refactorization and solve allocated {count} times");
+        assert_eq!(
+            count, 0,
+            "Cholesky refactorization and solve allocated {count} times"
+        );
 
         // PCG.
         let a = grid_spd(&[40, 40, 4], 1.0, 0.05);
@@ -93,19 +99,39 @@ fn steady_state_work_does_not_allocate() {
         desc.pinned = vec![0, 19];
         desc.definiteness_fix = true;
         for method in Method::ALL {
-            for linear in [LinearSolverKind::Cholesky, LinearSolverKind::Pcg(PcgParams::default())] {
+            for linear in [
+                LinearSolverKind::Cholesky,
+                LinearSolverKind::Pcg(PcgParams::default()),
+            ] {
                 let (mut m, mut st) = desc.build().unwrap();
                 let mut settings = MechSettings::new(method);
                 settings.linear = linear;
                 let mut stepper = MechStepper::new(settings, &mut m).unwrap();
-                let h = if method.is_implicit() { 1.0 / 120.0 } else { 2e-4 };
-                stepper.step(&mut m, 0.0, st.x.as_mut_slice(), st.v.as_mut_slice(), h).unwrap();
+                let h = if method.is_implicit() {
+                    1.0 / 120.0
+                } else {
+                    2e-4
+                };
+                stepper
+                    .step(&mut m, 0.0, st.x.as_mut_slice(), st.v.as_mut_slice(), h)
+                    .unwrap();
                 let count = allocations_during(|| {
                     for k in 1..4 {
-                        stepper.step(&mut m, k as f64 * h, st.x.as_mut_slice(), st.v.as_mut_slice(), h).unwrap();
+                        stepper
+                            .step(
+                                &mut m,
+                                k as f64 * h,
+                                st.x.as_mut_slice(),
+                                st.v.as_mut_slice(),
+                                h,
+                            )
+                            .unwrap();
                     }
                 });
-                assert_eq!(count, 0, "{method} with {linear:?} allocated {count} times in 3 steps");
+                assert_eq!(
+                    count, 0,
+                    "{method} with {linear:?} allocated {count} times in 3 steps"
+                );
                 if !method.is_implicit() {
                     break; // the linear solver is irrelevant
                 }

@@ -15,7 +15,14 @@ fn settings(method: Method, linear: LinearSolverKind) -> MechSettings {
 }
 
 /// Integrates a one-vertex system from (x0, v0) to T with N steps; returns (x, v).
-fn run_mech(sys: &mut dyn Mechanical, method: Method, x0: f64, v0: f64, t_end: f64, steps: usize) -> (f64, f64) {
+fn run_mech(
+    sys: &mut dyn Mechanical,
+    method: Method,
+    x0: f64,
+    v0: f64,
+    t_end: f64,
+    steps: usize,
+) -> (f64, f64) {
     let mut st = MechStepper::new(settings(method, LinearSolverKind::Cholesky), sys).unwrap();
     let (mut x, mut v) = ([x0, 0.0, 0.0], [v0, 0.0, 0.0]);
     let h = t_end / steps as f64;
@@ -68,7 +75,10 @@ fn nonlinear_pendulum_orders() {
             })
             .collect();
         let p = observed_order(&errors);
-        assert!((p - method.order() as f64).abs() < 0.1, "{method}: order {p:.3} ({errors:?})");
+        assert!(
+            (p - method.order() as f64).abs() < 0.1,
+            "{method}: order {p:.3} ({errors:?})"
+        );
     }
 }
 
@@ -91,7 +101,10 @@ fn first_order_methods_reach_nominal_order() {
             })
             .collect();
         let p = observed_order(&errors);
-        assert!((p - method.order() as f64).abs() < 0.1, "{method}: order {p:.3}");
+        assert!(
+            (p - method.order() as f64).abs() < 0.1,
+            "{method}: order {p:.3}"
+        );
     }
 }
 
@@ -112,7 +125,8 @@ fn exact_energy_laws_on_the_linear_oscillator() {
     ];
     for (method, factor) in laws {
         let mut osc = Oscillator::new(w, 0.0, 0.0);
-        let mut st = MechStepper::new(settings(method, LinearSolverKind::Cholesky), &mut osc).unwrap();
+        let mut st =
+            MechStepper::new(settings(method, LinearSolverKind::Cholesky), &mut osc).unwrap();
         let (mut x, mut v) = ([0.7, 0.0, 0.0], [-1.3, 0.0, 0.0]);
         for k in 0..50 {
             let e0 = osc.energy(x[0], v[0]);
@@ -127,7 +141,11 @@ fn exact_energy_laws_on_the_linear_oscillator() {
     }
     // Symplectic Euler conserves the modified energy v^2 + w^2 x^2 - h w^2 x v exactly.
     let mut osc = Oscillator::new(w, 0.0, 0.0);
-    let mut st = MechStepper::new(settings(Method::SymplecticEuler, LinearSolverKind::Auto), &mut osc).unwrap();
+    let mut st = MechStepper::new(
+        settings(Method::SymplecticEuler, LinearSolverKind::Auto),
+        &mut osc,
+    )
+    .unwrap();
     let (mut x, mut v) = ([0.7, 0.0, 0.0], [-1.3, 0.0, 0.0]);
     let q = |x: f64, v: f64| v * v + w * w * x * x - h * w * w * x * v;
     let q0 = q(x[0], v[0]);
@@ -182,7 +200,10 @@ fn course_notes_sample_forward_is_5_backward_has_no_real_solution() {
         ),
         "{msg}"
     );
-    assert!(msg.contains("no real solution") || msg.contains("no solution"), "{msg}");
+    assert!(
+        msg.contains("no real solution") || msg.contains("no solution"),
+        "{msg}"
+    );
     assert_eq!(y[0], 1.0, "the state is left untouched on failure");
     assert!(!msg.contains("NaN"));
 }
@@ -190,7 +211,12 @@ fn course_notes_sample_forward_is_5_backward_has_no_real_solution() {
 #[test]
 fn pcg_and_cholesky_give_the_same_implicit_steps() {
     let osc = Oscillator::new(5.0, 0.2, 0.3);
-    for method in [Method::BackwardEuler, Method::LinearizedBackwardEuler, Method::ImplicitMidpoint, Method::Newmark] {
+    for method in [
+        Method::BackwardEuler,
+        Method::LinearizedBackwardEuler,
+        Method::ImplicitMidpoint,
+        Method::Newmark,
+    ] {
         let mut results = Vec::new();
         for linear in [
             LinearSolverKind::Cholesky,
@@ -204,13 +230,17 @@ fn pcg_and_cholesky_give_the_same_implicit_steps() {
             let mut st = MechStepper::new(settings(method, linear), &mut sys).unwrap();
             let (mut x, mut v) = ([1.0, 0.5, 0.0], [0.0, 0.0, 0.2]);
             for k in 0..20 {
-                st.step(&mut sys, k as f64 * 0.05, &mut x, &mut v, 0.05).unwrap();
+                st.step(&mut sys, k as f64 * 0.05, &mut x, &mut v, 0.05)
+                    .unwrap();
             }
             results.push((x, v));
         }
         let (a, b) = (results[0], results[1]);
         for c in 0..3 {
-            assert!((a.0[c] - b.0[c]).abs() < 1e-12 && (a.1[c] - b.1[c]).abs() < 1e-12, "{method}");
+            assert!(
+                (a.0[c] - b.0[c]).abs() < 1e-12 && (a.1[c] - b.1[c]).abs() < 1e-12,
+                "{method}"
+            );
         }
     }
 }
@@ -248,7 +278,9 @@ fn methods_without_jacobians_or_first_order_form_are_rejected_clearly() {
             f.fill(0.0)
         }
     }
-    let e = MechStepper::new(MechSettings::new(Method::BackwardEuler), &mut Free).err().unwrap();
+    let e = MechStepper::new(MechSettings::new(Method::BackwardEuler), &mut Free)
+        .err()
+        .unwrap();
     assert!(e.to_string().contains("no Jacobians"), "{e}");
     assert!(MechStepper::new(MechSettings::new(Method::Rk4), &mut Free).is_ok());
 }

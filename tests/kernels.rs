@@ -99,7 +99,9 @@ proptest! {
 
 fn dense_mul(d: &[f64], x: &[f64]) -> Vec<f64> {
     let m = x.len();
-    (0..m).map(|r| (0..m).map(|c| d[r * m + c] * x[c]).sum()).collect()
+    (0..m)
+        .map(|r| (0..m).map(|c| d[r * m + c] * x[c]).sum())
+        .collect()
 }
 
 #[test]
@@ -107,7 +109,9 @@ fn spmv_simd_equals_scalar_equals_dense() {
     for dims in [vec![5, 4], vec![3, 4, 5], vec![1]] {
         let a = grid_spd(&dims, 1.3, 0.7);
         let n = a.n();
-        let x: Vec<f64> = (0..3 * n).map(|i| ((i * 37 % 101) as f64 - 50.0) / 17.0).collect();
+        let x: Vec<f64> = (0..3 * n)
+            .map(|i| ((i * 37 % 101) as f64 - 50.0) / 17.0)
+            .collect();
         let reference = dense_mul(&a.to_dense(), &x);
         let mut ys = vec![0.0; 3 * n];
         let mut yw = vec![0.0; 3 * n];
@@ -141,7 +145,10 @@ fn parallel_drivers_are_thread_count_independent() {
     let one = in_pool(1, run);
     let two = in_pool(2, run);
     let four = in_pool(4, run);
-    assert!(one == two && two == four, "bitwise identical across thread counts");
+    assert!(
+        one == two && two == four,
+        "bitwise identical across thread counts"
+    );
 }
 
 #[test]
@@ -155,7 +162,10 @@ fn course_notes_bilinear_worked_example() {
     let wx = [0.0, 2.0, 0.0, 2.0];
     let wy = [1.0, 0.0, 2.0, 0.0];
     let w = sample2_vec([&wx, &wy], g, [0.3, 0.8]);
-    assert!((w[0] - 0.6).abs() < 1e-15 && (w[1] - 1.26).abs() < 1e-15, "w(P) = {w:?}");
+    assert!(
+        (w[0] - 0.6).abs() < 1e-15 && (w[1] - 1.26).abs() < 1e-15,
+        "w(P) = {w:?}"
+    );
     assert!((bilinear(0.0, 2.0, 0.0, 2.0, 0.3, 0.8) - 0.6).abs() < 1e-15);
 }
 
@@ -187,7 +197,13 @@ fn interpolation_propagates_nan_queries() {
     let field = [1.0; 8];
     assert!(sample3(&field, g, [f64::NAN, 0.5, 0.5]).is_nan());
     let mut out = vec![0.0; 3];
-    sample3_vec_add(&mut out, [&field, &field, &field], g, &[0.5, f64::NAN, 0.5], 2.0);
+    sample3_vec_add(
+        &mut out,
+        [&field, &field, &field],
+        g,
+        &[0.5, f64::NAN, 0.5],
+        2.0,
+    );
     assert!(out.iter().all(|v| v.is_nan()));
 }
 
@@ -248,6 +264,15 @@ proptest! {
 
 #[test]
 fn coincident_spring_endpoints_give_zero_not_nan() {
-    let (f, kx, kv) = spring_element([1.0; 3], [1.0; 3], [0.0; 3], [1.0; 3], 10.0, 1.0, 0.5, SpringParams::default());
+    let (f, kx, kv) = spring_element(
+        [1.0; 3],
+        [1.0; 3],
+        [0.0; 3],
+        [1.0; 3],
+        10.0,
+        1.0,
+        0.5,
+        SpringParams::default(),
+    );
     assert!(f == [0.0; 3] && kx == [0.0; 9] && kv == [0.0; 9]);
 }

@@ -23,7 +23,8 @@ fn random_system(seed: &[f64], damping: f64) -> (MassSpring, MassSpringState) {
     // Deform and move the particles; springs keep their rest lengths from the grid.
     for s in &mut desc.springs {
         let (a, b) = (desc.positions[s.a], desc.positions[s.b]);
-        s.rest_length = Some(((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt());
+        s.rest_length =
+            Some(((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt());
     }
     let mut k = 0;
     let mut next = || {
@@ -35,7 +36,9 @@ fn random_system(seed: &[f64], damping: f64) -> (MassSpring, MassSpringState) {
             *c += 0.15 * next();
         }
     }
-    desc.velocities = (0..desc.positions.len()).map(|_| [next(), next(), next()]).collect();
+    desc.velocities = (0..desc.positions.len())
+        .map(|_| [next(), next(), next()])
+        .collect();
     desc.gravity = [0.0, -9.81, 0.0];
     desc.build().unwrap()
 }
@@ -116,22 +119,44 @@ fn every_integrator_runs_the_chain_and_keeps_the_pin() {
     for method in Method::ALL {
         let (mut m, mut st) = hanging_chain().build().unwrap();
         let mut stepper = MechStepper::new(MechSettings::new(method), &mut m).unwrap();
-        assert_eq!(stepper.has_matrix(), method.is_implicit(), "{method}: matrix only when implicit");
+        assert_eq!(
+            stepper.has_matrix(),
+            method.is_implicit(),
+            "{method}: matrix only when implicit"
+        );
         let h = if method.is_implicit() { 1e-3 } else { 2e-4 };
         let steps = (0.5 / h) as usize;
-        let e0 = m.potential_energy(0.0, st.x.as_slice()).unwrap() + kinetic_energy(m.mass(), st.v.as_slice());
+        let e0 = m.potential_energy(0.0, st.x.as_slice()).unwrap()
+            + kinetic_energy(m.mass(), st.v.as_slice());
         for k in 0..steps {
             stepper
-                .step(&mut m, k as f64 * h, st.x.as_mut_slice(), st.v.as_mut_slice(), h)
+                .step(
+                    &mut m,
+                    k as f64 * h,
+                    st.x.as_mut_slice(),
+                    st.v.as_mut_slice(),
+                    h,
+                )
                 .unwrap_or_else(|e| panic!("{method}: {e}"));
         }
-        assert_eq!(st.x.get(0), [0.0, 0.0, 0.0], "{method}: the pinned particle never moves");
+        assert_eq!(
+            st.x.get(0),
+            [0.0, 0.0, 0.0],
+            "{method}: the pinned particle never moves"
+        );
         assert!(st.x.get(11)[1] < -0.2, "{method}: the chain swings down");
-        let e1 = m.potential_energy(0.0, st.x.as_slice()).unwrap() + kinetic_energy(m.mass(), st.v.as_slice());
+        let e1 = m.potential_energy(0.0, st.x.as_slice()).unwrap()
+            + kinetic_energy(m.mass(), st.v.as_slice());
         // Backward Euler (either form) dissipates; explicit Euler's growth (1 + h^2 w^2 per
         // step) can beat the small damping, which is why it is not checked here.
-        if matches!(method, Method::BackwardEuler | Method::LinearizedBackwardEuler) {
-            assert!(e1 <= e0, "{method}: damped chain gains no energy ({e0} -> {e1})");
+        if matches!(
+            method,
+            Method::BackwardEuler | Method::LinearizedBackwardEuler
+        ) {
+            assert!(
+                e1 <= e0,
+                "{method}: damped chain gains no energy ({e0} -> {e1})"
+            );
         }
     }
 }
@@ -149,7 +174,10 @@ fn explicit_runs_build_no_jacobian_structures() {
     }
     let (mut m, _) = no_damp.build().unwrap();
     let st = MechStepper::new(MechSettings::new(Method::BackwardEuler), &mut m).unwrap();
-    assert!(!st.has_damping_matrix(), "no damping matrix without damping");
+    assert!(
+        !st.has_damping_matrix(),
+        "no damping matrix without damping"
+    );
 }
 
 #[test]
@@ -172,18 +200,35 @@ fn results_do_not_depend_on_the_thread_count() {
         d.pinned = vec![0, 39];
         d
     };
-    for method in [Method::Rk4, Method::BackwardEuler, Method::LinearizedBackwardEuler] {
+    for method in [
+        Method::Rk4,
+        Method::BackwardEuler,
+        Method::LinearizedBackwardEuler,
+    ] {
         let run = || {
             let (mut m, mut st) = desc.build().unwrap();
             let mut s = MechSettings::new(method);
             s.linear = LinearSolverKind::Pcg(Default::default());
             let mut stepper = MechStepper::new(s, &mut m).unwrap();
             for k in 0..20 {
-                stepper.step(&mut m, k as f64 * 1e-3, st.x.as_mut_slice(), st.v.as_mut_slice(), 1e-3).unwrap();
+                stepper
+                    .step(
+                        &mut m,
+                        k as f64 * 1e-3,
+                        st.x.as_mut_slice(),
+                        st.v.as_mut_slice(),
+                        1e-3,
+                    )
+                    .unwrap();
             }
             st
         };
-        let pool = |t| rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap();
+        let pool = |t| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(t)
+                .build()
+                .unwrap()
+        };
         let one = pool(1).install(run);
         let two = pool(2).install(run);
         assert!(one == two, "{method}: 1 thread = 2 threads, bitwise");
@@ -193,24 +238,58 @@ fn results_do_not_depend_on_the_thread_count() {
 #[test]
 fn invalid_models_name_the_item() {
     let base = hanging_chain();
-    let cases: Vec<(Box<dyn Fn(&mut MassSpringDesc)>, &str)> = vec![
+    type Edit = Box<dyn Fn(&mut MassSpringDesc)>;
+    let cases: Vec<(Edit, &str)> = vec![
         (Box::new(|d| d.masses[3] = -1.0), "particle 3: mass = -1"),
-        (Box::new(|d| d.masses[3] = f64::NAN), "particle 3: mass = NaN"),
-        (Box::new(|d| d.masses[3] = 0.0), "only pinned particles may have zero mass"),
-        (Box::new(|d| d.springs[2].stiffness = -5.0), "spring 2: stiffness = -5"),
-        (Box::new(|d| d.springs[4].damping = f64::INFINITY), "spring 4: damping = inf"),
-        (Box::new(|d| d.springs[1].b = 99), "spring 1 names particle 99, but there are only 12"),
-        (Box::new(|d| d.springs[1].b = d.springs[1].a), "spring 1 connects particle"),
-        (Box::new(|d| d.springs[0].rest_length = Some(-0.1)), "spring 0: rest_length"),
-        (Box::new(|d| d.positions[5][1] = f64::NAN), "particle 5: position.y = NaN"),
-        (Box::new(|d| d.pinned.push(40)), "pinned 1 names particle 40"),
+        (
+            Box::new(|d| d.masses[3] = f64::NAN),
+            "particle 3: mass = NaN",
+        ),
+        (
+            Box::new(|d| d.masses[3] = 0.0),
+            "only pinned particles may have zero mass",
+        ),
+        (
+            Box::new(|d| d.springs[2].stiffness = -5.0),
+            "spring 2: stiffness = -5",
+        ),
+        (
+            Box::new(|d| d.springs[4].damping = f64::INFINITY),
+            "spring 4: damping = inf",
+        ),
+        (
+            Box::new(|d| d.springs[1].b = 99),
+            "spring 1 names particle 99, but there are only 12",
+        ),
+        (
+            Box::new(|d| d.springs[1].b = d.springs[1].a),
+            "spring 1 connects particle",
+        ),
+        (
+            Box::new(|d| d.springs[0].rest_length = Some(-0.1)),
+            "spring 0: rest_length",
+        ),
+        (
+            Box::new(|d| d.positions[5][1] = f64::NAN),
+            "particle 5: position.y = NaN",
+        ),
+        (
+            Box::new(|d| d.pinned.push(40)),
+            "pinned 1 names particle 40",
+        ),
         (Box::new(|d| d.gravity[2] = f64::NAN), "gravity 2"),
         (Box::new(|d| d.positions.clear()), "no particles"),
     ];
     for (edit, expected) in cases {
         let mut d = base.clone();
         edit(&mut d);
-        let err = d.build().err().expect("invalid input must be rejected").to_string();
-        assert!(err.contains(expected), "`{err}` should contain `{expected}`");
+        let err = d
+            .build()
+            .expect_err("invalid input must be rejected")
+            .to_string();
+        assert!(
+            err.contains(expected),
+            "`{err}` should contain `{expected}`"
+        );
     }
 }

@@ -6,7 +6,9 @@ use largestep::scene::{Runner, Scene};
 use std::path::{Path, PathBuf};
 
 fn scene_path(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes").join(name)
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("scenes")
+        .join(name)
 }
 
 fn tmp(name: &str) -> PathBuf {
@@ -35,15 +37,29 @@ fn shipped_scenes_run_a_few_frames() {
 
 #[test]
 fn explain_lists_built_and_left_out_stages() {
-    let explicit = Runner::new(Scene::load(&scene_path("hanging-chain.toml")).unwrap(), &tmp("x1")).unwrap();
+    let explicit = Runner::new(
+        Scene::load(&scene_path("hanging-chain.toml")).unwrap(),
+        &tmp("x1"),
+    )
+    .unwrap();
     let text = explicit.explain();
-    assert!(text.contains("left out  Jacobian assembly, system matrix and linear solver"), "{text}");
+    assert!(
+        text.contains("left out  Jacobian assembly, system matrix and linear solver"),
+        "{text}"
+    );
     assert!(text.contains("left out  collision structures"), "{text}");
     assert!(text.contains("built     pinned-particle filter"), "{text}");
-    let implicit = Runner::new(Scene::load(&scene_path("spring-grid.toml")).unwrap(), &tmp("x2")).unwrap();
+    let implicit = Runner::new(
+        Scene::load(&scene_path("spring-grid.toml")).unwrap(),
+        &tmp("x2"),
+    )
+    .unwrap();
     let text = implicit.explain();
     assert!(text.contains("built     Jacobian assembly"), "{text}");
-    assert!(text.contains("left out  Newton iteration"), "linearised step: {text}");
+    assert!(
+        text.contains("left out  Newton iteration"),
+        "linearised step: {text}"
+    );
 }
 
 const BASE: &str = r#"
@@ -71,9 +87,12 @@ damping = 0.1
 
 /// Parses `text`, expecting an error at `line` mentioning every word of `words`.
 fn expect_error(text: &str, line: usize, words: &[&str]) {
-    let err = Scene::parse(text, "bad.toml").err().expect("scene must be rejected");
+    let err = Scene::parse(text, "bad.toml").expect_err("scene must be rejected");
     let msg = err.to_string();
-    assert!(msg.starts_with(&format!("bad.toml:{line}:")), "expected line {line}: {msg}");
+    assert!(
+        msg.starts_with(&format!("bad.toml:{line}:")),
+        "expected line {line}: {msg}"
+    );
     for w in words {
         assert!(msg.contains(w), "`{msg}` should mention `{w}`");
     }
@@ -82,7 +101,11 @@ fn expect_error(text: &str, line: usize, words: &[&str]) {
 /// Line (1-based) of the last line containing `needle`.
 fn line_of(text: &str, needle: &str) -> usize {
     let lines: Vec<&str> = text.lines().collect();
-    lines.iter().rposition(|l| l.contains(needle)).expect("needle in text") + 1
+    lines
+        .iter()
+        .rposition(|l| l.contains(needle))
+        .expect("needle in text")
+        + 1
 }
 
 #[test]
@@ -94,30 +117,103 @@ fn base_scene_is_valid() {
 #[test]
 fn malformed_scenes_name_file_line_and_field() {
     let cases: Vec<(String, &str, Vec<&str>)> = vec![
-        (BASE.replace("dt = 0.001", "dt = -0.001"), "dt = -0.001", vec!["scene.dt", "> 0"]),
-        (BASE.replace("dt = 0.001", "dt = 0.0"), "dt = 0.0", vec!["scene.dt"]),
-        (BASE.replace("dt = 0.001", "dt = nan"), "dt = nan", vec!["scene.dt", "NaN"]),
-        (BASE.replace("dt = 0.001", "dt = \"fast\""), "dt = \"fast\"", vec!["invalid type"]),
-        (BASE.replace("duration = 0.01", "duration = 0.01\nspeed = 3"), "speed = 3", vec!["unknown field `speed`"]),
-        (BASE.replace("integrator = \"rk4\"", "integrator = \"rk5\""), "integrator =", vec!["unknown integrator `rk5`", "rk4"]),
-        (BASE.replacen("mass = 1.0", "mass = -2.0", 1), "mass = -2.0", vec!["mass_spring.particle[0].mass", "-2"]),
-        (BASE.replace("stiffness = 100.0", "stiffness = -100.0"), "stiffness = -100.0", vec!["mass_spring.spring[0].stiffness"]),
-        (BASE.replace("damping = 0.1", "damping = nan"), "damping = nan", vec!["mass_spring.spring[0].damping", "NaN"]),
-        (BASE.replace("b = 1", "b = 7"), "b = 7", vec!["mass_spring.spring[0].b", "particle 7", "only 2"]),
-        (BASE.replace("a = 0", "a = -1"), "a = -1", vec!["mass_spring.spring[0].a", ">= 0"]),
-        (BASE.replace("b = 1", "b = 0"), "b = 0", vec!["connects particle 0 to itself"]),
-        (BASE.replace("position = [1.0, 0.0, 0.0]", "position = [1.0, nan, 0.0]"), "nan, 0.0]", vec!["particle[1].position", "NaN"]),
-        (BASE.replace("position = [1.0, 0.0, 0.0]", "position = [1.0, 0.0]"), "position = [1.0, 0.0]", vec!["invalid length"]),
-        (BASE.replace("mass = 1.0\n\n[[mass_spring.spring]]", "\n[[mass_spring.spring]]"), "[[mass_spring.particle]]", vec!["missing field `mass`"]),
+        (
+            BASE.replace("dt = 0.001", "dt = -0.001"),
+            "dt = -0.001",
+            vec!["scene.dt", "> 0"],
+        ),
+        (
+            BASE.replace("dt = 0.001", "dt = 0.0"),
+            "dt = 0.0",
+            vec!["scene.dt"],
+        ),
+        (
+            BASE.replace("dt = 0.001", "dt = nan"),
+            "dt = nan",
+            vec!["scene.dt", "NaN"],
+        ),
+        (
+            BASE.replace("dt = 0.001", "dt = \"fast\""),
+            "dt = \"fast\"",
+            vec!["invalid type"],
+        ),
+        (
+            BASE.replace("duration = 0.01", "duration = 0.01\nspeed = 3"),
+            "speed = 3",
+            vec!["unknown field `speed`"],
+        ),
+        (
+            BASE.replace("integrator = \"rk4\"", "integrator = \"rk5\""),
+            "integrator =",
+            vec!["unknown integrator `rk5`", "rk4"],
+        ),
+        (
+            BASE.replacen("mass = 1.0", "mass = -2.0", 1),
+            "mass = -2.0",
+            vec!["mass_spring.particle[0].mass", "-2"],
+        ),
+        (
+            BASE.replace("stiffness = 100.0", "stiffness = -100.0"),
+            "stiffness = -100.0",
+            vec!["mass_spring.spring[0].stiffness"],
+        ),
+        (
+            BASE.replace("damping = 0.1", "damping = nan"),
+            "damping = nan",
+            vec!["mass_spring.spring[0].damping", "NaN"],
+        ),
+        (
+            BASE.replace("b = 1", "b = 7"),
+            "b = 7",
+            vec!["mass_spring.spring[0].b", "particle 7", "only 2"],
+        ),
+        (
+            BASE.replace("a = 0", "a = -1"),
+            "a = -1",
+            vec!["mass_spring.spring[0].a", ">= 0"],
+        ),
+        (
+            BASE.replace("b = 1", "b = 0"),
+            "b = 0",
+            vec!["connects particle 0 to itself"],
+        ),
+        (
+            BASE.replace("position = [1.0, 0.0, 0.0]", "position = [1.0, nan, 0.0]"),
+            "nan, 0.0]",
+            vec!["particle[1].position", "NaN"],
+        ),
+        (
+            BASE.replace("position = [1.0, 0.0, 0.0]", "position = [1.0, 0.0]"),
+            "position = [1.0, 0.0]",
+            vec!["invalid length"],
+        ),
+        (
+            BASE.replace(
+                "mass = 1.0\n\n[[mass_spring.spring]]",
+                "\n[[mass_spring.spring]]",
+            ),
+            "[[mass_spring.particle]]",
+            vec!["missing field `mass`"],
+        ),
         (BASE.replace("[scene]", "[scene\n"), "[scene", vec![]),
-        (BASE.replace("gravity = [0.0, -9.81, 0.0]", "gravity = [0.0, inf, 0.0]"), "gravity", vec!["scene.gravity[1]"]),
+        (
+            BASE.replace("gravity = [0.0, -9.81, 0.0]", "gravity = [0.0, inf, 0.0]"),
+            "gravity",
+            vec!["scene.gravity[1]"],
+        ),
     ];
     for (text, needle, words) in cases {
         expect_error(&text, line_of(&text, needle), &words);
     }
     // A scene without a system, and one with two.
-    expect_error("[scene]\ndt = 0.1\nduration = 1.0\nintegrator = \"rk4\"\n", 1, &["no system"]);
-    let two = format!("{BASE}\n[mass_spring.chain]\ncount = 3\nspacing = 0.1\nmass = 1.0\nstiffness = 1.0\n");
+    expect_error(
+        "[scene]\ndt = 0.1\nduration = 1.0\nintegrator = \"rk4\"\n",
+        1,
+        &["no system"],
+    );
+    let two = format!(
+        "{BASE}\n[mass_spring.chain]\ncount = 3\nspacing = 0.1\nmass = 1.0\nstiffness = 1.0\n"
+    );
     let err = Scene::parse(&two, "bad.toml").err().unwrap().to_string();
     assert!(err.contains("exactly one of"), "{err}");
 }
@@ -131,8 +227,14 @@ fn errors_show_the_offending_line() {
 
 #[test]
 fn unreadable_scene_file_is_an_error_not_a_panic() {
-    let err = Scene::load(Path::new("/nonexistent/scene.toml")).err().unwrap().to_string();
-    assert!(err.contains("/nonexistent/scene.toml") && err.contains("cannot read"), "{err}");
+    let err = Scene::load(Path::new("/nonexistent/scene.toml"))
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        err.contains("/nonexistent/scene.toml") && err.contains("cannot read"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -146,22 +248,38 @@ fn blow_up_stops_with_the_step_and_keeps_earlier_frames() {
     let scene = Scene::parse(&text, "boom.toml").unwrap();
     let out = tmp("boom");
     let mut runner = Runner::new(scene, &out).unwrap();
-    let err = runner.run(None, &mut |_| {}).err().expect("must blow up");
+    let err = runner.run(None, &mut |_| {}).expect_err("must blow up");
     let msg = err.to_string();
-    assert!(msg.contains("step ") && msg.contains("not finite") && msg.contains("reduce dt"), "{msg}");
+    assert!(
+        msg.contains("step ") && msg.contains("not finite") && msg.contains("reduce dt"),
+        "{msg}"
+    );
     assert!(msg.contains("remain valid"), "{msg}");
     // Every frame file on disk is complete and finite.
     let mut frames = 0;
     for entry in std::fs::read_dir(out.join("frames")).unwrap() {
         let path = entry.unwrap().path();
-        assert_eq!(path.extension().unwrap(), "obj", "no temporary files left: {path:?}");
+        assert_eq!(
+            path.extension().unwrap(),
+            "obj",
+            "no temporary files left: {path:?}"
+        );
         let text = std::fs::read_to_string(&path).unwrap();
         for l in text.lines().filter(|l| l.starts_with("v ")) {
-            assert!(l.split_whitespace().skip(1).all(|v| v.parse::<f64>().unwrap().is_finite()), "{path:?}: {l}");
+            assert!(
+                l.split_whitespace()
+                    .skip(1)
+                    .all(|v| v.parse::<f64>().unwrap().is_finite()),
+                "{path:?}: {l}"
+            );
         }
         frames += 1;
     }
     assert!(frames >= 1);
     let csv = std::fs::read_to_string(out.join("energy.csv")).unwrap();
-    assert_eq!(csv.lines().count(), frames + 1, "one log line per frame written");
+    assert_eq!(
+        csv.lines().count(),
+        frames + 1,
+        "one log line per frame written"
+    );
 }

@@ -7,7 +7,9 @@ use std::io::Cursor;
 
 fn dense_mul(d: &[f64], x: &[f64]) -> Vec<f64> {
     let m = x.len();
-    (0..m).map(|r| (0..m).map(|c| d[r * m + c] * x[c]).sum()).collect()
+    (0..m)
+        .map(|r| (0..m).map(|c| d[r * m + c] * x[c]).sum())
+        .collect()
 }
 
 fn residual(a: &Bsr3, x: &[f64], b: &[f64]) -> f64 {
@@ -19,7 +21,9 @@ fn residual(a: &Bsr3, x: &[f64], b: &[f64]) -> f64 {
 }
 
 fn rhs(n: usize) -> Vec<f64> {
-    (0..3 * n).map(|i| ((i * 13 % 29) as f64 - 14.0) / 7.0).collect()
+    (0..3 * n)
+        .map(|i| ((i * 13 % 29) as f64 - 14.0) / 7.0)
+        .collect()
 }
 
 #[test]
@@ -33,7 +37,10 @@ fn pattern_from_elements_is_symmetric_sorted_with_diagonal() {
     }
     assert!(p.slot(0, 3).is_some() && p.slot(3, 0).is_some() && p.slot(0, 1).is_none());
     let err = Bsr3Pattern::from_elements(2, &[[0u32, 1], [1, 7]]).unwrap_err();
-    assert!(err.to_string().contains("element 1 names vertex 7"), "{err}");
+    assert!(
+        err.to_string().contains("element 1 names vertex 7"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -41,7 +48,9 @@ fn gather_assembly_equals_serial_scatter_and_dense() {
     let pairs = grid_pairs(&[3, 3]);
     let n = 9;
     let asm = ElementAssembly::new(n, &pairs, LocalLayout::pair()).unwrap();
-    let blocks: Vec<f64> = (0..asm.block_buffer_len()).map(|i| (i as f64 * 0.731).sin()).collect();
+    let blocks: Vec<f64> = (0..asm.block_buffer_len())
+        .map(|i| (i as f64 * 0.731).sin())
+        .collect();
     let mut a = Bsr3::zeros(asm.pattern().clone());
     asm.gather_blocks(&blocks, &mut a);
     // Serial scatter through the element -> slot map, in element order.
@@ -120,13 +129,41 @@ fn matrix_market_round_trip_is_exact() {
 fn matrix_market_errors_name_the_line() {
     let cases = [
         ("", 1, "empty file"),
-        ("%%MatrixMarket matrix array real general\n2 2\n", 1, "coordinate"),
-        ("%%MatrixMarket matrix coordinate complex general\n", 1, "real"),
-        ("%%MatrixMarket matrix coordinate real general\n% c\n3 3\n", 3, "rows cols entries"),
-        ("%%MatrixMarket matrix coordinate real general\n3 3 2\n1 1 1.0\n4 1 2.0\n", 4, "outside"),
-        ("%%MatrixMarket matrix coordinate real general\n3 3 2\n1 1 x\n", 3, "expected a number"),
-        ("%%MatrixMarket matrix coordinate real general\n3 3 2\n1 1 nan\n", 3, "not finite"),
-        ("%%MatrixMarket matrix coordinate real general\n3 3 3\n1 1 1\n2 2 1\n", 5, "2 of the 3"),
+        (
+            "%%MatrixMarket matrix array real general\n2 2\n",
+            1,
+            "coordinate",
+        ),
+        (
+            "%%MatrixMarket matrix coordinate complex general\n",
+            1,
+            "real",
+        ),
+        (
+            "%%MatrixMarket matrix coordinate real general\n% c\n3 3\n",
+            3,
+            "rows cols entries",
+        ),
+        (
+            "%%MatrixMarket matrix coordinate real general\n3 3 2\n1 1 1.0\n4 1 2.0\n",
+            4,
+            "outside",
+        ),
+        (
+            "%%MatrixMarket matrix coordinate real general\n3 3 2\n1 1 x\n",
+            3,
+            "expected a number",
+        ),
+        (
+            "%%MatrixMarket matrix coordinate real general\n3 3 2\n1 1 nan\n",
+            3,
+            "not finite",
+        ),
+        (
+            "%%MatrixMarket matrix coordinate real general\n3 3 3\n1 1 1\n2 2 1\n",
+            5,
+            "2 of the 3",
+        ),
     ];
     for (text, line, what) in cases {
         let err = read_matrix_market(Cursor::new(text), "m.mtx").unwrap_err();
@@ -154,7 +191,11 @@ fn pcg_converges_with_every_preconditioner() {
     }
     let b = rhs(n);
     let mut iters = Vec::new();
-    for pre in [Preconditioner::None, Preconditioner::Jacobi, Preconditioner::BlockJacobi] {
+    for pre in [
+        Preconditioner::None,
+        Preconditioner::Jacobi,
+        Preconditioner::BlockJacobi,
+    ] {
         let mut pcg = Pcg::new(
             n,
             PcgParams {
@@ -169,7 +210,10 @@ fn pcg_converges_with_every_preconditioner() {
         assert!(residual(&a, &x, &b) < 1e-9, "{pre:?}: true residual");
         iters.push(info.iterations);
     }
-    assert!(2 * iters[1] < iters[0] && 2 * iters[2] < iters[0], "preconditioning helps: {iters:?}");
+    assert!(
+        2 * iters[1] < iters[0] && 2 * iters[2] < iters[0],
+        "preconditioning helps: {iters:?}"
+    );
 }
 
 #[test]
@@ -213,7 +257,11 @@ fn filtered_pcg_holds_constraints_exactly_at_any_iteration_count() {
             let mut y = b.clone();
             f.apply(&mut y);
             chol.solve_in_place(&mut y).unwrap();
-            let err = x.iter().zip(&y).map(|(p, q)| (p - q).abs()).fold(0.0, f64::max);
+            let err = x
+                .iter()
+                .zip(&y)
+                .map(|(p, q)| (p - q).abs())
+                .fold(0.0, f64::max);
             assert!(err < 1e-8, "PCG and projected Cholesky agree: {err}");
         } else {
             assert!(matches!(res, Err(SolveError::NotConverged { .. })));
@@ -256,7 +304,13 @@ fn indefinite_matrices_give_clear_errors() {
     let e = chol.factorize(&a).unwrap_err();
     assert!(matches!(e, SolveError::NotPositiveDefinite { .. }), "{e}");
     for pre in [Preconditioner::Jacobi, Preconditioner::BlockJacobi] {
-        let mut pcg = Pcg::new(n, PcgParams { preconditioner: pre, ..Default::default() });
+        let mut pcg = Pcg::new(
+            n,
+            PcgParams {
+                preconditioner: pre,
+                ..Default::default()
+            },
+        );
         let mut x = vec![0.0; 3 * n];
         let e = pcg.solve(&a, &rhs(n), &mut x, None).unwrap_err();
         assert!(e.to_string().contains("not positive definite"), "{e}");
@@ -267,7 +321,13 @@ fn indefinite_matrices_give_clear_errors() {
         *v = -*v;
     }
     b.add_diagonal(&vec![0.5; n], 1.0);
-    let mut pcg = Pcg::new(n, PcgParams { preconditioner: Preconditioner::None, ..Default::default() });
+    let mut pcg = Pcg::new(
+        n,
+        PcgParams {
+            preconditioner: Preconditioner::None,
+            ..Default::default()
+        },
+    );
     let mut x = vec![0.0; 3 * n];
     let e = pcg.solve(&b, &rhs(n), &mut x, None).unwrap_err();
     assert!(matches!(e, SolveError::NotPositiveDefinite { .. }), "{e}");
@@ -284,7 +344,12 @@ fn pcg_iterates_are_thread_count_independent() {
         let info = pcg.solve(&a, &b, &mut x, None).unwrap();
         (x, info.iterations, info.residual)
     };
-    let pool = |t| rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap();
+    let pool = |t| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(t)
+            .build()
+            .unwrap()
+    };
     let one = pool(1).install(run);
     let two = pool(2).install(run);
     assert!(one == two, "bitwise identical with 1 and 2 threads");

@@ -187,4 +187,3 @@ pub fn bsr3_spmv_dot_par_scalar(y: &mut [f64], a: Bsr3Ref<'_>, x: &[f64]) -> f64
     });
     d
 }
-

@@ -122,11 +122,27 @@ impl Springs<'_> {
         assert!(self.k.len() == m && self.kd.len() == m && self.rest.len() == m);
     }
     #[inline]
-    fn eval(&self, e: usize, x: &[f64], v: &[f64], n: usize, p: SpringParams) -> ([f64; 3], [f64; 9], [f64; 9]) {
+    fn eval(
+        &self,
+        e: usize,
+        x: &[f64],
+        v: &[f64],
+        n: usize,
+        p: SpringParams,
+    ) -> ([f64; 3], [f64; 9], [f64; 9]) {
         let [a, b] = self.ends[e];
         let (a, b) = (a as usize, b as usize);
         let g = |s: &[f64], i: usize| [s[i], s[n + i], s[2 * n + i]];
-        spring_element(g(x, a), g(x, b), g(v, a), g(v, b), self.k[e], self.kd[e], self.rest[e], p)
+        spring_element(
+            g(x, a),
+            g(x, b),
+            g(v, a),
+            g(v, b),
+            self.k[e],
+            self.kd[e],
+            self.rest[e],
+            p,
+        )
     }
 }
 
@@ -221,5 +237,7 @@ pub fn springs_dissipation(x: &[f64], v: &[f64], s: Springs<'_>) -> f64 {
     let n = x.len() / 3;
     assert!(x.len() == 3 * n && v.len() == 3 * n);
     let g = |u: &[f64], i: usize| [u[i], u[n + i], u[2 * n + i]];
-    sum_over_springs(&s, &|e, a, b| spring_dissipation(g(x, a), g(x, b), g(v, a), g(v, b), s.kd[e]))
+    sum_over_springs(&s, &|e, a, b| {
+        spring_dissipation(g(x, a), g(x, b), g(v, a), g(v, b), s.kd[e])
+    })
 }

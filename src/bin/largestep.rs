@@ -10,7 +10,11 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 #[derive(Parser)]
-#[command(name = "largestep", version, about = "Physically based animation kernels: run scenes, studies and machine measurements")]
+#[command(
+    name = "largestep",
+    version,
+    about = "Physically based animation kernels: run scenes, studies and machine measurements"
+)]
 struct Cli {
     /// Worker threads (default: all cores).
     #[arg(long, global = true)]
@@ -57,7 +61,10 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     if let Some(t) = cli.threads {
-        if let Err(e) = rayon::ThreadPoolBuilder::new().num_threads(t).build_global() {
+        if let Err(e) = rayon::ThreadPoolBuilder::new()
+            .num_threads(t)
+            .build_global()
+        {
             eprintln!("error: cannot set {t} threads: {e}");
             return ExitCode::from(2);
         }
@@ -78,13 +85,21 @@ fn main() -> ExitCode {
                 l.triad_gbs,
                 l.triad_array_bytes >> 20
             );
-            println!("peak f64 FMA     {:.1} GFLOP/s with f64x4, {:.1} GFLOP/s with f64x8", l.fma4_gflops, l.fma8_gflops);
+            println!(
+                "peak f64 FMA     {:.1} GFLOP/s with f64x4, {:.1} GFLOP/s with f64x8",
+                l.fma4_gflops, l.fma8_gflops
+            );
             ExitCode::SUCCESS
         }
     }
 }
 
-fn run(scene_path: PathBuf, out: Option<PathBuf>, frames: Option<usize>, explain: bool) -> ExitCode {
+fn run(
+    scene_path: PathBuf,
+    out: Option<PathBuf>,
+    frames: Option<usize>,
+    explain: bool,
+) -> ExitCode {
     let scene = match Scene::load(&scene_path) {
         Ok(s) => s,
         Err(e) => {
@@ -106,8 +121,10 @@ fn run(scene_path: PathBuf, out: Option<PathBuf>, frames: Option<usize>, explain
     let total = runner.frame_count(frames);
     let bar = ProgressBar::new(total as u64);
     bar.set_style(
-        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} frames  {msg}")
-            .expect("valid template"),
+        ProgressStyle::with_template(
+            "{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} frames  {msg}",
+        )
+        .expect("valid template"),
     );
     let result = runner.run(frames, &mut |p| {
         bar.set_position(p.frame as u64);

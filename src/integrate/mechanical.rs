@@ -155,7 +155,7 @@ impl MechSettings {
 
 enum Linear {
     Pcg(Pcg),
-    Cholesky(SparseCholesky),
+    Cholesky(Box<SparseCholesky>),
 }
 
 impl Linear {
@@ -224,11 +224,25 @@ impl MechStepper {
         let n = sys.vertex_count();
         let mass = sys.mass().to_vec();
         assert_eq!(mass.len(), n, "one mass per vertex");
-        let inv_mass = mass.iter().map(|&m| if m > 0.0 { 1.0 / m } else { 0.0 }).collect();
-        let rk = matches!(method, Method::ExplicitEuler | Method::Midpoint | Method::Rk4)
-            .then(|| RkWork::new(method, 6 * n));
-        let y = if rk.is_some() { vec![0.0; 6 * n] } else { Vec::new() };
-        let f = if method == Method::SymplecticEuler { vec![0.0; 3 * n] } else { Vec::new() };
+        let inv_mass = mass
+            .iter()
+            .map(|&m| if m > 0.0 { 1.0 / m } else { 0.0 })
+            .collect();
+        let rk = matches!(
+            method,
+            Method::ExplicitEuler | Method::Midpoint | Method::Rk4
+        )
+        .then(|| RkWork::new(method, 6 * n));
+        let y = if rk.is_some() {
+            vec![0.0; 6 * n]
+        } else {
+            Vec::new()
+        };
+        let f = if method == Method::SymplecticEuler {
+            vec![0.0; 3 * n]
+        } else {
+            Vec::new()
+        };
         let implicit = if method.is_implicit() {
             let pattern = sys
                 .prepare_jacobians()
@@ -243,20 +257,20 @@ impl MechStepper {
                 LinearSolverKind::Auto if 3 * n > AUTO_CHOLESKY_MAX_DOFS => {
                     Linear::Pcg(Pcg::new(n, PcgParams::default()))
                 }
-                LinearSolverKind::Cholesky | LinearSolverKind::Auto => {
-                    Linear::Cholesky(SparseCholesky::new(&pattern).map_err(|source| {
-                        IntegrateError::Solve {
-                            step: 0,
-                            method,
-                            source,
-                        }
-                    })?)
-                }
+                LinearSolverKind::Cholesky | LinearSolverKind::Auto => Linear::Cholesky(Box::new(
+                    SparseCholesky::new(&pattern).map_err(|source| IntegrateError::Solve {
+                        step: 0,
+                        method,
+                        source,
+                    })?,
+                )),
             };
             let v3 = || vec![0.0; 3 * n];
             Some(Implicit {
                 dfdx: Bsr3::zeros(pattern.clone()),
-                dfdv: sys.has_velocity_jacobian().then(|| Bsr3::zeros(pattern.clone())),
+                dfdv: sys
+                    .has_velocity_jacobian()
+                    .then(|| Bsr3::zeros(pattern.clone())),
                 a: Bsr3::zeros(pattern),
                 linear,
                 newton: Newton::new(3 * n),
@@ -264,7 +278,11 @@ impl MechStepper {
                 xe: v3(),
                 ve: v3(),
                 f: v3(),
-                f0: if method == Method::Newmark { v3() } else { Vec::new() },
+                f0: if method == Method::Newmark {
+                    v3()
+                } else {
+                    Vec::new()
+                },
                 rhs: v3(),
             })
         } else {
@@ -558,9 +576,10 @@ struct Residual<'a> {
 impl Residual<'_> {
     fn eval_point(&mut self, v1: &[f64]) {
         let (c, h) = (self.c, self.h);
-        for i in 0..v1.len() {
-            self.xe[i] = self.x0[i] + h * (c.a * self.v0[i] + c.b * v1[i]);
-            self.ve[i] = c.c * self.v0[i] + c.d * v1[i];
+        let states = self.xe.iter_mut().zip(self.ve.iter_mut());
+        for ((((xe, ve), x0), v0), v1) in states.zip(self.x0).zip(self.v0).zip(v1) {
+            *xe = x0 + h * (c.a * v0 + c.b * v1);
+            *ve = c.c * v0 + c.d * v1;
         }
     }
 }
@@ -591,7 +610,12 @@ impl NewtonProblem for Residual<'_> {
         Ok(())
     }
 
-    fn newton_step(&mut self, v1: &[f64], r: &[f64], dy: &mut [f64]) -> Result<SolveInfo, SolveError> {
+    fn newton_step(
+        &mut self,
+        v1: &[f64],
+        r: &[f64],
+        dy: &mut [f64],
+    ) -> Result<SolveInfo, SolveError> {
         self.eval_point(v1);
         if let Err(e) = self.sys.force_jacobians(
             self.t,

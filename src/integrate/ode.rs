@@ -186,7 +186,12 @@ impl NewtonProblem for Implicit<'_> {
         self.noise
     }
 
-    fn newton_step(&mut self, y1: &[f64], r: &[f64], dy: &mut [f64]) -> Result<SolveInfo, SolveError> {
+    fn newton_step(
+        &mut self,
+        y1: &[f64],
+        r: &[f64],
+        dy: &mut [f64],
+    ) -> Result<SolveInfo, SolveError> {
         let n = r.len();
         self.mid(y1);
         let jac = self.lu.matrix_mut();

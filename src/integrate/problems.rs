@@ -101,7 +101,10 @@ impl Mechanical for Oscillator {
     }
     fn potential_energy(&self, t: f64, x: &[f64]) -> Option<f64> {
         let w2 = self.omega * self.omega;
-        Some(0.5 * w2 * (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]) - w2 * self.forcing * t.cos() * x[0])
+        Some(
+            0.5 * w2 * (x[0] * x[0] + x[1] * x[1] + x[2] * x[2])
+                - w2 * self.forcing * t.cos() * x[0],
+        )
     }
     fn dissipation(&self, _x: &[f64], v: &[f64]) -> f64 {
         self.zeta * self.omega * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
@@ -123,9 +126,11 @@ impl Mechanical for Oscillator {
     ) -> Result<(), IntegrateError> {
         self.force(t, x, v, f);
         let (w2, c) = (self.omega * self.omega, 2.0 * self.zeta * self.omega);
-        dfdx.values_mut().copy_from_slice(&[-w2, 0.0, 0.0, 0.0, -w2, 0.0, 0.0, 0.0, -w2]);
+        dfdx.values_mut()
+            .copy_from_slice(&[-w2, 0.0, 0.0, 0.0, -w2, 0.0, 0.0, 0.0, -w2]);
         if let Some(d) = dfdv {
-            d.values_mut().copy_from_slice(&[-c, 0.0, 0.0, 0.0, -c, 0.0, 0.0, 0.0, -c]);
+            d.values_mut()
+                .copy_from_slice(&[-c, 0.0, 0.0, 0.0, -c, 0.0, 0.0, 0.0, -c]);
         }
         Ok(())
     }
@@ -184,7 +189,8 @@ impl Mechanical for Pendulum {
     ) -> Result<(), IntegrateError> {
         self.force(t, x, v, f);
         let k = -self.g_over_l * x[0].cos();
-        dfdx.values_mut().copy_from_slice(&[k, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+        dfdx.values_mut()
+            .copy_from_slice(&[k, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
         Ok(())
     }
 }

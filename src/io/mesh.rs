@@ -20,7 +20,11 @@ impl MeshRef<'_> {
     }
     fn vertex(&self, i: usize) -> [f64; 3] {
         let n = self.n();
-        [self.positions[i], self.positions[n + i], self.positions[2 * n + i]]
+        [
+            self.positions[i],
+            self.positions[n + i],
+            self.positions[2 * n + i],
+        ]
     }
 }
 
@@ -43,9 +47,21 @@ pub fn write_obj(w: &mut dyn Write, mesh: MeshRef<'_>, comment: &str) -> std::io
 /// Writes an ASCII PLY with vertices, faces and edges.
 pub fn write_ply(w: &mut dyn Write, mesh: MeshRef<'_>, comment: &str) -> std::io::Result<()> {
     writeln!(w, "ply\nformat ascii 1.0\ncomment {comment}")?;
-    writeln!(w, "element vertex {}\nproperty double x\nproperty double y\nproperty double z", mesh.n())?;
-    writeln!(w, "element face {}\nproperty list uchar int vertex_indices", mesh.triangles.len())?;
-    writeln!(w, "element edge {}\nproperty int vertex1\nproperty int vertex2", mesh.segments.len())?;
+    writeln!(
+        w,
+        "element vertex {}\nproperty double x\nproperty double y\nproperty double z",
+        mesh.n()
+    )?;
+    writeln!(
+        w,
+        "element face {}\nproperty list uchar int vertex_indices",
+        mesh.triangles.len()
+    )?;
+    writeln!(
+        w,
+        "element edge {}\nproperty int vertex1\nproperty int vertex2",
+        mesh.segments.len()
+    )?;
     writeln!(w, "end_header")?;
     for i in 0..mesh.n() {
         let [x, y, z] = mesh.vertex(i);

@@ -5,7 +5,15 @@ use super::{MassSpringDesc, SpringDesc};
 /// A chain of `count` particles from `anchor` along `direction` (any length; normalised),
 /// `length` apart, joined by springs of stiffness `k` (N/m) and damping `kd` (N s/m),
 /// each particle of mass `mass` (kg), the first one pinned. Gravity is left at zero.
-pub fn chain(count: usize, anchor: [f64; 3], direction: [f64; 3], length: f64, mass: f64, k: f64, kd: f64) -> MassSpringDesc {
+pub fn chain(
+    count: usize,
+    anchor: [f64; 3],
+    direction: [f64; 3],
+    length: f64,
+    mass: f64,
+    k: f64,
+    kd: f64,
+) -> MassSpringDesc {
     let l = (direction[0].powi(2) + direction[1].powi(2) + direction[2].powi(2)).sqrt();
     let d = if l > 0.0 {
         direction.map(|c| c / l)
@@ -15,7 +23,11 @@ pub fn chain(count: usize, anchor: [f64; 3], direction: [f64; 3], length: f64, m
     let positions = (0..count)
         .map(|i| {
             let s = i as f64 * length;
-            [anchor[0] + s * d[0], anchor[1] + s * d[1], anchor[2] + s * d[2]]
+            [
+                anchor[0] + s * d[0],
+                anchor[1] + s * d[1],
+                anchor[2] + s * d[2],
+            ]
         })
         .collect();
     let springs = (1..count)
@@ -76,7 +88,9 @@ pub fn grid(o: &GridOptions) -> MassSpringDesc {
                 o.size[0] * i as f64 / (nu - 1) as f64,
                 o.size[1] * j as f64 / (nv - 1) as f64,
             );
-            positions.push(core::array::from_fn(|c| o.origin[c] + s * o.u_axis[c] + t * o.v_axis[c]));
+            positions.push(core::array::from_fn(|c| {
+                o.origin[c] + s * o.u_axis[c] + t * o.v_axis[c]
+            }));
         }
     }
     let mut springs = Vec::new();

@@ -149,7 +149,14 @@ struct Jacobians {
     kv: Vec<f64>,
 }
 
-fn check(item: &'static str, index: usize, field: &'static str, value: f64, ok: bool, why: &'static str) -> Result<(), ModelError> {
+fn check(
+    item: &'static str,
+    index: usize,
+    field: &'static str,
+    value: f64,
+    ok: bool,
+    why: &'static str,
+) -> Result<(), ModelError> {
     if ok {
         Ok(())
     } else {
@@ -198,24 +205,63 @@ impl MassSpringDesc {
         }
         for (i, p) in self.positions.iter().enumerate() {
             for (c, &x) in p.iter().enumerate() {
-                check("particle", i, ["position.x", "position.y", "position.z"][c], x, x.is_finite(), "must be finite")?;
+                check(
+                    "particle",
+                    i,
+                    ["position.x", "position.y", "position.z"][c],
+                    x,
+                    x.is_finite(),
+                    "must be finite",
+                )?;
             }
         }
         for (i, p) in self.velocities.iter().enumerate() {
             for (c, &x) in p.iter().enumerate() {
-                check("particle", i, ["velocity.x", "velocity.y", "velocity.z"][c], x, x.is_finite(), "must be finite")?;
+                check(
+                    "particle",
+                    i,
+                    ["velocity.x", "velocity.y", "velocity.z"][c],
+                    x,
+                    x.is_finite(),
+                    "must be finite",
+                )?;
             }
         }
         for (i, &m) in self.masses.iter().enumerate() {
-            check("particle", i, "mass", m, m.is_finite() && m >= 0.0, "must be finite and >= 0")?;
-            check("particle", i, "mass", m, m > 0.0 || pinned[i], "only pinned particles may have zero mass")?;
+            check(
+                "particle",
+                i,
+                "mass",
+                m,
+                m.is_finite() && m >= 0.0,
+                "must be finite and >= 0",
+            )?;
+            check(
+                "particle",
+                i,
+                "mass",
+                m,
+                m > 0.0 || pinned[i],
+                "only pinned particles may have zero mass",
+            )?;
         }
         for (c, &g) in self.gravity.iter().enumerate() {
-            check("gravity", c, "component", g, g.is_finite(), "must be finite")?;
+            check(
+                "gravity",
+                c,
+                "component",
+                g,
+                g.is_finite(),
+                "must be finite",
+            )?;
         }
         let m = self.springs.len();
-        let (mut ends, mut k, mut kd, mut rest) =
-            (Vec::with_capacity(m), Vec::with_capacity(m), Vec::with_capacity(m), Vec::with_capacity(m));
+        let (mut ends, mut k, mut kd, mut rest) = (
+            Vec::with_capacity(m),
+            Vec::with_capacity(m),
+            Vec::with_capacity(m),
+            Vec::with_capacity(m),
+        );
         for (e, s) in self.springs.iter().enumerate() {
             for p in [s.a, s.b] {
                 if p >= n {
@@ -233,16 +279,38 @@ impl MassSpringDesc {
                     particle: s.a,
                 });
             }
-            check("spring", e, "stiffness", s.stiffness, s.stiffness.is_finite() && s.stiffness >= 0.0, "must be finite and >= 0")?;
-            check("spring", e, "damping", s.damping, s.damping.is_finite() && s.damping >= 0.0, "must be finite and >= 0")?;
+            check(
+                "spring",
+                e,
+                "stiffness",
+                s.stiffness,
+                s.stiffness.is_finite() && s.stiffness >= 0.0,
+                "must be finite and >= 0",
+            )?;
+            check(
+                "spring",
+                e,
+                "damping",
+                s.damping,
+                s.damping.is_finite() && s.damping >= 0.0,
+                "must be finite and >= 0",
+            )?;
             let r = match s.rest_length {
                 Some(r) => {
-                    check("spring", e, "rest_length", r, r.is_finite() && r >= 0.0, "must be finite and >= 0")?;
+                    check(
+                        "spring",
+                        e,
+                        "rest_length",
+                        r,
+                        r.is_finite() && r >= 0.0,
+                        "must be finite and >= 0",
+                    )?;
                     r
                 }
                 None => {
                     let (pa, pb) = (self.positions[s.a], self.positions[s.b]);
-                    ((pa[0] - pb[0]).powi(2) + (pa[1] - pb[1]).powi(2) + (pa[2] - pb[2]).powi(2)).sqrt()
+                    ((pa[0] - pb[0]).powi(2) + (pa[1] - pb[1]).powi(2) + (pa[2] - pb[2]).powi(2))
+                        .sqrt()
                 }
             };
             ends.push([s.a as u32, s.b as u32]);

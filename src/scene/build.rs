@@ -47,7 +47,11 @@ impl Simulation {
                 "spring forces",
                 model.spring_count() > 0,
                 if model.spring_count() > 0 {
-                    format!("{} particles, {} springs", model.particle_count(), model.spring_count())
+                    format!(
+                        "{} particles, {} springs",
+                        model.particle_count(),
+                        model.spring_count()
+                    )
                 } else {
                     format!("{} particles and no springs", model.particle_count())
                 },
@@ -55,12 +59,20 @@ impl Simulation {
             stage(
                 "spring damping",
                 model.has_damping(),
-                if model.has_damping() { "damping along springs" } else { "every damping coefficient is zero" },
+                if model.has_damping() {
+                    "damping along springs"
+                } else {
+                    "every damping coefficient is zero"
+                },
             ),
             stage(
                 "gravity",
                 g != [0.0; 3],
-                if g != [0.0; 3] { format!("{g:?} m/s^2") } else { "gravity is zero".into() },
+                if g != [0.0; 3] {
+                    format!("{g:?} m/s^2")
+                } else {
+                    "gravity is zero".into()
+                },
             ),
             stage(
                 "pinned-particle filter",
@@ -73,11 +85,19 @@ impl Simulation {
             ),
         ];
         if stepper.has_matrix() {
-            stages.push(stage("Jacobian assembly (Bsr3 pattern, element maps)", true, format!("for {method}")));
+            stages.push(stage(
+                "Jacobian assembly (Bsr3 pattern, element maps)",
+                true,
+                format!("for {method}"),
+            ));
             stages.push(stage(
                 "damping Jacobian",
                 stepper.has_damping_matrix(),
-                if stepper.has_damping_matrix() { "df/dv" } else { "no damping" },
+                if stepper.has_damping_matrix() {
+                    "df/dv"
+                } else {
+                    "no damping"
+                },
             ));
             stages.push(stage(
                 "linear solver",
@@ -88,7 +108,11 @@ impl Simulation {
             stages.push(stage(
                 "Newton iteration",
                 newton,
-                if newton { "with backtracking line search" } else { "one linearised step" },
+                if newton {
+                    "with backtracking line search"
+                } else {
+                    "one linearised step"
+                },
             ));
         } else {
             stages.push(stage(
@@ -97,7 +121,11 @@ impl Simulation {
                 format!("{method} is explicit"),
             ));
         }
-        stages.push(stage("collision structures", false, "the scene has no colliders"));
+        stages.push(stage(
+            "collision structures",
+            false,
+            "the scene has no colliders",
+        ));
         Ok(Self {
             model,
             state,
@@ -135,7 +163,9 @@ impl Simulation {
     pub fn energy(&self) -> (f64, f64) {
         (
             kinetic_energy(self.model.mass(), self.state.v.as_slice()),
-            self.model.potential_energy(self.t, self.state.x.as_slice()).unwrap_or(0.0),
+            self.model
+                .potential_energy(self.t, self.state.x.as_slice())
+                .unwrap_or(0.0),
         )
     }
 
@@ -170,7 +200,11 @@ impl Simulation {
         MeshRef {
             positions: self.state.x.as_slice(),
             triangles: tris,
-            segments: if tris.is_empty() { self.model.spring_ends() } else { &[] },
+            segments: if tris.is_empty() {
+                self.model.spring_ends()
+            } else {
+                &[]
+            },
         }
     }
 }

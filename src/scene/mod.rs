@@ -209,7 +209,10 @@ impl Scene {
             if v.is_finite() && v > 0.0 {
                 Ok(v)
             } else {
-                Err(err(path(&[&"scene", &name]), format!("must be a finite number > 0, not {v}")))
+                Err(err(
+                    path(&[&"scene", &name]),
+                    format!("must be a finite number > 0, not {v}"),
+                ))
             }
         };
         let dt = positive(s.dt, "dt")?;
@@ -217,7 +220,11 @@ impl Scene {
         let method = Method::from_name(&s.integrator).ok_or_else(|| {
             err(
                 path(&[&"scene", &"integrator"]),
-                format!("unknown integrator `{}`; expected one of {}", s.integrator, Method::names()),
+                format!(
+                    "unknown integrator `{}`; expected one of {}",
+                    s.integrator,
+                    Method::names()
+                ),
             )
         })?;
         let gravity = s.gravity.unwrap_or([0.0; 3]);
@@ -225,7 +232,10 @@ impl Scene {
         let output = output_settings(raw.output.as_ref(), dt, &err)?;
 
         let Some(table) = &raw.mass_spring else {
-            return Err(err(path(&[&"scene"]), "the scene has no system: add a [mass_spring] table".into()));
+            return Err(err(
+                path(&[&"scene"]),
+                "the scene has no system: add a [mass_spring] table".into(),
+            ));
         };
         let (desc, pinned_from_table) = mass_spring_desc(table, gravity, &err)?;
         let (model, state) = desc.build().map_err(|e| {
@@ -235,7 +245,9 @@ impl Scene {
         Ok(Scene {
             file: file.to_string(),
             name: s.name.clone().unwrap_or_else(|| {
-                Path::new(file).file_stem().map_or("scene".into(), |x| x.to_string_lossy().into_owned())
+                Path::new(file)
+                    .file_stem()
+                    .map_or("scene".into(), |x| x.to_string_lossy().into_owned())
             }),
             dt,
             duration,
@@ -248,14 +260,21 @@ impl Scene {
 
 type ErrFn<'a> = dyn Fn(Vec<Key>, String) -> SceneError + 'a;
 
-fn solver_settings(method: Method, t: Option<&schema::SolverTable>, err: &ErrFn<'_>) -> Result<MechSettings, SceneError> {
+fn solver_settings(
+    method: Method,
+    t: Option<&schema::SolverTable>,
+    err: &ErrFn<'_>,
+) -> Result<MechSettings, SceneError> {
     let mut settings = MechSettings::new(method);
     let Some(t) = t else { return Ok(settings) };
     let at = |f: &str| path(&[&"solver", &f]);
     let mut pcg = PcgParams::default();
     if let Some(tol) = t.tolerance {
         if !(tol.is_finite() && tol > 0.0 && tol < 1.0) {
-            return Err(err(at("tolerance"), format!("must be in (0, 1), not {tol}")));
+            return Err(err(
+                at("tolerance"),
+                format!("must be in (0, 1), not {tol}"),
+            ));
         }
         pcg.tolerance = tol;
     }
@@ -273,24 +292,36 @@ fn solver_settings(method: Method, t: Option<&schema::SolverTable>, err: &ErrFn<
             other => {
                 return Err(err(
                     at("preconditioner"),
-                    format!("unknown preconditioner `{other}`; expected none, jacobi or block-jacobi"),
+                    format!(
+                        "unknown preconditioner `{other}`; expected none, jacobi or block-jacobi"
+                    ),
                 ))
             }
         };
     }
     settings.linear = match t.linear.as_deref() {
-        None | Some("auto") if t.tolerance.is_none() && t.max_iterations.is_none() && t.preconditioner.is_none() => {
+        None | Some("auto")
+            if t.tolerance.is_none()
+                && t.max_iterations.is_none()
+                && t.preconditioner.is_none() =>
+        {
             LinearSolverKind::Auto
         }
         None | Some("pcg") | Some("auto") => LinearSolverKind::Pcg(pcg),
         Some("cholesky") => LinearSolverKind::Cholesky,
         Some(other) => {
-            return Err(err(at("linear"), format!("unknown linear solver `{other}`; expected auto, pcg or cholesky")))
+            return Err(err(
+                at("linear"),
+                format!("unknown linear solver `{other}`; expected auto, pcg or cholesky"),
+            ))
         }
     };
     if let Some(tol) = t.newton_tolerance {
         if !(tol.is_finite() && tol > 0.0 && tol < 1.0) {
-            return Err(err(at("newton_tolerance"), format!("must be in (0, 1), not {tol}")));
+            return Err(err(
+                at("newton_tolerance"),
+                format!("must be in (0, 1), not {tol}"),
+            ));
         }
         // Relative residual reduction, and relative velocity change per iteration.
         settings.newton.tolerance = tol;
@@ -298,14 +329,21 @@ fn solver_settings(method: Method, t: Option<&schema::SolverTable>, err: &ErrFn<
     }
     if let Some(m) = t.newton_max_iterations {
         if m < 1 {
-            return Err(err(at("newton_max_iterations"), format!("must be >= 1, not {m}")));
+            return Err(err(
+                at("newton_max_iterations"),
+                format!("must be >= 1, not {m}"),
+            ));
         }
         settings.newton.max_iterations = m as usize;
     }
     Ok(settings)
 }
 
-fn output_settings(t: Option<&schema::OutputTable>, dt: f64, err: &ErrFn<'_>) -> Result<Output, SceneError> {
+fn output_settings(
+    t: Option<&schema::OutputTable>,
+    dt: f64,
+    err: &ErrFn<'_>,
+) -> Result<Output, SceneError> {
     let default_every = ((1.0 / 30.0) / dt).round().max(1.0) as usize;
     let Some(t) = t else {
         return Ok(Output {
@@ -318,13 +356,21 @@ fn output_settings(t: Option<&schema::OutputTable>, dt: f64, err: &ErrFn<'_>) ->
         Some("ply") => FrameFormat::Ply,
         Some("none") => FrameFormat::None,
         Some(other) => {
-            return Err(err(path(&[&"output", &"frames"]), format!("unknown frame format `{other}`; expected obj, ply or none")))
+            return Err(err(
+                path(&[&"output", &"frames"]),
+                format!("unknown frame format `{other}`; expected obj, ply or none"),
+            ))
         }
     };
     let every = match t.every {
         None => default_every,
         Some(e) if e >= 1 => e as usize,
-        Some(e) => return Err(err(path(&[&"output", &"every"]), format!("must be >= 1 step per frame, not {e}"))),
+        Some(e) => {
+            return Err(err(
+                path(&[&"output", &"every"]),
+                format!("must be >= 1 step per frame, not {e}"),
+            ))
+        }
     };
     Ok(Output { frames, every })
 }
@@ -333,7 +379,10 @@ fn finite_positive(v: f64, p: Vec<Key>, what: &str, err: &ErrFn<'_>) -> Result<f
     if v.is_finite() && v > 0.0 {
         Ok(v)
     } else {
-        Err(err(p, format!("{what} must be a finite number > 0, not {v}")))
+        Err(err(
+            p,
+            format!("{what} must be a finite number > 0, not {v}"),
+        ))
     }
 }
 
@@ -341,7 +390,10 @@ fn finite_nonneg(v: f64, p: Vec<Key>, what: &str, err: &ErrFn<'_>) -> Result<f64
     if v.is_finite() && v >= 0.0 {
         Ok(v)
     } else {
-        Err(err(p, format!("{what} must be a finite number >= 0, not {v}")))
+        Err(err(
+            p,
+            format!("{what} must be a finite number >= 0, not {v}"),
+        ))
     }
 }
 
@@ -361,7 +413,8 @@ fn mass_spring_desc(
         p.extend(path(f));
         p
     };
-    let sources = t.chain.is_some() as usize + t.grid.is_some() as usize + (!t.particle.is_empty()) as usize;
+    let sources =
+        t.chain.is_some() as usize + t.grid.is_some() as usize + (!t.particle.is_empty()) as usize;
     if sources != 1 {
         return Err(err(
             at(&[]),
@@ -370,7 +423,10 @@ fn mass_spring_desc(
     }
     let mut desc = if let Some(c) = &t.chain {
         if c.count < 2 {
-            return Err(err(at(&[&"chain", &"count"]), format!("a chain needs at least 2 particles, not {}", c.count)));
+            return Err(err(
+                at(&[&"chain", &"count"]),
+                format!("a chain needs at least 2 particles, not {}", c.count),
+            ));
         }
         let spacing = finite_positive(c.spacing, at(&[&"chain", &"spacing"]), "spacing", err)?;
         let mass = finite_positive(c.mass, at(&[&"chain", &"mass"]), "mass", err)?;
@@ -378,20 +434,39 @@ fn mass_spring_desc(
         let kd = finite_nonneg(c.damping, at(&[&"chain", &"damping"]), "damping", err)?;
         let dir = c.direction.unwrap_or([1.0, 0.0, 0.0]);
         if !dir.iter().all(|v| v.is_finite()) || dir.iter().all(|&v| v == 0.0) {
-            return Err(err(at(&[&"chain", &"direction"]), "must be a finite, non-zero vector".into()));
+            return Err(err(
+                at(&[&"chain", &"direction"]),
+                "must be a finite, non-zero vector".into(),
+            ));
         }
-        ms::chain(c.count as usize, c.anchor.unwrap_or([0.0; 3]), dir, spacing, mass, k, kd)
+        ms::chain(
+            c.count as usize,
+            c.anchor.unwrap_or([0.0; 3]),
+            dir,
+            spacing,
+            mass,
+            k,
+            kd,
+        )
     } else if let Some(g) = &t.grid {
         for (name, v) in [("nu", g.nu), ("nv", g.nv)] {
             if v < 2 {
-                return Err(err(at(&[&"grid", &name]), format!("a grid needs at least 2 particles per side, not {v}")));
+                return Err(err(
+                    at(&[&"grid", &name]),
+                    format!("a grid needs at least 2 particles per side, not {v}"),
+                ));
             }
         }
         for (i, &s) in g.size.iter().enumerate() {
             finite_positive(s, at(&[&"grid", &"size", &i]), "size", err)?;
         }
         let mass = finite_positive(g.mass, at(&[&"grid", &"mass"]), "mass", err)?;
-        let structural = finite_nonneg(g.structural, at(&[&"grid", &"structural"]), "stiffness", err)?;
+        let structural = finite_nonneg(
+            g.structural,
+            at(&[&"grid", &"structural"]),
+            "stiffness",
+            err,
+        )?;
         let shear = finite_nonneg(g.shear, at(&[&"grid", &"shear"]), "stiffness", err)?;
         let bend = finite_nonneg(g.bend, at(&[&"grid", &"bend"]), "stiffness", err)?;
         let damping = finite_nonneg(g.damping, at(&[&"grid", &"damping"]), "damping", err)?;
@@ -422,7 +497,10 @@ fn mass_spring_desc(
         d
     };
     if (t.chain.is_some() || t.grid.is_some()) && !t.spring.is_empty() {
-        return Err(err(at(&[&"spring"]), "springs come from the generator; list springs only with explicit particles".into()));
+        return Err(err(
+            at(&[&"spring"]),
+            "springs come from the generator; list springs only with explicit particles".into(),
+        ));
     }
     for (k, s) in t.spring.iter().enumerate() {
         let a = index(s.a, at(&[&"spring", &k, &"a"]), err)?;
@@ -440,7 +518,13 @@ fn mass_spring_desc(
         pinned.push(index(p, at(&[&"pinned", &k]), err)?);
     }
     let from_table = pinned.len();
-    pinned.extend(t.particle.iter().enumerate().filter(|(_, p)| p.pinned).map(|(i, _)| i));
+    pinned.extend(
+        t.particle
+            .iter()
+            .enumerate()
+            .filter(|(_, p)| p.pinned)
+            .map(|(i, _)| i),
+    );
     // An explicit list wins; otherwise the generator's default stands (a chain pins its
     // first particle, a grid nothing).
     if !pinned.is_empty() {
@@ -452,27 +536,60 @@ fn mass_spring_desc(
 }
 
 /// The TOML path a model validation error refers to.
-fn model_error_path(e: &ModelError, t: &schema::MassSpringTable, pinned_from_table: usize) -> Vec<Key> {
+fn model_error_path(
+    e: &ModelError,
+    t: &schema::MassSpringTable,
+    pinned_from_table: usize,
+) -> Vec<Key> {
     let ms = |rest: &[&dyn PathPart]| {
         let mut p = path(&[&"mass_spring"]);
         p.extend(path(rest));
         p
     };
     match e {
-        ModelError::Value { item: "particle", index, field, .. } => {
+        ModelError::Value {
+            item: "particle",
+            index,
+            field,
+            ..
+        } => {
             let f = field.split('.').next().unwrap_or(field);
             ms(&[&"particle", index, &f])
         }
-        ModelError::Value { item: "spring", index, field, .. } => ms(&[&"spring", index, field]),
-        ModelError::Value { item: "gravity", index, .. } => path(&[&"scene", &"gravity", index]),
-        ModelError::MissingParticle { item: "spring", index, particle, .. } => {
-            let end = if t.spring.get(*index).is_some_and(|s| s.a == *particle as i64) { "a" } else { "b" };
+        ModelError::Value {
+            item: "spring",
+            index,
+            field,
+            ..
+        } => ms(&[&"spring", index, field]),
+        ModelError::Value {
+            item: "gravity",
+            index,
+            ..
+        } => path(&[&"scene", &"gravity", index]),
+        ModelError::MissingParticle {
+            item: "spring",
+            index,
+            particle,
+            ..
+        } => {
+            let end = if t
+                .spring
+                .get(*index)
+                .is_some_and(|s| s.a == *particle as i64)
+            {
+                "a"
+            } else {
+                "b"
+            };
             ms(&[&"spring", index, &end])
         }
         ModelError::SelfSpring { index, .. } => ms(&[&"spring", index, &"b"]),
-        ModelError::MissingParticle { item: "pinned", index, .. } if *index < pinned_from_table => {
-            ms(&[&"pinned", index])
-        }
+        ModelError::MissingParticle {
+            item: "pinned",
+            index,
+            ..
+        } if *index < pinned_from_table => ms(&[&"pinned", index]),
         _ => ms(&[]),
     }
 }

@@ -80,7 +80,11 @@ pub struct Summary {
 
 impl std::fmt::Display for Summary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        writeln!(f, "{}: {} steps of {} ({:.4} s simulated)", self.name, self.steps, self.method, self.sim_time)?;
+        writeln!(
+            f,
+            "{}: {} steps of {} ({:.4} s simulated)",
+            self.name, self.steps, self.method, self.sim_time
+        )?;
         writeln!(
             f,
             "  wall time      {:.3} s ({:.3} s stepping, {:.1} us/step)",
@@ -102,7 +106,12 @@ impl std::fmt::Display for Summary {
         } else {
             writeln!(f, "  solver         none (explicit)")?;
         }
-        write!(f, "  frames         {} written to {}", self.frames_written, self.out_dir.display())
+        write!(
+            f,
+            "  frames         {} written to {}",
+            self.frames_written,
+            self.out_dir.display()
+        )
     }
 }
 
@@ -150,7 +159,8 @@ pub struct Runner {
 impl Runner {
     /// Builds the simulation of `scene`; output goes to `out_dir` (created on run).
     pub fn new(scene: Scene, out_dir: &Path) -> Result<Self, RunError> {
-        let (name, duration, dt, output) = (scene.name.clone(), scene.duration, scene.dt, scene.output);
+        let (name, duration, dt, output) =
+            (scene.name.clone(), scene.duration, scene.dt, scene.output);
         let sim = Simulation::new(scene).map_err(|source| RunError::Integrate {
             source,
             frames_written: 0,
@@ -205,7 +215,10 @@ impl Runner {
             FrameFormat::Ply => "ply",
             FrameFormat::None => return Ok(false),
         };
-        let path = self.out_dir.join("frames").join(format!("frame_{k:05}.{ext}"));
+        let path = self
+            .out_dir
+            .join("frames")
+            .join(format!("frame_{k:05}.{ext}"));
         let mesh = self.sim.mesh();
         let comment = format!("largestep {} frame {k} t = {}", self.name, self.sim.time());
         write_atomically(&path, |w| match self.output.frames {
@@ -217,7 +230,11 @@ impl Runner {
     }
 
     /// Runs `frames` frames (default: the scene's duration), calling `progress` after each.
-    pub fn run(&mut self, frames: Option<usize>, progress: &mut dyn FnMut(&Progress)) -> Result<Summary, RunError> {
+    pub fn run(
+        &mut self,
+        frames: Option<usize>,
+        progress: &mut dyn FnMut(&Progress),
+    ) -> Result<Summary, RunError> {
         let start = Instant::now();
         let total_frames = self.frame_count(frames);
         let total_steps = match frames {
@@ -227,7 +244,8 @@ impl Runner {
         let frames_dir = self.out_dir.join("frames");
         std::fs::create_dir_all(&frames_dir).map_err(io_err(&frames_dir))?;
         let csv_path = self.out_dir.join("energy.csv");
-        let mut csv = std::io::BufWriter::new(std::fs::File::create(&csv_path).map_err(io_err(&csv_path))?);
+        let mut csv =
+            std::io::BufWriter::new(std::fs::File::create(&csv_path).map_err(io_err(&csv_path))?);
         writeln!(csv, "frame,time_s,kinetic_J,potential_J,total_J,newton_iterations,linear_iterations,step_seconds")
             .map_err(io_err(&csv_path))?;
 
@@ -235,9 +253,19 @@ impl Runner {
         let e_start = k0 + p0;
         let mut max_kinetic = k0;
         let mut written = self.write_frame(0)? as usize;
-        let log = |csv: &mut std::io::BufWriter<std::fs::File>, frame: usize, sim: &Simulation, newton: usize, linear: usize, secs: f64| {
+        let log = |csv: &mut std::io::BufWriter<std::fs::File>,
+                   frame: usize,
+                   sim: &Simulation,
+                   newton: usize,
+                   linear: usize,
+                   secs: f64| {
             let (k, p) = sim.energy();
-            writeln!(csv, "{frame},{},{k},{p},{},{newton},{linear},{secs}", sim.time(), k + p)?;
+            writeln!(
+                csv,
+                "{frame},{},{k},{p},{},{newton},{linear},{secs}",
+                sim.time(),
+                k + p
+            )?;
             csv.flush()
         };
         log(&mut csv, 0, &self.sim, 0, 0, 0.0).map_err(io_err(&csv_path))?;
@@ -270,7 +298,8 @@ impl Runner {
                 })?;
                 newton += info.newton_iterations;
                 linear += info.linear_iterations;
-                summary.max_linear_iterations = summary.max_linear_iterations.max(info.linear_iterations);
+                summary.max_linear_iterations =
+                    summary.max_linear_iterations.max(info.linear_iterations);
             }
             let secs = t0.elapsed().as_secs_f64();
             steps_done += n;

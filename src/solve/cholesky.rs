@@ -14,7 +14,7 @@ use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt::factor::LltError as DenseLltError;
 use faer::sparse::linalg::cholesky::{
     factorize_symbolic_cholesky, CholeskySymbolicParams, LltRef, SymbolicCholesky,
-    SymmetricOrdering,
+    SymbolicCholeskyRaw, SymmetricOrdering,
 };
 use faer::{Conj, MatMut, Par, Side};
 use std::time::Instant;
@@ -67,6 +67,34 @@ impl SparseCholesky {
         self.l.len()
     }
 
+    /// Floating-point operations of one numeric factorization, `sum_j c_j (c_j + 2)` over
+    /// the columns of L with `c_j` entries below the diagonal (the outer-product updates,
+    /// counted as two flops per multiply-add, plus the column scaling).
+    pub fn factor_flops(&self) -> f64 {
+        let col = |c: usize| (c * (c + 2)) as f64;
+        match self.symbolic.raw() {
+            SymbolicCholeskyRaw::Simplicial(s) => s
+                .col_ptr()
+                .windows(2)
+                .map(|w| col((w[1] - w[0]).saturating_sub(1)))
+                .sum(),
+            SymbolicCholeskyRaw::Supernodal(s) => {
+                let (begin, end, rows) = (
+                    s.supernode_begin(),
+                    s.supernode_end(),
+                    s.col_ptr_for_row_idx(),
+                );
+                (0..s.n_supernodes())
+                    .map(|k| {
+                        let width = end[k] - begin[k];
+                        let below = rows[k + 1] - rows[k];
+                        (0..width).map(|j| col(width - 1 - j + below)).sum::<f64>()
+                    })
+                    .sum()
+            }
+        }
+    }
+
     /// Numeric factorization of `a` (same pattern as at creation).
     pub fn factorize(&mut self, a: &Bsr3) -> Result<SolveInfo, SolveError> {
         let start = Instant::now();
@@ -96,17 +124,22 @@ impl SparseCholesky {
                     seconds: start.elapsed().as_secs_f64(),
                 })
             }
-            Err(DenseLltError::NonPositivePivot { index }) => Err(SolveError::NotPositiveDefinite {
-                what: "Cholesky pivot (in fill-reducing order)",
-                at: index,
-                value: f64::NAN,
-            }),
+            Err(DenseLltError::NonPositivePivot { index }) => {
+                Err(SolveError::NotPositiveDefinite {
+                    what: "Cholesky pivot (in fill-reducing order)",
+                    at: index,
+                    value: f64::NAN,
+                })
+            }
         }
     }
 
     /// Overwrites `b` with `A^-1 b` using the last factorization.
     pub fn solve_in_place(&mut self, b: &mut [f64]) -> Result<(), SolveError> {
-        assert!(self.factored, "solve_in_place needs a successful factorize first");
+        assert!(
+            self.factored,
+            "solve_in_place needs a successful factorize first"
+        );
         let n = self.symbolic.nrows();
         assert_eq!(b.len(), n, "right-hand side length");
         let llt = LltRef::new(&self.symbolic, &self.l);

@@ -129,8 +129,9 @@ impl Filter {
         let (row_ptr, col) = (pattern.row_ptr(), pattern.col());
         for i in 0..pattern.n() {
             let si = self.index_of[i];
-            for k in row_ptr[i] as usize..row_ptr[i + 1] as usize {
-                let sj = self.index_of[col[k] as usize];
+            let (start, end) = (row_ptr[i] as usize, row_ptr[i + 1] as usize);
+            for (k, &j) in col.iter().enumerate().take(end).skip(start) {
+                let sj = self.index_of[j as usize];
                 if si == FREE && sj == FREE {
                     continue;
                 }
@@ -159,7 +160,10 @@ impl Filter {
 
 fn unit(v: [f64; 3]) -> [f64; 3] {
     let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-    assert!(l > 0.0 && l.is_finite(), "constraint direction must be non-zero and finite");
+    assert!(
+        l > 0.0 && l.is_finite(),
+        "constraint direction must be non-zero and finite"
+    );
     [v[0] / l, v[1] / l, v[2] / l]
 }
 

@@ -65,7 +65,12 @@ pub trait NewtonProblem {
     /// `r = F(y)`.
     fn residual(&mut self, y: &[f64], r: &mut [f64]) -> Result<(), SolveError>;
     /// Solves `J(y) dy = -r` for `dy`, where `r = F(y)`.
-    fn newton_step(&mut self, y: &[f64], r: &[f64], dy: &mut [f64]) -> Result<SolveInfo, SolveError>;
+    fn newton_step(
+        &mut self,
+        y: &[f64],
+        r: &[f64],
+        dy: &mut [f64],
+    ) -> Result<SolveInfo, SolveError>;
     /// Residual norm below which rounding dominates at the last evaluated point (0 if
     /// unknown): reaching it counts as converged.
     fn noise_floor(&self) -> f64 {
@@ -185,7 +190,9 @@ impl Newton {
             info.iterations = it;
             info.residual = fnorm;
             let step = alpha * kv::norm2(&self.dy);
-            if fnorm <= target(problem) || (alpha == 1.0 && step <= params.step_tolerance * (1.0 + kv::norm2(y))) {
+            if fnorm <= target(problem)
+                || (alpha == 1.0 && step <= params.step_tolerance * (1.0 + kv::norm2(y)))
+            {
                 return Ok(info);
             }
         }

@@ -116,8 +116,8 @@ impl Pcg {
         match self.params.preconditioner {
             Preconditioner::None => {}
             Preconditioner::Jacobi => {
-                for i in 0..n {
-                    let b = a.block(diag[i] as usize);
+                for (i, &slot) in diag.iter().enumerate() {
+                    let b = a.block(slot as usize);
                     for c in 0..3 {
                         let v = b[4 * c];
                         self.d[c * n + i] = if v > 0.0 {
@@ -131,8 +131,8 @@ impl Pcg {
                 }
             }
             Preconditioner::BlockJacobi => {
-                for i in 0..n {
-                    let b = a.block(diag[i] as usize);
+                for (i, &slot) in diag.iter().enumerate() {
+                    let b = a.block(slot as usize);
                     let inv = match inverse_spd3(b) {
                         Some(inv) => inv,
                         None if constrained(i) => [1.0, 0.0, 0.0, 1.0, 0.0, 1.0],
@@ -221,7 +221,7 @@ impl Pcg {
             // p is filtered, so p . S A p = p . A p: the fused dot stays valid.
             let pq = a.spmv_dot(&mut self.q, &self.p);
             filt(&mut self.q);
-            if !(pq > 0.0) {
+            if !positive(pq) {
                 return Err(if pq.is_nan() {
                     SolveError::NonFinite {
                         what: "curvature p.Ap",
@@ -234,7 +234,13 @@ impl Pcg {
             let alpha = rz / pq;
             let [rz_new, rr] = match pre {
                 Preconditioner::BlockJacobi => kv::pcg_update_block_jacobi_par(
-                    x, &mut self.r, &mut self.z, &self.p, &self.q, &self.d, alpha,
+                    x,
+                    &mut self.r,
+                    &mut self.z,
+                    &self.p,
+                    &self.q,
+                    &self.d,
+                    alpha,
                 ),
                 Preconditioner::Jacobi => kv::pcg_update_jacobi_par(
                     x,
@@ -269,7 +275,9 @@ impl Pcg {
                 Preconditioner::Jacobi => {
                     kv::pcg_direction_jacobi_par(&mut self.p, &self.r, Some(&self.d), beta)
                 }
-                Preconditioner::None => kv::pcg_direction_jacobi_par(&mut self.p, &self.r, None, beta),
+                Preconditioner::None => {
+                    kv::pcg_direction_jacobi_par(&mut self.p, &self.r, None, beta)
+                }
             }
             filt(&mut self.p);
         }
@@ -282,6 +290,11 @@ impl Pcg {
 }
 
 const IDENTITY: [f64; 9] = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+
+/// `v > 0`, false for NaN: the form every definiteness test here needs.
+fn positive(v: f64) -> bool {
+    v > 0.0
+}
 
 fn not_pd(what: &'static str, at: usize, value: f64) -> SolveError {
     SolveError::NotPositiveDefinite { what, at, value }
@@ -298,16 +311,16 @@ pub(crate) fn inverse_spd3(b: &[f64]) -> Option<[f64; 6]> {
     let a22 = b[8];
     // Cholesky pivots decide definiteness robustly; the adjugate gives the inverse.
     let l00 = a00;
-    if !(l00 > 0.0) {
+    if !positive(l00) {
         return None;
     }
     let p1 = a11 - a01 * a01 / l00;
-    if !(p1 > 0.0) {
+    if !positive(p1) {
         return None;
     }
     let l21 = a12 - a01 * a02 / l00;
     let p2 = a22 - a02 * a02 / l00 - l21 * l21 / p1;
-    if !(p2 > 0.0) {
+    if !positive(p2) {
         return None;
     }
     let c00 = a11 * a22 - a12 * a12;
@@ -318,6 +331,13 @@ pub(crate) fn inverse_spd3(b: &[f64]) -> Option<[f64; 6]> {
     let c22 = a00 * a11 - a01 * a01;
     let det = a00 * c00 + a01 * c01 + a02 * c02;
     let inv = 1.0 / det;
-    let out = [c00 * inv, c01 * inv, c02 * inv, c11 * inv, c12 * inv, c22 * inv];
+    let out = [
+        c00 * inv,
+        c01 * inv,
+        c02 * inv,
+        c11 * inv,
+        c12 * inv,
+        c22 * inv,
+    ];
     out.iter().all(|v| v.is_finite()).then_some(out)
 }

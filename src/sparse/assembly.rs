@@ -154,7 +154,10 @@ impl ElementAssembly {
         elements: &[[u32; K]],
         layout: LocalLayout,
     ) -> Result<Self, SparseError> {
-        assert_eq!(layout.k, K, "layout and elements disagree on vertices per element");
+        assert_eq!(
+            layout.k, K,
+            "layout and elements disagree on vertices per element"
+        );
         assert_eq!(layout.block_src.len(), K * K);
         assert_eq!(layout.vector_src.len(), K);
         let total = elements.len() * layout.blocks;
@@ -259,7 +262,10 @@ impl VectorGather {
         elements: &[[u32; K]],
         layout: &LocalLayout,
     ) -> Result<Self, SparseError> {
-        assert_eq!(layout.k, K, "layout and elements disagree on vertices per element");
+        assert_eq!(
+            layout.k, K,
+            "layout and elements disagree on vertices per element"
+        );
         let nv = layout.vectors;
         if elements.len() * nv > INDEX as usize {
             return Err(SparseError::TooLarge {

@@ -11,7 +11,11 @@ use super::{Bsr3, ElementAssembly, LocalLayout};
 
 /// The grid's vertex pairs (each once), in the order the assembly sees them.
 pub fn grid_pairs(dims: &[usize]) -> Vec<[u32; 2]> {
-    let d3 = [dims[0], *dims.get(1).unwrap_or(&1), *dims.get(2).unwrap_or(&1)];
+    let d3 = [
+        dims[0],
+        *dims.get(1).unwrap_or(&1),
+        *dims.get(2).unwrap_or(&1),
+    ];
     let idx = |i: usize, j: usize, k: usize| (i + d3[0] * (j + d3[1] * k)) as u32;
     let mut pairs = Vec::new();
     for k in 0..d3[2] {
@@ -47,7 +51,11 @@ pub fn grid_spd(dims: &[usize], k: f64, m: f64) -> Bsr3 {
     let pairs = grid_pairs(dims);
     let asm = ElementAssembly::new(n, &pairs, LocalLayout::pair()).expect("grid pairs are valid");
     let mut blocks = vec![0.0; asm.block_buffer_len()];
-    let d3 = [dims[0], *dims.get(1).unwrap_or(&1), *dims.get(2).unwrap_or(&1)];
+    let d3 = [
+        dims[0],
+        *dims.get(1).unwrap_or(&1),
+        *dims.get(2).unwrap_or(&1),
+    ];
     let coord = |v: u32| {
         let v = v as usize;
         [v % d3[0], (v / d3[0]) % d3[1], v / (d3[0] * d3[1])].map(|c| c as f64)

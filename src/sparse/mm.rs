@@ -74,35 +74,64 @@ pub fn read_matrix_market(reader: impl BufRead, file: &str) -> Result<MatrixMark
         }
     };
     let (ln, banner) = next(&mut lines)?.ok_or_else(|| err(1, "empty file".into()))?;
-    let words: Vec<String> = banner.split_whitespace().map(|w| w.to_ascii_lowercase()).collect();
+    let words: Vec<String> = banner
+        .split_whitespace()
+        .map(|w| w.to_ascii_lowercase())
+        .collect();
     if words.len() != 5 || words[0] != "%%matrixmarket" || words[1] != "matrix" {
         return Err(err(ln, format!("expected the banner `%%MatrixMarket matrix coordinate real general`, found `{banner}`")));
     }
     if words[2] != "coordinate" {
-        return Err(err(ln, format!("only `coordinate` format is supported, not `{}`", words[2])));
+        return Err(err(
+            ln,
+            format!("only `coordinate` format is supported, not `{}`", words[2]),
+        ));
     }
     if words[3] != "real" && words[3] != "integer" {
-        return Err(err(ln, format!("only `real` or `integer` fields are supported, not `{}`", words[3])));
+        return Err(err(
+            ln,
+            format!(
+                "only `real` or `integer` fields are supported, not `{}`",
+                words[3]
+            ),
+        ));
     }
     let symmetric = match words[4].as_str() {
         "general" => false,
         "symmetric" => true,
-        other => return Err(err(ln, format!("only `general` or `symmetric` matrices are supported, not `{other}`"))),
+        other => {
+            return Err(err(
+                ln,
+                format!("only `general` or `symmetric` matrices are supported, not `{other}`"),
+            ))
+        }
     };
     let (ln, size) = loop {
         match next(&mut lines)? {
-            None => return Err(err(ln + 1, "missing the size line `rows cols entries`".into())),
+            None => {
+                return Err(err(
+                    ln + 1,
+                    "missing the size line `rows cols entries`".into(),
+                ))
+            }
             Some((_, s)) if s.trim_start().starts_with('%') || s.trim().is_empty() => continue,
             Some(x) => break x,
         }
     };
     let nums: Vec<&str> = size.split_whitespace().collect();
     let parse_usize = |s: &str, what: &str, l: usize| {
-        s.parse::<usize>()
-            .map_err(|_| err(l, format!("expected {what} (a non-negative integer), found `{s}`")))
+        s.parse::<usize>().map_err(|_| {
+            err(
+                l,
+                format!("expected {what} (a non-negative integer), found `{s}`"),
+            )
+        })
     };
     if nums.len() != 3 {
-        return Err(err(ln, format!("expected `rows cols entries`, found `{size}`")));
+        return Err(err(
+            ln,
+            format!("expected `rows cols entries`, found `{size}`"),
+        ));
     }
     let nrows = parse_usize(nums[0], "the row count", ln)?;
     let ncols = parse_usize(nums[1], "the column count", ln)?;
@@ -117,7 +146,10 @@ pub fn read_matrix_market(reader: impl BufRead, file: &str) -> Result<MatrixMark
             continue;
         }
         if seen == count {
-            return Err(err(l, format!("more entries than the {count} the size line announces")));
+            return Err(err(
+                l,
+                format!("more entries than the {count} the size line announces"),
+            ));
         }
         let f: Vec<&str> = t.split_whitespace().collect();
         if f.len() != 3 {
@@ -126,7 +158,12 @@ pub fn read_matrix_market(reader: impl BufRead, file: &str) -> Result<MatrixMark
         let r = parse_usize(f[0], "a row index", l)?;
         let c = parse_usize(f[1], "a column index", l)?;
         if r == 0 || r > nrows || c == 0 || c > ncols {
-            return Err(err(l, format!("index ({r}, {c}) outside the {nrows} x {ncols} matrix (indices are 1-based)")));
+            return Err(err(
+                l,
+                format!(
+                    "index ({r}, {c}) outside the {nrows} x {ncols} matrix (indices are 1-based)"
+                ),
+            ));
         }
         let v: f64 = f[2]
             .parse()
@@ -141,7 +178,10 @@ pub fn read_matrix_market(reader: impl BufRead, file: &str) -> Result<MatrixMark
         seen += 1;
     }
     if seen != count {
-        return Err(err(last + 1, format!("file ends after {seen} of the {count} entries the size line announces")));
+        return Err(err(
+            last + 1,
+            format!("file ends after {seen} of the {count} entries the size line announces"),
+        ));
     }
     Ok(MatrixMarket {
         nrows,

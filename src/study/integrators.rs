@@ -23,7 +23,9 @@
 
 use super::{loglog_panels, write_file, Curve, Panel, StudyError};
 use crate::integrate::problems::{Oscillator, Pendulum, StiffScalar};
-use crate::integrate::{LinearSolverKind, MechSettings, MechStepper, Mechanical, Method, OdeStepper};
+use crate::integrate::{
+    LinearSolverKind, MechSettings, MechStepper, Mechanical, Method, OdeStepper,
+};
 use crate::solve::{PcgParams, Preconditioner};
 use serde::Serialize;
 use std::fmt::Write as _;
@@ -102,32 +104,50 @@ fn mech_settings(method: Method) -> MechSettings {
 
 /// Integrates to `t_end` with `steps` steps; `None` on failure or blow-up
 /// (`|x| > bound` or `|v| / vscale > bound`).
-fn run_mech(p: &MechProblem, method: Method, steps: usize, t_end: f64, bound: f64) -> Option<(f64, f64)> {
+fn run_mech(
+    p: &MechProblem,
+    method: Method,
+    steps: usize,
+    t_end: f64,
+    bound: f64,
+) -> Option<(f64, f64)> {
     let mut sys = (p.make)();
     let mut st = MechStepper::new(mech_settings(method), &mut *sys).ok()?;
     let h = t_end / steps as f64;
     let (mut x, mut v) = ([p.x0, 0.0, 0.0], [p.v0, 0.0, 0.0]);
     for k in 0..steps {
         st.step(&mut *sys, k as f64 * h, &mut x, &mut v, h).ok()?;
-        if !(x[0].abs() <= bound && v[0].abs() <= bound * p.vscale) {
+        if !within(x[0], bound) || !within(v[0], bound * p.vscale) {
             return None;
         }
     }
     Some((x[0], v[0]))
 }
 
-fn run_ode(sys: StiffScalar, method: Method, y0: f64, steps: usize, t_end: f64, bound: f64) -> Option<f64> {
+fn run_ode(
+    sys: StiffScalar,
+    method: Method,
+    y0: f64,
+    steps: usize,
+    t_end: f64,
+    bound: f64,
+) -> Option<f64> {
     let mut sys = sys;
     let mut st = OdeStepper::new(method, 1).ok()?;
     let h = t_end / steps as f64;
     let mut y = [y0];
     for k in 0..steps {
         st.step(&mut sys, k as f64 * h, &mut y, h).ok()?;
-        if !(y[0].abs() <= bound) {
+        if !within(y[0], bound) {
             return None;
         }
     }
     Some(y[0])
+}
+
+/// `|v| <= bound`, false for NaN.
+fn within(v: f64, bound: f64) -> bool {
+    v.abs() <= bound
 }
 
 /// Times `f` (minimum of three runs when one run is short).
@@ -172,13 +192,19 @@ fn sweep(method: Method, quick: bool, err: &dyn Fn(usize) -> Option<f64>) -> Ser
             break;
         }
     }
-    let fit: Vec<&Point> = points.iter().filter(|p| p.error > 1e-11 && p.error < 0.05).collect();
+    let fit: Vec<&Point> = points
+        .iter()
+        .filter(|p| p.error > 1e-11 && p.error < 0.05)
+        .collect();
     let fit = &fit[fit.len().saturating_sub(5)..];
     let observed = (fit.len() >= 3).then(|| {
         // Slope of log(error) against log(h) = -slope against log(steps).
         let xs: Vec<f64> = fit.iter().map(|p| -(p.steps as f64).ln()).collect();
         let ys: Vec<f64> = fit.iter().map(|p| p.error.ln()).collect();
-        let (mx, my) = (xs.iter().sum::<f64>() / xs.len() as f64, ys.iter().sum::<f64>() / ys.len() as f64);
+        let (mx, my) = (
+            xs.iter().sum::<f64>() / xs.len() as f64,
+            ys.iter().sum::<f64>() / ys.len() as f64,
+        );
         let sxy: f64 = xs.iter().zip(&ys).map(|(x, y)| (x - mx) * (y - my)).sum();
         let sxx: f64 = xs.iter().map(|x| (x - mx) * (x - mx)).sum();
         sxy / sxx
@@ -259,19 +285,37 @@ pub(super) fn run(out: &Path, quick: bool) -> Result<String, StudyError> {
         (
             "oscillator",
             "undamped oscillator (w = 2 pi, T = 10)",
-            MechProblem { make: oscillator_undamped, x0: 1.0, v0: 0.0, t_end: 10.0, vscale: w },
+            MechProblem {
+                make: oscillator_undamped,
+                x0: 1.0,
+                v0: 0.0,
+                t_end: 10.0,
+                vscale: w,
+            },
             Oscillator::new(w, 0.0, 0.0),
         ),
         (
             "damped-oscillator",
             "damped oscillator (zeta = 0.1, T = 5)",
-            MechProblem { make: oscillator_damped, x0: 1.0, v0: 0.0, t_end: 5.0, vscale: w },
+            MechProblem {
+                make: oscillator_damped,
+                x0: 1.0,
+                v0: 0.0,
+                t_end: 5.0,
+                vscale: w,
+            },
             Oscillator::new(w, 0.1, 0.0),
         ),
         (
             "stiff-oscillator",
             "stiff oscillator (w = 1000, zeta = 1, driven, T = 1)",
-            MechProblem { make: stiff_oscillator, x0: 0.0, v0: 0.0, t_end: 1.0, vscale: 1000.0 },
+            MechProblem {
+                make: stiff_oscillator,
+                x0: 0.0,
+                v0: 0.0,
+                t_end: 1.0,
+                vscale: 1000.0,
+            },
             Oscillator::new(1000.0, 1.0, 1.0),
         ),
     ];
@@ -281,7 +325,8 @@ pub(super) fn run(out: &Path, quick: bool) -> Result<String, StudyError> {
             .iter()
             .map(|&m| {
                 sweep(m, quick, &|steps| {
-                    run_mech(p, m, steps, p.t_end, 1e6).map(|(x, v)| ((x - xe).powi(2) + ((v - ve) / p.vscale).powi(2)).sqrt())
+                    run_mech(p, m, steps, p.t_end, 1e6)
+                        .map(|(x, v)| ((x - xe).powi(2) + ((v - ve) / p.vscale).powi(2)).sqrt())
                 })
             })
             .collect();
@@ -301,7 +346,11 @@ pub(super) fn run(out: &Path, quick: bool) -> Result<String, StudyError> {
     let series = Method::ALL
         .iter()
         .filter(|m| m.supports_first_order())
-        .map(|&m| sweep(m, quick, &|steps| run_ode(stiff, m, 0.0, steps, 1.0, 1e6).map(|y| (y - ye).abs())))
+        .map(|&m| {
+            sweep(m, quick, &|steps| {
+                run_ode(stiff, m, 0.0, steps, 1.0, 1e6).map(|y| (y - ye).abs())
+            })
+        })
         .collect();
     problems.push(ProblemResult {
         key: "stiff-scalar",
@@ -313,16 +362,24 @@ pub(super) fn run(out: &Path, quick: bool) -> Result<String, StudyError> {
     });
 
     // Pendulum against a converged reference.
-    let pend = MechProblem { make: pendulum, x0: 2.5, v0: 0.0, t_end: 10.0, vscale: 9.81f64.sqrt() };
+    let pend = MechProblem {
+        make: pendulum,
+        x0: 2.5,
+        v0: 0.0,
+        t_end: 10.0,
+        vscale: 9.81f64.sqrt(),
+    };
     let ref_steps = if quick { 1 << 18 } else { 1 << 21 };
-    let (xr, vr) = run_mech(&pend, Method::Rk4, ref_steps, pend.t_end, 1e6).expect("the reference run is stable");
+    let (xr, vr) = run_mech(&pend, Method::Rk4, ref_steps, pend.t_end, 1e6)
+        .expect("the reference run is stable");
     let (xr2, vr2) = run_mech(&pend, Method::Rk4, ref_steps / 2, pend.t_end, 1e6).expect("stable");
     let ref_change = ((xr - xr2).powi(2) + ((vr - vr2) / pend.vscale).powi(2)).sqrt();
     let series = Method::ALL
         .iter()
         .map(|&m| {
             sweep(m, quick, &|steps| {
-                run_mech(&pend, m, steps, pend.t_end, 1e6).map(|(x, v)| ((x - xr).powi(2) + ((v - vr) / pend.vscale).powi(2)).sqrt())
+                run_mech(&pend, m, steps, pend.t_end, 1e6)
+                    .map(|(x, v)| ((x - xr).powi(2) + ((v - vr) / pend.vscale).powi(2)).sqrt())
             })
         })
         .collect();
@@ -331,7 +388,10 @@ pub(super) fn run(out: &Path, quick: bool) -> Result<String, StudyError> {
         title: "pendulum (g/L = 9.81, theta0 = 2.5, T = 10)",
         t_end: pend.t_end,
         error_measure: "sqrt(dtheta^2 + (domega/sqrt(g/L))^2) at T",
-        reference: format!("RK4 with {ref_steps} steps (changed by {ref_change:.1e} from {} steps)", ref_steps / 2),
+        reference: format!(
+            "RK4 with {ref_steps} steps (changed by {ref_change:.1e} from {} steps)",
+            ref_steps / 2
+        ),
         series,
     });
     for p in &mut problems {
@@ -426,7 +486,10 @@ fn write_outputs(out: &Path, r: &Report) -> Result<String, StudyError> {
 
     let mut md = String::new();
     let mut summary = String::new();
-    let _ = writeln!(md, "# Integrators: error against run time, order and stability\n");
+    let _ = writeln!(
+        md,
+        "# Integrators: error against run time, order and stability\n"
+    );
     let _ = writeln!(
         md,
         "Generated by `largestep study integrators{}` ({} threads). Plot: [integrators.svg](integrators.svg) \
@@ -441,7 +504,11 @@ fn write_outputs(out: &Path, r: &Report) -> Result<String, StudyError> {
          error between 1e-11 and 0.05.\n"
     );
     for p in &r.problems {
-        let _ = writeln!(md, "## {}\n\nError measure: {}. Reference: {}.\n", p.title, p.error_measure, p.reference);
+        let _ = writeln!(
+            md,
+            "## {}\n\nError measure: {}. Reference: {}.\n",
+            p.title, p.error_measure, p.reference
+        );
         if p.key == "oscillator" {
             let _ = writeln!(
                 md,
@@ -455,17 +522,35 @@ fn write_outputs(out: &Path, r: &Report) -> Result<String, StudyError> {
         let _ = writeln!(summary, "{}", p.title);
         for s in &p.series {
             let best = s.points.iter().min_by(|a, b| a.error.total_cmp(&b.error));
-            let order = s.observed_order.map_or("n/a".into(), |o| format!("{o:.3} ({} pts)", s.fit_points));
+            let order = s
+                .observed_order
+                .map_or("n/a".into(), |o| format!("{o:.3} ({} pts)", s.fit_points));
             let unstable = if s.unstable_steps.is_empty() {
                 "-".into()
             } else {
-                s.unstable_steps.iter().map(|n| n.to_string()).collect::<Vec<_>>().join(", ")
+                s.unstable_steps
+                    .iter()
+                    .map(|n| n.to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ")
             };
             let (e, t, n) = best.map_or(("-".into(), "-".into(), "-".into()), |b| {
-                (format!("{:.3e}", b.error), format!("{:.3e}", b.seconds), b.steps.to_string())
+                (
+                    format!("{:.3e}", b.error),
+                    format!("{:.3e}", b.seconds),
+                    b.steps.to_string(),
+                )
             });
-            let _ = writeln!(md, "| {} | {} | {} | {} | {} | {} | {} |", s.method, s.nominal_order, order, e, t, n, unstable);
-            let _ = writeln!(summary, "  {:<26} order {:<14} (nominal {})  best error {}", s.method, order, s.nominal_order, e);
+            let _ = writeln!(
+                md,
+                "| {} | {} | {} | {} | {} | {} | {} |",
+                s.method, s.nominal_order, order, e, t, n, unstable
+            );
+            let _ = writeln!(
+                summary,
+                "  {:<26} order {:<14} (nominal {})  best error {}",
+                s.method, order, s.nominal_order, e
+            );
         }
         let _ = writeln!(md);
     }
@@ -478,7 +563,10 @@ fn write_outputs(out: &Path, r: &Report) -> Result<String, StudyError> {
          oscillator h w <= 2 (sqrt 2 - 1) from the Jury conditions; backward Euler, its linearised form, \
          implicit midpoint and Newmark are A-stable).\n"
     );
-    let _ = writeln!(md, "| problem | method | measured largest stable h | theoretical bound | measured / theory |");
+    let _ = writeln!(
+        md,
+        "| problem | method | measured largest stable h | theoretical bound | measured / theory |"
+    );
     let _ = writeln!(md, "|---|---|---|---|---|");
     let _ = writeln!(summary, "largest stable h (measured vs theory)");
     for s in &r.stability {
@@ -489,8 +577,16 @@ fn write_outputs(out: &Path, r: &Report) -> Result<String, StudyError> {
         };
         let measured = fmt_h(s.measured_h, s.h_max_tried, "");
         let theory = fmt_h(s.theory_h, s.h_max_tried, "unbounded (A-stable)");
-        let _ = writeln!(md, "| {} | {} | {} | {} | {} |", s.problem, s.method, measured, theory, ratio);
-        let _ = writeln!(summary, "  {:<17} {:<26} {:<28} theory {:<22} ratio {}", s.problem, s.method, measured, theory, ratio);
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} |",
+            s.problem, s.method, measured, theory, ratio
+        );
+        let _ = writeln!(
+            summary,
+            "  {:<17} {:<26} {:<28} theory {:<22} ratio {}",
+            s.problem, s.method, measured, theory, ratio
+        );
     }
     write_file(&out.join("integrators.md"), &md)?;
     let _ = write!(summary, "report: {}", out.join("integrators.md").display());

@@ -42,8 +42,10 @@ pub fn run(name: &str, out: &Path, quick: bool) -> Result<String, StudyError> {
 }
 
 pub(crate) fn write_file(path: &Path, text: &str) -> Result<(), StudyError> {
-    crate::io::write_atomically(path, |w| w.write_all(text.as_bytes())).map_err(|e| StudyError::Write {
-        path: path.display().to_string(),
-        message: e.to_string(),
+    crate::io::write_atomically(path, |w| w.write_all(text.as_bytes())).map_err(|e| {
+        StudyError::Write {
+            path: path.display().to_string(),
+            message: e.to_string(),
+        }
     })
 }

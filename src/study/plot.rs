@@ -29,7 +29,9 @@ pub struct Panel {
 fn bounds(values: impl Iterator<Item = f64>) -> (f64, f64) {
     let (lo, hi) = values
         .filter(|v| v.is_finite() && *v > 0.0)
-        .fold((f64::INFINITY, 0.0f64), |(lo, hi), v| (lo.min(v), hi.max(v)));
+        .fold((f64::INFINITY, 0.0f64), |(lo, hi), v| {
+            (lo.min(v), hi.max(v))
+        });
     if lo > hi {
         (1e-3, 1.0)
     } else {
@@ -38,15 +40,30 @@ fn bounds(values: impl Iterator<Item = f64>) -> (f64, f64) {
 }
 
 /// Draws `panels` in a grid of `cols` columns into an SVG file.
-pub fn loglog_panels(path: &Path, panels: &[Panel], cols: usize, panel_size: (u32, u32)) -> Result<(), String> {
+pub fn loglog_panels(
+    path: &Path,
+    panels: &[Panel],
+    cols: usize,
+    panel_size: (u32, u32),
+) -> Result<(), String> {
     let rows = panels.len().div_ceil(cols);
     let size = (panel_size.0 * cols as u32, panel_size.1 * rows as u32);
     let root = SVGBackend::new(path, size).into_drawing_area();
     root.fill(&WHITE).map_err(|e| e.to_string())?;
     let areas = root.split_evenly((rows, cols));
     for (area, panel) in areas.iter().zip(panels) {
-        let xs = bounds(panel.curves.iter().flat_map(|(_, c)| c.points.iter().map(|p| p.0)));
-        let ys = bounds(panel.curves.iter().flat_map(|(_, c)| c.points.iter().map(|p| p.1)));
+        let xs = bounds(
+            panel
+                .curves
+                .iter()
+                .flat_map(|(_, c)| c.points.iter().map(|p| p.0)),
+        );
+        let ys = bounds(
+            panel
+                .curves
+                .iter()
+                .flat_map(|(_, c)| c.points.iter().map(|p| p.1)),
+        );
         let mut chart = ChartBuilder::on(area)
             .caption(&panel.title, ("sans-serif", 16))
             .margin(8)
@@ -77,9 +94,17 @@ pub fn loglog_panels(path: &Path, panels: &[Panel], cols: usize, panel_size: (u3
                 .draw_series(LineSeries::new(pts.clone(), style))
                 .map_err(|e| e.to_string())?
                 .label(curve.label.as_str())
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], Palette99::pick(*colour).stroke_width(2)));
+                .legend(move |(x, y)| {
+                    PathElement::new(
+                        vec![(x, y), (x + 16, y)],
+                        Palette99::pick(*colour).stroke_width(2),
+                    )
+                });
             chart
-                .draw_series(pts.iter().map(|&p| Circle::new(p, 3, Palette99::pick(*colour).filled())))
+                .draw_series(
+                    pts.iter()
+                        .map(|&p| Circle::new(p, 3, Palette99::pick(*colour).filled())),
+                )
                 .map_err(|e| e.to_string())?;
         }
         chart
