@@ -69,29 +69,25 @@ pub fn triad_bandwidth(len: usize, reps: usize) -> f64 {
     24.0 * len as f64 / best / 1e9
 }
 
-fn fma_chains4(iters: usize) -> f64 {
-    let m = f64x4::splat(0.999_999_9);
-    let add = f64x4::splat(1e-7);
-    let mut acc = [f64x4::splat(1.0); 12];
-    for _ in 0..iters {
-        for a in acc.iter_mut() {
-            *a = a.mul_add(m, add);
+/// Twelve independent FMA chains of the given vector type, `iters` rounds.
+macro_rules! fma_chains {
+    ($name:ident, $simd:ty) => {
+        fn $name(iters: usize) -> f64 {
+            let m = <$simd>::splat(0.999_999_9);
+            let add = <$simd>::splat(1e-7);
+            let mut acc = [<$simd>::splat(1.0); 12];
+            for _ in 0..iters {
+                for a in acc.iter_mut() {
+                    *a = a.mul_add(m, add);
+                }
+            }
+            acc.iter().fold(0.0, |s, a| s + a.reduce_add())
         }
-    }
-    acc.iter().fold(0.0, |s, a| s + a.reduce_add())
+    };
 }
 
-fn fma_chains8(iters: usize) -> f64 {
-    let m = f64x8::splat(0.999_999_9);
-    let add = f64x8::splat(1e-7);
-    let mut acc = [f64x8::splat(1.0); 12];
-    for _ in 0..iters {
-        for a in acc.iter_mut() {
-            *a = a.mul_add(m, add);
-        }
-    }
-    acc.iter().fold(0.0, |s, a| s + a.reduce_add())
-}
+fma_chains!(fma_chains4, f64x4);
+fma_chains!(fma_chains8, f64x8);
 
 fn peak(lanes: usize, f: fn(usize) -> f64) -> f64 {
     let threads = rayon::current_num_threads();

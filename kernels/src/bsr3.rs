@@ -154,19 +154,27 @@ pub fn bsr3_spmv_dot_scalar(y: &mut [f64], a: Bsr3Ref<'_>, x: &[f64]) -> f64 {
     rows_scalar(split3(y, a.n), a, x, 0..a.n)
 }
 
-/// `y = A x`, returning `x . y`; parallel over fixed chunks of block rows, so the result
-/// is bitwise the same for any number of threads.
-pub fn bsr3_spmv_dot_par(y: &mut [f64], a: Bsr3Ref<'_>, x: &[f64]) -> f64 {
+/// Row function: `y = A x` over a row range, returning `x . y` there.
+type Rows = fn([&mut [f64]; 3], Bsr3Ref<'_>, &[f64], Range<usize>) -> f64;
+
+/// Runs `rows` over fixed chunks of block rows in parallel (thread-count independent).
+fn par_rows(y: &mut [f64], a: Bsr3Ref<'_>, x: &[f64], rows: Rows) -> f64 {
     check(y, &a, x);
     let n = a.n;
     let yd = Disjoint::new(y);
     let [d] = par_reduce(chunk_count(n, PAR_CHUNK), &|c| {
-        let rows = chunk_range(c, n, PAR_CHUNK);
+        let range = chunk_range(c, n, PAR_CHUNK);
         // SAFETY: the row ranges of distinct chunks are disjoint.
-        let yc = unsafe { yd.components(n, rows.clone()) };
-        [rows_simd(yc, a, x, rows)]
+        let yc = unsafe { yd.components(n, range.clone()) };
+        [rows(yc, a, x, range)]
     });
     d
+}
+
+/// `y = A x`, returning `x . y`; parallel over fixed chunks of block rows, so the result
+/// is bitwise the same for any number of threads.
+pub fn bsr3_spmv_dot_par(y: &mut [f64], a: Bsr3Ref<'_>, x: &[f64]) -> f64 {
+    par_rows(y, a, x, rows_simd)
 }
 
 /// `y = A x`, parallel (see [`bsr3_spmv_dot_par`]).
@@ -176,14 +184,5 @@ pub fn bsr3_spmv_par(y: &mut [f64], a: Bsr3Ref<'_>, x: &[f64]) {
 
 /// Scalar parallel twin of [`bsr3_spmv_dot_par`].
 pub fn bsr3_spmv_dot_par_scalar(y: &mut [f64], a: Bsr3Ref<'_>, x: &[f64]) -> f64 {
-    check(y, &a, x);
-    let n = a.n;
-    let yd = Disjoint::new(y);
-    let [d] = par_reduce(chunk_count(n, PAR_CHUNK), &|c| {
-        let rows = chunk_range(c, n, PAR_CHUNK);
-        // SAFETY: the row ranges of distinct chunks are disjoint.
-        let yc = unsafe { yd.components(n, rows.clone()) };
-        [rows_scalar(yc, a, x, rows)]
-    });
-    d
+    par_rows(y, a, x, rows_scalar)
 }

@@ -28,9 +28,7 @@ pub fn axpy(y: &mut [f64], a: f64, x: &[f64]) {
     for (yy, xx) in (&mut yc).zip(&mut xc) {
         st(yy, ld(xx).mul_add(av, ld(yy)));
     }
-    for (yy, xx) in yc.into_remainder().iter_mut().zip(xc.remainder()) {
-        *yy = xx.mul_add(a, *yy);
-    }
+    axpy_scalar(yc.into_remainder(), a, xc.remainder());
 }
 
 /// Scalar twin of [`axpy`].
@@ -50,9 +48,7 @@ pub fn xpay(y: &mut [f64], x: &[f64], b: f64) {
     for (yy, xx) in (&mut yc).zip(&mut xc) {
         st(yy, ld(yy).mul_add(bv, ld(xx)));
     }
-    for (yy, xx) in yc.into_remainder().iter_mut().zip(xc.remainder()) {
-        *yy = yy.mul_add(b, *xx);
-    }
+    xpay_scalar(yc.into_remainder(), xc.remainder(), b);
 }
 
 /// Scalar twin of [`xpay`].
@@ -73,14 +69,7 @@ pub fn waxpy(w: &mut [f64], x: &[f64], a: f64, y: &[f64]) {
     for ((ww, xx), yy) in (&mut wc).zip(&mut xc).zip(&mut yc) {
         st(ww, ld(yy).mul_add(av, ld(xx)));
     }
-    for ((ww, xx), yy) in wc
-        .into_remainder()
-        .iter_mut()
-        .zip(xc.remainder())
-        .zip(yc.remainder())
-    {
-        *ww = yy.mul_add(a, *xx);
-    }
+    waxpy_scalar(wc.into_remainder(), xc.remainder(), a, yc.remainder());
 }
 
 /// Scalar twin of [`waxpy`].
@@ -100,9 +89,7 @@ pub fn scale_copy(y: &mut [f64], a: f64, x: &[f64]) {
     for (yy, xx) in (&mut yc).zip(&mut xc) {
         st(yy, ld(xx) * av);
     }
-    for (yy, xx) in yc.into_remainder().iter_mut().zip(xc.remainder()) {
-        *yy = a * xx;
-    }
+    scale_copy_scalar(yc.into_remainder(), a, xc.remainder());
 }
 
 /// Scalar twin of [`scale_copy`].
@@ -124,11 +111,7 @@ pub fn dot(x: &[f64], y: &[f64]) -> f64 {
         a0 = ld(xx).mul_add(ld(yy), a0);
         a1 = ld(&xx[4..]).mul_add(ld(&yy[4..]), a1);
     }
-    let mut s = (a0 + a1).reduce_add();
-    for (xx, yy) in xc.remainder().iter().zip(yc.remainder()) {
-        s = xx.mul_add(*yy, s);
-    }
-    s
+    (a0 + a1).reduce_add() + dot_scalar(xc.remainder(), yc.remainder())
 }
 
 /// Scalar twin of [`dot`].
@@ -221,15 +204,15 @@ pub fn pcg_update_jacobi(
         rz = ri.mul_add(zi, rz);
         rr = ri.mul_add(ri, rr);
     }
-    let (mut srz, mut srr) = (rz.reduce_add(), rr.reduce_add());
-    for i in body..len {
-        x[i] = p[i].mul_add(alpha, x[i]);
-        r[i] = q[i].mul_add(-alpha, r[i]);
-        let zi = dinv.map_or(r[i], |d| d[i] * r[i]);
-        srz = r[i].mul_add(zi, srz);
-        srr = r[i].mul_add(r[i], srr);
-    }
-    [srz, srr]
+    let [trz, trr] = pcg_update_jacobi_scalar(
+        &mut x[body..],
+        &mut r[body..],
+        &p[body..],
+        &q[body..],
+        dinv.map(|d| &d[body..]),
+        alpha,
+    );
+    [rz.reduce_add() + trz, rr.reduce_add() + trr]
 }
 
 /// Scalar twin of [`pcg_update_jacobi`].
@@ -268,14 +251,12 @@ pub fn pcg_direction_jacobi(p: &mut [f64], r: &[f64], dinv: Option<&[f64]>, beta
     for ((pp, rr), dd) in (&mut pc).zip(&mut rc).zip(&mut dc) {
         st(pp, ld(pp).mul_add(bv, ld(dd) * ld(rr)));
     }
-    for ((pp, rr), dd) in pc
-        .into_remainder()
-        .iter_mut()
-        .zip(rc.remainder())
-        .zip(dc.remainder())
-    {
-        *pp = pp.mul_add(beta, dd * rr);
-    }
+    pcg_direction_jacobi_scalar(
+        pc.into_remainder(),
+        rc.remainder(),
+        Some(dc.remainder()),
+        beta,
+    );
 }
 
 /// Scalar twin of [`pcg_direction_jacobi`].
@@ -288,7 +269,7 @@ pub fn pcg_direction_jacobi_scalar(p: &mut [f64], r: &[f64], dinv: Option<&[f64]
 }
 
 /// Applies symmetric 3x3 blocks stored as six component-major arrays
-/// `b = [b00 | b01 | b02 | b11 | b12 | b22]` (each of length n) to the 3-vectors of `r`
+/// `b = [b00 | b01 | b02 | b11 | b12 | b22]` (each of length m) to the 3-vectors of `r`
 /// (vertex range given by the slices): `z_i = B_i r_i`, written into `z`.
 /// Returns `[r . z, r . r]` over the range.
 #[inline]
@@ -311,9 +292,19 @@ fn block_apply_dot(z: [&mut [f64]; 3], r: [&[f64]; 3], b: [&[f64]; 6]) -> [f64; 
         acc = r2.mul_add(z2, r1.mul_add(z1, r0.mul_add(z0, acc)));
         acc_rr = r2.mul_add(r2, r1.mul_add(r1, r0.mul_add(r0, acc_rr)));
     }
-    let mut s = acc.reduce_add();
-    let mut s_rr = acc_rr.reduce_add();
-    for i in body..m {
+    let [trz, trr] = block_apply_dot_scalar(
+        [&mut zx[body..], &mut zy[body..], &mut zz[body..]],
+        r.map(|c| &c[body..]),
+        b.map(|c| &c[body..]),
+    );
+    [acc.reduce_add() + trz, acc_rr.reduce_add() + trr]
+}
+
+/// Scalar twin of [`block_apply_dot`].
+fn block_apply_dot_scalar(z: [&mut [f64]; 3], r: [&[f64]; 3], b: [&[f64]; 6]) -> [f64; 2] {
+    let [zx, zy, zz] = z;
+    let (mut s, mut s_rr) = (0.0, 0.0);
+    for i in 0..r[0].len() {
         let (r0, r1, r2) = (r[0][i], r[1][i], r[2][i]);
         let z0 = b[2][i].mul_add(r2, b[1][i].mul_add(r1, b[0][i] * r0));
         let z1 = b[4][i].mul_add(r2, b[3][i].mul_add(r1, b[1][i] * r0));
@@ -327,37 +318,35 @@ fn block_apply_dot(z: [&mut [f64]; 3], r: [&[f64]; 3], b: [&[f64]; 6]) -> [f64; 
     [s, s_rr]
 }
 
+/// Per-component slices of the arguments of a block apply: z, r and the six block arrays.
+type BlockArgs<'a> = ([&'a mut [f64]; 3], [&'a [f64]; 3], [&'a [f64]; 6]);
+
+/// Splits component-major `z`, `r` (3n) and `binv` (6n) into per-component slices.
+fn block_args<'a>(z: &'a mut [f64], r: &'a [f64], binv: &'a [f64]) -> BlockArgs<'a> {
+    let n = r.len() / 3;
+    assert!(r.len() == 3 * n && z.len() == 3 * n && binv.len() == 6 * n);
+    let (z0, rest) = z.split_at_mut(n);
+    let (z1, z2) = rest.split_at_mut(n);
+    (
+        [z0, z1, z2],
+        [&r[..n], &r[n..2 * n], &r[2 * n..]],
+        core::array::from_fn(|k| &binv[k * n..(k + 1) * n]),
+    )
+}
+
 /// Block-Jacobi preconditioner apply: `z_i = B_i r_i` for every vertex, returning
 /// `[r . z, r . r]`.
 /// `binv` holds the symmetric inverse blocks as six component-major arrays
 /// (`[b00 | b01 | b02 | b11 | b12 | b22]`, length 6n); `r`, `z` are component-major (3n).
 pub fn block_jacobi_apply(z: &mut [f64], r: &[f64], binv: &[f64]) -> [f64; 2] {
-    let n = r.len() / 3;
-    assert!(r.len() == 3 * n && z.len() == 3 * n && binv.len() == 6 * n);
-    let (z0, rest) = z.split_at_mut(n);
-    let (z1, z2) = rest.split_at_mut(n);
-    let b: [&[f64]; 6] = core::array::from_fn(|k| &binv[k * n..(k + 1) * n]);
-    block_apply_dot([z0, z1, z2], [&r[..n], &r[n..2 * n], &r[2 * n..]], b)
+    let (z, r, b) = block_args(z, r, binv);
+    block_apply_dot(z, r, b)
 }
 
 /// Scalar twin of [`block_jacobi_apply`].
 pub fn block_jacobi_apply_scalar(z: &mut [f64], r: &[f64], binv: &[f64]) -> [f64; 2] {
-    let n = r.len() / 3;
-    assert!(r.len() == 3 * n && z.len() == 3 * n && binv.len() == 6 * n);
-    let (mut s, mut s_rr) = (0.0, 0.0);
-    for i in 0..n {
-        let [b00, b01, b02, b11, b12, b22] = core::array::from_fn(|k| binv[k * n + i]);
-        let (r0, r1, r2) = (r[i], r[n + i], r[2 * n + i]);
-        let z0 = b00 * r0 + b01 * r1 + b02 * r2;
-        let z1 = b01 * r0 + b11 * r1 + b12 * r2;
-        let z2 = b02 * r0 + b12 * r1 + b22 * r2;
-        z[i] = z0;
-        z[n + i] = z1;
-        z[2 * n + i] = z2;
-        s += r0 * z0 + r1 * z1 + r2 * z2;
-        s_rr += r0 * r0 + r1 * r1 + r2 * r2;
-    }
-    [s, s_rr]
+    let (z, r, b) = block_args(z, r, binv);
+    block_apply_dot_scalar(z, r, b)
 }
 
 /// Parallel [`pcg_update_jacobi`] (deterministic).

@@ -33,7 +33,7 @@
 //! provides U.
 
 use super::explicit::RkWork;
-use super::{hint, IntegrateError, Method, StepInfo};
+use super::{hint, solve_error, IntegrateError, Method, StepInfo};
 use crate::solve::{
     Filter, Newton, NewtonParams, NewtonProblem, Pcg, PcgParams, SolveError, SolveInfo,
     SparseCholesky,
@@ -350,11 +350,7 @@ impl MechStepper {
         if let Some(f) = filter {
             f.apply(v);
         }
-        let solve_err = |source: SolveError| IntegrateError::Solve {
-            step,
-            method,
-            source,
-        };
+        let solve_err = solve_error(step, method);
         let mut info = StepInfo::default();
         match method {
             Method::ExplicitEuler | Method::Midpoint | Method::Rk4 => {

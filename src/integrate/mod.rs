@@ -184,6 +184,15 @@ pub enum IntegrateError {
     },
 }
 
+/// Wraps a solver error with the step and method it happened in.
+pub(crate) fn solve_error(step: u64, method: Method) -> impl Fn(SolveError) -> IntegrateError {
+    move |source| IntegrateError::Solve {
+        step,
+        method,
+        source,
+    }
+}
+
 pub(crate) const HINT_EXPLICIT: &str =
     "reduce dt, or use an implicit integrator (backward-euler, implicit-midpoint, newmark)";
 pub(crate) const HINT_IMPLICIT: &str =

@@ -7,7 +7,7 @@
 //! search. First-order systems here are small (studies, control): the Jacobian is dense.
 
 use super::explicit::RkWork;
-use super::{hint, IntegrateError, Method, StepInfo};
+use super::{hint, solve_error, IntegrateError, Method, StepInfo};
 use crate::solve::dense::DenseLu;
 use crate::solve::{Newton, NewtonParams, NewtonProblem, SolveError, SolveInfo};
 use largestep_kernels::vec as kv;
@@ -90,11 +90,7 @@ impl OdeStepper {
         self.steps += 1;
         let step = self.steps;
         let method = self.method;
-        let solve_err = |source: SolveError| IntegrateError::Solve {
-            step,
-            method,
-            source,
-        };
+        let solve_err = solve_error(step, method);
         let mut info = StepInfo::default();
         match method {
             Method::ExplicitEuler | Method::Midpoint | Method::Rk4 => {

@@ -203,28 +203,15 @@ impl MassSpringDesc {
             }
             pinned[p] = true;
         }
-        for (i, p) in self.positions.iter().enumerate() {
-            for (c, &x) in p.iter().enumerate() {
-                check(
-                    "particle",
-                    i,
-                    ["position.x", "position.y", "position.z"][c],
-                    x,
-                    x.is_finite(),
-                    "must be finite",
-                )?;
-            }
-        }
-        for (i, p) in self.velocities.iter().enumerate() {
-            for (c, &x) in p.iter().enumerate() {
-                check(
-                    "particle",
-                    i,
-                    ["velocity.x", "velocity.y", "velocity.z"][c],
-                    x,
-                    x.is_finite(),
-                    "must be finite",
-                )?;
+        let vectors = [
+            (&self.positions, ["position.x", "position.y", "position.z"]),
+            (&self.velocities, ["velocity.x", "velocity.y", "velocity.z"]),
+        ];
+        for (values, fields) in vectors {
+            for (i, p) in values.iter().enumerate() {
+                for (&x, field) in p.iter().zip(fields) {
+                    check("particle", i, field, x, x.is_finite(), "must be finite")?;
+                }
             }
         }
         for (i, &m) in self.masses.iter().enumerate() {
