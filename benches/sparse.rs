@@ -34,6 +34,8 @@ struct Row {
     bytes: f64,
     /// Floating-point operations, for compute-bound kernels (0 when not counted).
     flops: f64,
+    /// Triad bandwidth (GB/s) at this row's thread count, measured just before its size.
+    triad: f64,
     note: String,
 }
 
@@ -42,6 +44,17 @@ struct Bench {
     filter: Option<String>,
     rows: Vec<Row>,
     pool1: rayon::ThreadPool,
+    /// Triad bandwidth (GB/s) with 1 and with all threads, re-measured before each size:
+    /// this machine's bandwidth drifts by tens of percent over minutes.
+    triad: (f64, f64),
+}
+
+impl Bench {
+    fn measure_triad(&mut self) {
+        let len = largestep::machine::DEFAULT_TRIAD_MIB * (1 << 20) / 8;
+        let one = self.pool1.install(|| triad_bandwidth(len, 4));
+        self.triad = (one, triad_bandwidth(len, 4));
+    }
 }
 
 impl Bench {
@@ -86,6 +99,11 @@ impl Bench {
             seconds: best,
             bytes,
             flops: 0.0,
+            triad: if threads == 1 {
+                self.triad.0
+            } else {
+                self.triad.1
+            },
             note: note.to_string(),
         });
     }
@@ -282,6 +300,7 @@ fn pcg_benches(b: &mut Bench, name: &str, a: &Bsr3) {
                 seconds: (t40 - t0) / 40.0,
                 bytes: bytes as f64,
                 flops: 0.0,
+                triad: b.triad.1,
                 note: "one iteration = (t40 - t0) / 40".into(),
             });
         }
@@ -331,9 +350,6 @@ fn main() {
         .num_threads(1)
         .build()
         .unwrap();
-    let len = largestep::machine::DEFAULT_TRIAD_MIB * (1 << 20) / 8;
-    let triad_all = triad_bandwidth(len, 5);
-    let triad_one = pool1.install(|| triad_bandwidth(len, 5));
     let peak_one = pool1.install(|| {
         let (f4, f8) = largestep::machine::peak_fma();
         f4.max(f8)
@@ -343,12 +359,16 @@ fn main() {
         filter,
         rows: Vec::new(),
         pool1,
+        triad: (0.0, 0.0),
     };
+    let mut triads = Vec::new();
     for (name, dims) in grids() {
         if !ids(&name).iter().any(|id| b.wanted(id)) {
             continue; // the filter excludes every benchmark of this size: skip building it
         }
         let a = grid_spd(&dims, 1.0, 0.05);
+        b.measure_triad();
+        triads.push(b.triad);
         spmv_benches(&mut b, &name, &a);
         pcg_benches(&mut b, &name, &a);
     }
@@ -356,16 +376,29 @@ fn main() {
     // about 10 s: nnz(L) = 1.9e8).
     for (name, dims) in cholesky_grids() {
         if ids(&name).iter().any(|id| b.wanted(id)) {
+            b.measure_triad();
+            triads.push(b.triad);
             cholesky_benches(&mut b, &name, &grid_spd(&dims, 1.0, 0.05));
         }
     }
     b.c.final_summary();
 
     let mut md = String::new();
+    let range = |f: fn(&(f64, f64)) -> f64| {
+        let v: Vec<f64> = triads.iter().map(f).collect();
+        (
+            v.iter().cloned().fold(f64::INFINITY, f64::min),
+            v.iter().cloned().fold(0.0, f64::max),
+        )
+    };
+    let (lo1, hi1) = range(|t| t.0);
+    let (lo2, hi2) = range(|t| t.1);
     let _ = writeln!(
         md,
-        "# sparse benchmark summary\n\ntriad bandwidth: {triad_all:.2} GB/s with {threads} threads, {triad_one:.2} GB/s with 1 thread \
-         (3 arrays of {} MiB), peak f64 FMA {peak_one:.1} GFLOP/s with 1 thread; all measured in this run\n",
+        "# sparse benchmark summary\n\ntriad bandwidth (3 arrays of {} MiB), re-measured before each size: \
+         {lo2:.1} to {hi2:.1} GB/s with {threads} threads, {lo1:.1} to {hi1:.1} GB/s with 1 thread; \
+         each row's fraction uses the triad measured just before it. Peak f64 FMA: {peak_one:.1} GFLOP/s \
+         with 1 thread. All measured in this run.\n",
         largestep::machine::DEFAULT_TRIAD_MIB
     );
     let _ = writeln!(
@@ -375,7 +408,7 @@ fn main() {
     let _ = writeln!(md, "|---|---|---|---|---|---|---|---|");
     for r in &b.rows {
         let gbs = r.bytes / r.seconds / 1e9;
-        let triad = if r.threads == 1 { triad_one } else { triad_all };
+        let triad = r.triad;
         let time = if r.seconds < 1e-3 {
             format!("{:.1} us", r.seconds * 1e6)
         } else {

@@ -73,9 +73,11 @@ pub fn triad_bandwidth(len: usize, reps: usize) -> f64 {
 macro_rules! fma_chains {
     ($name:ident, $simd:ty) => {
         fn $name(iters: usize) -> f64 {
-            let m = <$simd>::splat(0.999_999_9);
-            let add = <$simd>::splat(1e-7);
-            let mut acc = [<$simd>::splat(1.0); 12];
+            // Opaque inputs: with literal constants LLVM proves 1.0 a fixed point of
+            // `a m + add` and folds the whole loop away.
+            let m = <$simd>::splat(black_box(0.999_999_9));
+            let add = <$simd>::splat(black_box(1e-7));
+            let mut acc = [<$simd>::splat(black_box(0.5)); 12];
             for _ in 0..iters {
                 for a in acc.iter_mut() {
                     *a = a.mul_add(m, add);
@@ -91,9 +93,9 @@ fma_chains!(fma_chains8, f64x8);
 
 fn peak(lanes: usize, f: fn(usize) -> f64) -> f64 {
     let threads = rayon::current_num_threads();
-    let iters = black_box(2_000_000usize);
+    let iters = black_box(4_000_000usize);
     let mut best = f64::INFINITY;
-    for _ in 0..4 {
+    for _ in 0..8 {
         let t = Instant::now();
         let [s] = par_reduce(threads, &|_| [f(black_box(iters))]);
         best = best.min(t.elapsed().as_secs_f64());

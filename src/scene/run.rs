@@ -97,6 +97,13 @@ impl std::fmt::Display for Summary {
             "  energy         {:.6e} J -> {:.6e} J (relative change {:+.3e})",
             self.energy.0, self.energy.1, self.energy_drift
         )?;
+        if self.energy_drift > 0.1 {
+            writeln!(
+                f,
+                "  warning        total energy grew by {:.0}% of its scale: the integrator is probably unstable at this dt (reduce dt or use an implicit integrator)",
+                100.0 * self.energy_drift
+            )?;
+        }
         if let Some(ls) = self.linear_solver {
             writeln!(
                 f,
