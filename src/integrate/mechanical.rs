@@ -258,11 +258,7 @@ impl MechStepper {
                     Linear::Pcg(Pcg::new(n, PcgParams::default()))
                 }
                 LinearSolverKind::Cholesky | LinearSolverKind::Auto => Linear::Cholesky(Box::new(
-                    SparseCholesky::new(&pattern).map_err(|source| IntegrateError::Solve {
-                        step: 0,
-                        method,
-                        source,
-                    })?,
+                    SparseCholesky::new(&pattern).map_err(solve_error(0, method, true))?,
                 )),
             };
             let v3 = || vec![0.0; 3 * n];
@@ -350,7 +346,7 @@ impl MechStepper {
         if let Some(f) = filter {
             f.apply(v);
         }
-        let solve_err = solve_error(step, method);
+        let solve_err = solve_error(step, method, true);
         let mut info = StepInfo::default();
         match method {
             Method::ExplicitEuler | Method::Midpoint | Method::Rk4 => {

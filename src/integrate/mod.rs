@@ -162,7 +162,7 @@ pub enum IntegrateError {
         hint: &'static str,
     },
     /// A solver inside an implicit step failed.
-    #[error("step {step} ({method}): {source}")]
+    #[error("step {step} ({method}): {source}{}", if hint.is_empty() { String::new() } else { format!("; {hint}") })]
     Solve {
         /// Step number (1-based).
         step: u64,
@@ -170,6 +170,8 @@ pub enum IntegrateError {
         method: Method,
         /// The solver's error.
         source: SolveError,
+        /// What to try (may be empty).
+        hint: &'static str,
     },
     /// Building the Jacobian structures failed.
     #[error("Jacobian structure: {0}")]
@@ -184,14 +186,37 @@ pub enum IntegrateError {
     },
 }
 
-/// Wraps a solver error with the step and method it happened in.
-pub(crate) fn solve_error(step: u64, method: Method) -> impl Fn(SolveError) -> IntegrateError {
-    move |source| IntegrateError::Solve {
-        step,
-        method,
-        source,
+/// Wraps a solver error with the step and method it happened in, and a hint for
+/// Newton failures in mechanical systems.
+pub(crate) fn solve_error(
+    step: u64,
+    method: Method,
+    mechanical: bool,
+) -> impl Fn(SolveError) -> IntegrateError {
+    move |source| {
+        let newton = matches!(
+            source,
+            SolveError::NotConverged { .. } | SolveError::LineSearchFailed { .. }
+        );
+        let hint = if mechanical && newton && method != Method::LinearizedBackwardEuler {
+            HINT_NEWTON
+        } else {
+            ""
+        };
+        IntegrateError::Solve {
+            step,
+            method,
+            source,
+            hint,
+        }
     }
 }
+
+/// Newton converges only linearly when the definiteness fix changes the Jacobian a lot
+/// (buckling sheets, crushed springs).
+pub(crate) const HINT_NEWTON: &str = "Newton converges slowly where the definiteness fix changes the Jacobian (buckling, compression): \
+     loosen [solver] newton_tolerance or raise newton_max_iterations, reduce dt, or use \
+     linearized-backward-euler (one solve per step)";
 
 pub(crate) const HINT_EXPLICIT: &str =
     "reduce dt, or use an implicit integrator (backward-euler, implicit-midpoint, newmark)";

@@ -90,7 +90,7 @@ impl OdeStepper {
         self.steps += 1;
         let step = self.steps;
         let method = self.method;
-        let solve_err = solve_error(step, method);
+        let solve_err = solve_error(step, method, false);
         let mut info = StepInfo::default();
         match method {
             Method::ExplicitEuler | Method::Midpoint | Method::Rk4 => {

@@ -156,20 +156,23 @@ impl Newton {
                 });
             }
             let slope = kv::dot(&self.r, &self.dy);
-            let merit0 = if slope < 0.0 { problem.merit(y) } else { None };
+            // The merit at y, computed only if some trial fails the residual test.
+            let mut merit0: Option<Option<f64>> = None;
             let mut alpha = 1.0;
             loop {
                 kv::waxpy(&mut self.yt, y, alpha, &self.dy);
                 problem.residual(&self.yt, &mut self.rt)?;
                 let trial = kv::norm2(&self.rt);
-                let residual_ok = trial.is_finite() && trial <= (1.0 - 1e-4 * alpha) * fnorm;
-                let merit_ok = trial.is_finite()
-                    && merit0.is_some_and(|m0| {
+                let mut ok = trial.is_finite() && trial <= (1.0 - 1e-4 * alpha) * fnorm;
+                if !ok && trial.is_finite() && slope < 0.0 {
+                    let m0 = *merit0.get_or_insert_with(|| problem.merit(y));
+                    ok = m0.is_some_and(|m0| {
                         problem
                             .merit(&self.yt)
                             .is_some_and(|m| m <= m0 + 1e-4 * alpha * slope)
                     });
-                if residual_ok || merit_ok {
+                }
+                if ok {
                     fnorm = trial;
                     break;
                 }
