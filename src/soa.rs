@@ -20,12 +20,6 @@ impl Vec3s {
         }
     }
 
-    /// Wraps component-major data; its length must be a multiple of 3.
-    pub fn from_data(data: Vec<f64>) -> Self {
-        assert!(data.len() % 3 == 0, "Vec3s data length must be 3n");
-        Self { data }
-    }
-
     /// From array-of-structures form (I/O edge).
     pub fn from_aos(v: &[[f64; 3]]) -> Self {
         let n = v.len();
@@ -58,8 +52,7 @@ impl Vec3s {
     /// Vector i.
     #[inline]
     pub fn get(&self, i: usize) -> [f64; 3] {
-        let n = self.len();
-        [self.data[i], self.data[n + i], self.data[2 * n + i]]
+        largestep_kernels::get3(&self.data, self.len(), i)
     }
 
     /// Sets vector i.
@@ -88,10 +81,7 @@ impl Vec3s {
 
     /// The three component slices, mutable at once.
     pub fn xyz_mut(&mut self) -> [&mut [f64]; 3] {
-        let n = self.len();
-        let (x, rest) = self.data.split_at_mut(n);
-        let (y, z) = rest.split_at_mut(n);
-        [x, y, z]
+        largestep_kernels::split3_mut(&mut self.data)
     }
 
     /// The flat component-major data (the solvers' view).
@@ -105,70 +95,4 @@ impl Vec3s {
     pub fn as_mut_slice(&mut self) -> &mut [f64] {
         &mut self.data
     }
-
-    /// Consumes the buffer, returning its data.
-    pub fn into_data(self) -> Vec<f64> {
-        self.data
-    }
-
-    /// A read-only view.
-    pub fn view(&self) -> Vec3sRef<'_> {
-        Vec3sRef {
-            data: &self.data,
-            n: self.len(),
-        }
-    }
-}
-
-/// A borrowed component-major set of 3-vectors (for example one half of a state vector).
-#[derive(Clone, Copy, Debug)]
-pub struct Vec3sRef<'a> {
-    data: &'a [f64],
-    n: usize,
-}
-
-impl<'a> Vec3sRef<'a> {
-    /// Views component-major data of length 3n.
-    pub fn new(data: &'a [f64]) -> Self {
-        assert!(data.len() % 3 == 0, "Vec3s data length must be 3n");
-        Self {
-            data,
-            n: data.len() / 3,
-        }
-    }
-    /// Number of vectors.
-    pub fn len(&self) -> usize {
-        self.n
-    }
-    /// Whether there are no vectors.
-    pub fn is_empty(&self) -> bool {
-        self.n == 0
-    }
-    /// Vector i.
-    #[inline]
-    pub fn get(&self, i: usize) -> [f64; 3] {
-        [
-            self.data[i],
-            self.data[self.n + i],
-            self.data[2 * self.n + i],
-        ]
-    }
-    /// The flat data.
-    pub fn as_slice(&self) -> &'a [f64] {
-        self.data
-    }
-}
-
-/// Vector i of component-major data `v` holding n vectors.
-#[inline]
-pub fn get3(v: &[f64], n: usize, i: usize) -> [f64; 3] {
-    [v[i], v[n + i], v[2 * n + i]]
-}
-
-/// Sets vector i of component-major data `v` holding n vectors.
-#[inline]
-pub fn set3(v: &mut [f64], n: usize, i: usize, x: [f64; 3]) {
-    v[i] = x[0];
-    v[n + i] = x[1];
-    v[2 * n + i] = x[2];
 }

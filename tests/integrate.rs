@@ -142,7 +142,10 @@ fn exact_energy_laws_on_the_linear_oscillator() {
     // Symplectic Euler conserves the modified energy v^2 + w^2 x^2 - h w^2 x v exactly.
     let mut osc = Oscillator::new(w, 0.0, 0.0);
     let mut st = MechStepper::new(
-        settings(Method::SymplecticEuler, LinearSolverKind::Auto),
+        settings(
+            Method::SymplecticEuler,
+            LinearSolverKind::Auto(Default::default()),
+        ),
         &mut osc,
     )
     .unwrap();
@@ -283,4 +286,18 @@ fn methods_without_jacobians_or_first_order_form_are_rejected_clearly() {
         .unwrap();
     assert!(e.to_string().contains("no Jacobians"), "{e}");
     assert!(MechStepper::new(MechSettings::new(Method::Rk4), &mut Free).is_ok());
+    // A first-order system without a Jacobian: implicit steps say so.
+    struct NoJacobian;
+    impl OdeSystem for NoJacobian {
+        fn dim(&self) -> usize {
+            1
+        }
+        fn rhs(&mut self, _: f64, y: &[f64], d: &mut [f64]) {
+            d[0] = -y[0];
+        }
+    }
+    let mut st = OdeStepper::new(Method::BackwardEuler, 1).unwrap();
+    let e = st.step(&mut NoJacobian, 0.0, &mut [1.0], 0.1).unwrap_err();
+    assert!(matches!(e, IntegrateError::Unsupported { .. }), "{e}");
+    assert!(e.to_string().contains("no Jacobian"), "{e}");
 }

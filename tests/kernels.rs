@@ -167,6 +167,7 @@ fn course_notes_bilinear_worked_example() {
         "w(P) = {w:?}"
     );
     assert!((bilinear(0.0, 2.0, 0.0, 2.0, 0.3, 0.8) - 0.6).abs() < 1e-15);
+    assert!((sample2(&wy, g, [0.3, 0.8]) - 1.26).abs() < 1e-15);
 }
 
 proptest! {

@@ -299,7 +299,7 @@ fn cholesky_solves_and_refactorizes() {
 fn indefinite_matrices_give_clear_errors() {
     let mut a = grid_spd(&[4, 4], 1.0, 0.2);
     let n = a.n();
-    a.add_diagonal(&vec![-10.0; n], 1.0);
+    a.add_diagonal(&vec![-10.0; n]);
     let mut chol = SparseCholesky::new(a.pattern()).unwrap();
     let e = chol.factorize(&a).unwrap_err();
     assert!(matches!(e, SolveError::NotPositiveDefinite { .. }), "{e}");
@@ -320,7 +320,7 @@ fn indefinite_matrices_give_clear_errors() {
     for v in b.values_mut() {
         *v = -*v;
     }
-    b.add_diagonal(&vec![0.5; n], 1.0);
+    b.add_diagonal(&vec![0.5; n]);
     let mut pcg = Pcg::new(
         n,
         PcgParams {

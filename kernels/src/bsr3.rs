@@ -120,12 +120,6 @@ fn rows_scalar(y: [&mut [f64]; 3], a: Bsr3Ref<'_>, x: &[f64], rows: Range<usize>
     dot
 }
 
-fn split3(y: &mut [f64], n: usize) -> [&mut [f64]; 3] {
-    let (a, rest) = y.split_at_mut(n);
-    let (b, c) = rest.split_at_mut(n);
-    [a, b, c]
-}
-
 fn check(y: &[f64], a: &Bsr3Ref<'_>, x: &[f64]) {
     assert_eq!(x.len(), 3 * a.n, "x must hold 3n values");
     assert_eq!(y.len(), 3 * a.n, "y must hold 3n values");
@@ -133,32 +127,19 @@ fn check(y: &[f64], a: &Bsr3Ref<'_>, x: &[f64]) {
 
 /// `y = A x` (serial, SIMD).
 pub fn bsr3_spmv(y: &mut [f64], a: Bsr3Ref<'_>, x: &[f64]) {
-    bsr3_spmv_dot(y, a, x);
+    check(y, &a, x);
+    rows_simd(crate::split3_mut(y), a, x, 0..a.n);
 }
 
 /// Scalar twin of [`bsr3_spmv`].
 pub fn bsr3_spmv_scalar(y: &mut [f64], a: Bsr3Ref<'_>, x: &[f64]) {
     check(y, &a, x);
-    rows_scalar(split3(y, a.n), a, x, 0..a.n);
+    rows_scalar(crate::split3_mut(y), a, x, 0..a.n);
 }
 
-/// `y = A x`, returning `x . y` (serial, SIMD).
-pub fn bsr3_spmv_dot(y: &mut [f64], a: Bsr3Ref<'_>, x: &[f64]) -> f64 {
-    check(y, &a, x);
-    rows_simd(split3(y, a.n), a, x, 0..a.n)
-}
-
-/// Scalar twin of [`bsr3_spmv_dot`].
-pub fn bsr3_spmv_dot_scalar(y: &mut [f64], a: Bsr3Ref<'_>, x: &[f64]) -> f64 {
-    check(y, &a, x);
-    rows_scalar(split3(y, a.n), a, x, 0..a.n)
-}
-
-/// Row function: `y = A x` over a row range, returning `x . y` there.
-type Rows = fn([&mut [f64]; 3], Bsr3Ref<'_>, &[f64], Range<usize>) -> f64;
-
-/// Runs `rows` over fixed chunks of block rows in parallel (thread-count independent).
-fn par_rows(y: &mut [f64], a: Bsr3Ref<'_>, x: &[f64], rows: Rows) -> f64 {
+/// `y = A x`, returning `x . y`; parallel over fixed chunks of block rows, so the result
+/// is bitwise the same for any number of threads.
+pub fn bsr3_spmv_dot_par(y: &mut [f64], a: Bsr3Ref<'_>, x: &[f64]) -> f64 {
     check(y, &a, x);
     let n = a.n;
     let yd = Disjoint::new(y);
@@ -166,23 +147,7 @@ fn par_rows(y: &mut [f64], a: Bsr3Ref<'_>, x: &[f64], rows: Rows) -> f64 {
         let range = chunk_range(c, n, PAR_CHUNK);
         // SAFETY: the row ranges of distinct chunks are disjoint.
         let yc = unsafe { yd.components(n, range.clone()) };
-        [rows(yc, a, x, range)]
+        [rows_simd(yc, a, x, range)]
     });
     d
-}
-
-/// `y = A x`, returning `x . y`; parallel over fixed chunks of block rows, so the result
-/// is bitwise the same for any number of threads.
-pub fn bsr3_spmv_dot_par(y: &mut [f64], a: Bsr3Ref<'_>, x: &[f64]) -> f64 {
-    par_rows(y, a, x, rows_simd)
-}
-
-/// `y = A x`, parallel (see [`bsr3_spmv_dot_par`]).
-pub fn bsr3_spmv_par(y: &mut [f64], a: Bsr3Ref<'_>, x: &[f64]) {
-    bsr3_spmv_dot_par(y, a, x);
-}
-
-/// Scalar parallel twin of [`bsr3_spmv_dot_par`].
-pub fn bsr3_spmv_dot_par_scalar(y: &mut [f64], a: Bsr3Ref<'_>, x: &[f64]) -> f64 {
-    par_rows(y, a, x, rows_scalar)
 }

@@ -174,7 +174,7 @@ pub fn sample3_vec_add(out: &mut [f64], fields: [&[f64]; 3], g: Grid3, points: &
     let n = points.len() / 3;
     assert!(points.len() == 3 * n && out.len() == 3 * n);
     for i in 0..n {
-        let p = [points[i], points[n + i], points[2 * n + i]];
+        let p = crate::get3(points, n, i);
         let (c, [u, v, w]) = cell3(&g, p);
         for (a, f) in fields.iter().enumerate() {
             out[a * n + i] += scale * trilinear(&c.map(|k| f[k]), u, v, w);

@@ -23,3 +23,19 @@ pub mod vec;
 /// formed over the same ranges whatever the thread count (determinism), and large enough
 /// (a few hundred kB of matrix per task) that scheduling costs stay far below the work.
 pub const PAR_CHUNK: usize = 2048;
+
+/// Vector i of component-major data `v` holding n 3-vectors: `[v[i], v[n+i], v[2n+i]]`.
+#[inline]
+pub fn get3(v: &[f64], n: usize, i: usize) -> [f64; 3] {
+    [v[i], v[n + i], v[2 * n + i]]
+}
+
+/// The x, y and z component slices of component-major data holding `v.len() / 3` vectors.
+#[inline]
+pub fn split3_mut(v: &mut [f64]) -> [&mut [f64]; 3] {
+    let n = v.len() / 3;
+    assert_eq!(v.len(), 3 * n, "component-major data has length 3n");
+    let (x, rest) = v.split_at_mut(n);
+    let (y, z) = rest.split_at_mut(n);
+    [x, y, z]
+}

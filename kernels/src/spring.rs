@@ -24,6 +24,7 @@
 //! Coincident endpoints (`|L| = 0`) have no direction: the element gives zero force and
 //! zero Jacobians there. Units: positions m, velocities m/s, k N/m, kd N s/m, force N.
 
+use crate::get3;
 use rayon::prelude::*;
 
 /// Options of the spring element.
@@ -32,6 +33,54 @@ pub struct SpringParams {
     /// Clamp the compression term of the elastic Jacobian so it stays negative
     /// semi-definite (see the module docs).
     pub definiteness_fix: bool,
+}
+
+/// Unit direction `L/|L|` and length `|L|` of `L = A - B`, or `None` for coincident
+/// endpoints (no direction).
+#[inline]
+fn axis(xa: [f64; 3], xb: [f64; 3]) -> Option<([f64; 3], f64)> {
+    let l = [xa[0] - xb[0], xa[1] - xb[1], xa[2] - xb[2]];
+    let len = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
+    (len > 0.0).then(|| ([l[0] / len, l[1] / len, l[2] / len], len))
+}
+
+/// Rate of extension `(v_A - v_B) . d` along the unit direction d.
+#[inline]
+fn extension_rate(d: [f64; 3], va: [f64; 3], vb: [f64; 3]) -> f64 {
+    (va[0] - vb[0]) * d[0] + (va[1] - vb[1]) * d[1] + (va[2] - vb[2]) * d[2]
+}
+
+/// Force on endpoint A along the unit direction d of a spring of length `len`.
+#[inline]
+#[allow(clippy::too_many_arguments)]
+fn force_along(
+    d: [f64; 3],
+    len: f64,
+    va: [f64; 3],
+    vb: [f64; 3],
+    k: f64,
+    kd: f64,
+    rest: f64,
+) -> [f64; 3] {
+    let s = -k * (len - rest) - kd * extension_rate(d, va, vb);
+    [s * d[0], s * d[1], s * d[2]]
+}
+
+/// One spring: force on endpoint A (N) from endpoint positions and velocities.
+#[inline]
+#[allow(clippy::too_many_arguments)]
+pub fn spring_force(
+    xa: [f64; 3],
+    xb: [f64; 3],
+    va: [f64; 3],
+    vb: [f64; 3],
+    k: f64,
+    kd: f64,
+    rest: f64,
+) -> [f64; 3] {
+    axis(xa, xb).map_or([0.0; 3], |(d, len)| {
+        force_along(d, len, va, vb, k, kd, rest)
+    })
 }
 
 /// One spring: force on endpoint A, and the 3x3 blocks `dF_A/dx_A` and `dF_A/dv_A`
@@ -48,15 +97,10 @@ pub fn spring_element(
     rest: f64,
     p: SpringParams,
 ) -> ([f64; 3], [f64; 9], [f64; 9]) {
-    let l = [xa[0] - xb[0], xa[1] - xb[1], xa[2] - xb[2]];
-    let len = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
-    if len == 0.0 {
+    let Some((d, len)) = axis(xa, xb) else {
         return ([0.0; 3], [0.0; 9], [0.0; 9]);
-    }
-    let d = [l[0] / len, l[1] / len, l[2] / len];
-    let rel = (va[0] - vb[0]) * d[0] + (va[1] - vb[1]) * d[1] + (va[2] - vb[2]) * d[2];
-    let s = -k * (len - rest) - kd * rel;
-    let f = [s * d[0], s * d[1], s * d[2]];
+    };
+    let f = force_along(d, len, va, vb, k, kd, rest);
     let mut t = 1.0 - rest / len;
     if p.definiteness_fix && t < 0.0 {
         t = 0.0;
@@ -77,8 +121,7 @@ pub fn spring_element(
 /// Elastic energy `k/2 (|L| - R)^2` of one spring (J).
 #[inline]
 pub fn spring_energy(xa: [f64; 3], xb: [f64; 3], k: f64, rest: f64) -> f64 {
-    let l = [xa[0] - xb[0], xa[1] - xb[1], xa[2] - xb[2]];
-    let len = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
+    let len = axis(xa, xb).map_or(0.0, |(_, len)| len);
     0.5 * k * (len - rest) * (len - rest)
 }
 
@@ -86,13 +129,10 @@ pub fn spring_energy(xa: [f64; 3], xb: [f64; 3], k: f64, rest: f64) -> f64 {
 /// damping force on A is minus its derivative in v_A.
 #[inline]
 pub fn spring_dissipation(xa: [f64; 3], xb: [f64; 3], va: [f64; 3], vb: [f64; 3], kd: f64) -> f64 {
-    let l = [xa[0] - xb[0], xa[1] - xb[1], xa[2] - xb[2]];
-    let len = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
-    if len == 0.0 {
-        return 0.0;
-    }
-    let rel = ((va[0] - vb[0]) * l[0] + (va[1] - vb[1]) * l[1] + (va[2] - vb[2]) * l[2]) / len;
-    0.5 * kd * rel * rel
+    axis(xa, xb).map_or(0.0, |(d, _)| {
+        let rate = extension_rate(d, va, vb);
+        0.5 * kd * rate * rate
+    })
 }
 
 /// Borrowed spring set: endpoints and per-spring constants (SoA).
@@ -121,28 +161,12 @@ impl Springs<'_> {
         let m = self.ends.len();
         assert!(self.k.len() == m && self.kd.len() == m && self.rest.len() == m);
     }
+    /// Endpoint positions and velocities of spring e: `[xa, xb, va, vb]`.
     #[inline]
-    fn eval(
-        &self,
-        e: usize,
-        x: &[f64],
-        v: &[f64],
-        n: usize,
-        p: SpringParams,
-    ) -> ([f64; 3], [f64; 9], [f64; 9]) {
+    fn ends_of(&self, e: usize, x: &[f64], v: &[f64], n: usize) -> [[f64; 3]; 4] {
         let [a, b] = self.ends[e];
         let (a, b) = (a as usize, b as usize);
-        let g = |s: &[f64], i: usize| [s[i], s[n + i], s[2 * n + i]];
-        spring_element(
-            g(x, a),
-            g(x, b),
-            g(v, a),
-            g(v, b),
-            self.k[e],
-            self.kd[e],
-            self.rest[e],
-            p,
-        )
+        [get3(x, n, a), get3(x, n, b), get3(v, n, a), get3(v, n, b)]
     }
 }
 
@@ -160,8 +184,9 @@ pub fn spring_forces(fa: &mut [f64], x: &[f64], v: &[f64], s: Springs<'_>) {
         .for_each(|(c, out)| {
             let e0 = c * SPRING_CHUNK;
             for (le, f) in out.chunks_exact_mut(3).enumerate() {
-                let (fe, _, _) = s.eval(e0 + le, x, v, n, SpringParams::default());
-                f.copy_from_slice(&fe);
+                let e = e0 + le;
+                let [xa, xb, va, vb] = s.ends_of(e, x, v, n);
+                f.copy_from_slice(&spring_force(xa, xb, va, vb, s.k[e], s.kd[e], s.rest[e]));
             }
         });
 }
@@ -186,7 +211,9 @@ pub fn spring_forces_jacobians(
     let run = |c: usize, fo: &mut [f64], kxo: &mut [f64], mut kvo: Option<&mut [f64]>| {
         let e0 = c * SPRING_CHUNK;
         for le in 0..fo.len() / 3 {
-            let (fe, kxe, kve) = s.eval(e0 + le, x, v, n, p);
+            let e = e0 + le;
+            let [xa, xb, va, vb] = s.ends_of(e, x, v, n);
+            let (fe, kxe, kve) = spring_element(xa, xb, va, vb, s.k[e], s.kd[e], s.rest[e], p);
             fo[3 * le..3 * le + 3].copy_from_slice(&fe);
             kxo[9 * le..9 * le + 9].copy_from_slice(&kxe);
             if let Some(kvo) = kvo.as_deref_mut() {
@@ -227,8 +254,9 @@ pub fn springs_energy(x: &[f64], s: Springs<'_>) -> f64 {
     s.check();
     let n = x.len() / 3;
     assert_eq!(x.len(), 3 * n);
-    let g = |i: usize| [x[i], x[n + i], x[2 * n + i]];
-    sum_over_springs(&s, &|e, a, b| spring_energy(g(a), g(b), s.k[e], s.rest[e]))
+    sum_over_springs(&s, &|e, a, b| {
+        spring_energy(get3(x, n, a), get3(x, n, b), s.k[e], s.rest[e])
+    })
 }
 
 /// Total Rayleigh dissipation of the spring damping (W); deterministic parallel sum.
@@ -236,8 +264,8 @@ pub fn springs_dissipation(x: &[f64], v: &[f64], s: Springs<'_>) -> f64 {
     s.check();
     let n = x.len() / 3;
     assert!(x.len() == 3 * n && v.len() == 3 * n);
-    let g = |u: &[f64], i: usize| [u[i], u[n + i], u[2 * n + i]];
-    sum_over_springs(&s, &|e, a, b| {
-        spring_dissipation(g(x, a), g(x, b), g(v, a), g(v, b), s.kd[e])
+    sum_over_springs(&s, &|e, _, _| {
+        let [xa, xb, va, vb] = s.ends_of(e, x, v, n);
+        spring_dissipation(xa, xb, va, vb, s.kd[e])
     })
 }

@@ -130,19 +130,6 @@ pub fn norm2_scalar(x: &[f64]) -> f64 {
     dot_scalar(x, x).sqrt()
 }
 
-/// Largest absolute entry, `NaN` if any entry is `NaN` (so it doubles as a finiteness check).
-pub fn norm_inf(x: &[f64]) -> f64 {
-    let mut m = 0.0f64;
-    for &v in x {
-        let a = v.abs();
-        if a.is_nan() {
-            return f64::NAN;
-        }
-        m = m.max(a);
-    }
-    m
-}
-
 /// Whether every entry is finite.
 pub fn all_finite(x: &[f64]) -> bool {
     x.iter().all(|v| v.is_finite())
@@ -157,19 +144,6 @@ pub fn dot_par(x: &[f64], y: &[f64]) -> f64 {
         [dot(&x[r.clone()], &y[r])]
     });
     s
-}
-
-/// Parallel [`axpy`].
-pub fn axpy_par(y: &mut [f64], a: f64, x: &[f64]) {
-    assert_eq!(y.len(), x.len());
-    let len = y.len();
-    let yd = Disjoint::new(y);
-    par_reduce::<0, _>(chunk_count(len, PAR_CHUNK * 4), &|c| {
-        let r = chunk_range(c, len, PAR_CHUNK * 4);
-        // SAFETY: chunk ranges are disjoint.
-        axpy(unsafe { yd.slice(r.clone()) }, a, &x[r]);
-        []
-    });
 }
 
 /// One fused pass of preconditioned CG with a diagonal (Jacobi) preconditioner:
@@ -325,10 +299,8 @@ type BlockArgs<'a> = ([&'a mut [f64]; 3], [&'a [f64]; 3], [&'a [f64]; 6]);
 fn block_args<'a>(z: &'a mut [f64], r: &'a [f64], binv: &'a [f64]) -> BlockArgs<'a> {
     let n = r.len() / 3;
     assert!(r.len() == 3 * n && z.len() == 3 * n && binv.len() == 6 * n);
-    let (z0, rest) = z.split_at_mut(n);
-    let (z1, z2) = rest.split_at_mut(n);
     (
-        [z0, z1, z2],
+        crate::split3_mut(z),
         [&r[..n], &r[n..2 * n], &r[2 * n..]],
         core::array::from_fn(|k| &binv[k * n..(k + 1) * n]),
     )

@@ -34,6 +34,7 @@
 
 use super::explicit::RkWork;
 use super::{hint, solve_error, IntegrateError, Method, StepInfo};
+use crate::solve::newton::rounding_floor;
 use crate::solve::{
     Filter, Newton, NewtonParams, NewtonProblem, Pcg, PcgParams, SolveError, SolveInfo,
     SparseCholesky,
@@ -115,8 +116,8 @@ pub enum LinearSolverKind {
     Pcg(PcgParams),
     /// Sparse Cholesky (constraints by projecting the system).
     Cholesky,
-    /// Cholesky up to [`AUTO_CHOLESKY_MAX_DOFS`] unknowns, PCG (block-Jacobi) above.
-    Auto,
+    /// Cholesky up to [`AUTO_CHOLESKY_MAX_DOFS`] unknowns, PCG with these settings above.
+    Auto(PcgParams),
 }
 
 /// Largest system (unknowns) for which [`LinearSolverKind::Auto`] picks Cholesky: beyond
@@ -140,7 +141,7 @@ impl MechSettings {
     pub fn new(method: Method) -> Self {
         Self {
             method,
-            linear: LinearSolverKind::Auto,
+            linear: LinearSolverKind::Auto(PcgParams::default()),
             newton: NewtonParams {
                 tolerance: 1e-6,
                 // Relative change of the velocities per iteration: with an approximate
@@ -254,12 +255,12 @@ impl MechStepper {
             assert_eq!(pattern.n(), n, "Jacobian pattern size");
             let linear = match settings.linear {
                 LinearSolverKind::Pcg(p) => Linear::Pcg(Pcg::new(n, p)),
-                LinearSolverKind::Auto if 3 * n > AUTO_CHOLESKY_MAX_DOFS => {
-                    Linear::Pcg(Pcg::new(n, PcgParams::default()))
+                LinearSolverKind::Auto(p) if 3 * n > AUTO_CHOLESKY_MAX_DOFS => {
+                    Linear::Pcg(Pcg::new(n, p))
                 }
-                LinearSolverKind::Cholesky | LinearSolverKind::Auto => Linear::Cholesky(Box::new(
-                    SparseCholesky::new(&pattern).map_err(solve_error(0, method, true))?,
-                )),
+                LinearSolverKind::Cholesky | LinearSolverKind::Auto(_) => Linear::Cholesky(
+                    Box::new(SparseCholesky::new(&pattern).map_err(solve_error(0, method, true))?),
+                ),
             };
             let v3 = || vec![0.0; 3 * n];
             Some(Implicit {
@@ -382,17 +383,15 @@ impl MechStepper {
             Method::LinearizedBackwardEuler => {
                 let w = self.implicit.as_mut().expect("implicit buffers");
                 sys.force_jacobians(t + h, x, v, &mut w.f, &mut w.dfdx, w.dfdv.as_mut())?;
-                // rhs = h (f0 + h K v0)
+                // A dv = h (f0 + h K v0): solve A z = f0 + h K v0, then dv = h z.
                 w.dfdx.spmv(&mut w.rhs, v);
-                kv::scale_copy(&mut w.xe, h, &w.f);
-                kv::axpy(&mut w.xe, h * h, &w.rhs);
-                w.rhs.copy_from_slice(&w.xe);
+                kv::xpay(&mut w.rhs, &w.f, h);
                 system_matrix(&mut w.a, &w.dfdx, w.dfdv.as_ref(), &self.mass, h * h, h);
                 let li = w
                     .linear
                     .solve(&mut w.a, &w.rhs, &mut w.v1, filter)
                     .map_err(solve_err)?;
-                kv::axpy(v, 1.0, &w.v1);
+                kv::axpy(v, h, &w.v1);
                 kv::axpy(x, h, v);
                 info = StepInfo {
                     newton_iterations: 1,
@@ -491,7 +490,7 @@ fn system_matrix(a: &mut Bsr3, dfdx: &Bsr3, dfdv: Option<&Bsr3>, mass: &[f64], c
         Some(d) => a.assign_lincomb(&[(-ck, dfdx), (-cd, d)]),
         None => a.assign_lincomb(&[(-ck, dfdx)]),
     }
-    a.add_diagonal(mass, 1.0);
+    a.add_diagonal(mass);
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -596,9 +595,7 @@ impl NewtonProblem for Residual<'_> {
         if let Some(f) = self.filter {
             f.apply(r);
         }
-        // Rounding in each entry is a few eps times the size of its terms; below this norm
-        // the residual is noise and Newton cannot reduce it further.
-        self.noise = 16.0 * f64::EPSILON * scale2.sqrt();
+        self.noise = rounding_floor(scale2);
         Ok(())
     }
 

@@ -9,6 +9,7 @@
 use super::explicit::RkWork;
 use super::{hint, solve_error, IntegrateError, Method, StepInfo};
 use crate::solve::dense::DenseLu;
+use crate::solve::newton::rounding_floor;
 use crate::solve::{Newton, NewtonParams, NewtonProblem, SolveError, SolveInfo};
 use largestep_kernels::vec as kv;
 
@@ -117,14 +118,21 @@ impl OdeStepper {
                     ymid: &mut self.ymid,
                     g: &mut self.g,
                     noise: 0.0,
+                    missing_jacobian: false,
                 };
-                let ni = if method == Method::LinearizedBackwardEuler {
+                let res = if method == Method::LinearizedBackwardEuler {
                     self.newton.single_step(&mut prob, &mut self.y1)
                 } else {
                     self.newton
                         .solve(&mut prob, &mut self.y1, &self.newton_params)
+                };
+                if prob.missing_jacobian {
+                    return Err(IntegrateError::Unsupported {
+                        method,
+                        reason: "the system provides no Jacobian, which implicit methods need",
+                    });
                 }
-                .map_err(solve_err)?;
+                let ni = res.map_err(solve_err)?;
                 info.newton_iterations = ni.iterations;
                 y.copy_from_slice(&self.y1);
             }
@@ -152,6 +160,8 @@ struct Implicit<'a> {
     ymid: &'a mut [f64],
     g: &'a mut [f64],
     noise: f64,
+    /// Set when the system turns out to provide no Jacobian.
+    missing_jacobian: bool,
 }
 
 impl Implicit<'_> {
@@ -173,8 +183,7 @@ impl NewtonProblem for Implicit<'_> {
             let size = y1[i].abs() + self.y0[i].abs() + hg.abs();
             scale2 += size * size;
         }
-        // Below this the residual is rounding noise (see Newton's convergence test).
-        self.noise = 16.0 * f64::EPSILON * f64::sqrt(scale2);
+        self.noise = rounding_floor(scale2);
         Ok(())
     }
 
@@ -192,9 +201,8 @@ impl NewtonProblem for Implicit<'_> {
         self.mid(y1);
         let jac = self.lu.matrix_mut();
         if !self.sys.jacobian(self.t_eval, self.ymid, jac) {
-            return Err(SolveError::Factorization(
-                "the system provides no Jacobian, which implicit methods need".into(),
-            ));
+            self.missing_jacobian = true;
+            return Err(SolveError::Factorization("no Jacobian".into()));
         }
         let c = -self.h * self.theta;
         for i in 0..n {

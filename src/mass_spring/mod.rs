@@ -128,10 +128,7 @@ pub struct MassSpringState {
 pub struct MassSpring {
     n: usize,
     mass: Vec<f64>,
-    ends: Vec<[u32; 2]>,
-    k: Vec<f64>,
-    kd: Vec<f64>,
-    rest: Vec<f64>,
+    springs: SpringSet,
     gravity: [f64; 3],
     pinned: Vec<u32>,
     params: SpringParams,
@@ -140,6 +137,26 @@ pub struct MassSpring {
     gather: VectorGather,
     elem_f: Vec<f64>,
     jac: Option<Jacobians>,
+}
+
+/// Per-spring constants (SoA), owned; borrowed as the kernels' `Springs`.
+#[derive(Clone, Debug)]
+struct SpringSet {
+    ends: Vec<[u32; 2]>,
+    k: Vec<f64>,
+    kd: Vec<f64>,
+    rest: Vec<f64>,
+}
+
+impl SpringSet {
+    fn view(&self) -> Springs<'_> {
+        Springs {
+            ends: &self.ends,
+            k: &self.k,
+            kd: &self.kd,
+            rest: &self.rest,
+        }
+    }
 }
 
 #[derive(Clone, Debug)]
@@ -326,10 +343,7 @@ impl MassSpringDesc {
             mass: self.masses.clone(),
             elem_f: vec![0.0; gather.vector_buffer_len()],
             gather,
-            ends,
-            k,
-            kd,
-            rest,
+            springs: SpringSet { ends, k, kd, rest },
             gravity: self.gravity,
             pinned,
             params: SpringParams {
@@ -363,17 +377,17 @@ impl MassSpring {
 
     /// Number of springs.
     pub fn spring_count(&self) -> usize {
-        self.ends.len()
+        self.springs.ends.len()
     }
 
     /// Spring endpoints.
     pub fn spring_ends(&self) -> &[[u32; 2]] {
-        &self.ends
+        &self.springs.ends
     }
 
     /// Rest lengths (m).
     pub fn rest_lengths(&self) -> &[f64] {
-        &self.rest
+        &self.springs.rest
     }
 
     /// Surface triangles for output (may be empty).
@@ -399,15 +413,6 @@ impl MassSpring {
     /// Whether Jacobian structures have been built.
     pub fn has_jacobians(&self) -> bool {
         self.jac.is_some()
-    }
-
-    fn springs(&self) -> Springs<'_> {
-        Springs {
-            ends: &self.ends,
-            k: &self.k,
-            kd: &self.kd,
-            rest: &self.rest,
-        }
     }
 
     fn gravity_force(&self, f: &mut [f64]) {
@@ -437,14 +442,8 @@ impl Mechanical for MassSpring {
 
     fn force(&mut self, _t: f64, x: &[f64], v: &[f64], f: &mut [f64]) {
         self.gravity_force(f);
-        if !self.ends.is_empty() {
-            let springs = Springs {
-                ends: &self.ends,
-                k: &self.k,
-                kd: &self.kd,
-                rest: &self.rest,
-            };
-            ks::spring_forces(&mut self.elem_f, x, v, springs);
+        if !self.springs.ends.is_empty() {
+            ks::spring_forces(&mut self.elem_f, x, v, self.springs.view());
             self.gather.gather_vectors_add(&self.elem_f, f);
         }
     }
@@ -455,12 +454,12 @@ impl Mechanical for MassSpring {
         let gravity: f64 = (0..n)
             .map(|i| -self.mass[i] * (g[0] * x[i] + g[1] * x[n + i] + g[2] * x[2 * n + i]))
             .sum();
-        Some(gravity + ks::springs_energy(x, self.springs()))
+        Some(gravity + ks::springs_energy(x, self.springs.view()))
     }
 
     fn dissipation(&self, x: &[f64], v: &[f64]) -> f64 {
         if self.has_damping {
-            ks::springs_dissipation(x, v, self.springs())
+            ks::springs_dissipation(x, v, self.springs.view())
         } else {
             0.0
         }
@@ -468,8 +467,8 @@ impl Mechanical for MassSpring {
 
     fn prepare_jacobians(&mut self) -> Result<Option<Arc<Bsr3Pattern>>, SparseError> {
         if self.jac.is_none() {
-            let assembly = ElementAssembly::new(self.n, &self.ends, LocalLayout::pair())?;
-            let m = self.ends.len();
+            let assembly = ElementAssembly::new(self.n, &self.springs.ends, LocalLayout::pair())?;
+            let m = self.springs.ends.len();
             self.jac = Some(Jacobians {
                 assembly,
                 kx: vec![0.0; 9 * m],
@@ -494,12 +493,7 @@ impl Mechanical for MassSpring {
     ) -> Result<(), IntegrateError> {
         self.prepare_jacobians().map_err(IntegrateError::Sparse)?;
         self.gravity_force(f);
-        let springs = Springs {
-            ends: &self.ends,
-            k: &self.k,
-            kd: &self.kd,
-            rest: &self.rest,
-        };
+        let springs = self.springs.view();
         let jac = self.jac.as_mut().expect("prepared above");
         let want_kv = dfdv.is_some() && self.has_damping;
         ks::spring_forces_jacobians(

@@ -300,14 +300,8 @@ fn solver_settings(
         };
     }
     settings.linear = match t.linear.as_deref() {
-        None | Some("auto")
-            if t.tolerance.is_none()
-                && t.max_iterations.is_none()
-                && t.preconditioner.is_none() =>
-        {
-            LinearSolverKind::Auto
-        }
-        None | Some("pcg") | Some("auto") => LinearSolverKind::Pcg(pcg),
+        None | Some("auto") => LinearSolverKind::Auto(pcg),
+        Some("pcg") => LinearSolverKind::Pcg(pcg),
         Some("cholesky") => LinearSolverKind::Cholesky,
         Some(other) => {
             return Err(err(

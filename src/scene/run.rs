@@ -210,10 +210,15 @@ impl Runner {
 
     /// Number of frames (after the initial one) the run will simulate.
     pub fn frame_count(&self, frames: Option<usize>) -> usize {
-        frames.unwrap_or_else(|| {
-            let steps = (self.duration / self.dt).round().max(1.0) as usize;
-            steps.div_ceil(self.output.every)
-        })
+        frames.unwrap_or_else(|| self.total_steps(None).div_ceil(self.output.every))
+    }
+
+    /// Steps the run takes: `frames` frames, or the scene's duration.
+    fn total_steps(&self, frames: Option<usize>) -> usize {
+        match frames {
+            Some(f) => f * self.output.every,
+            None => (self.duration / self.dt).round().max(1.0) as usize,
+        }
     }
 
     fn write_frame(&self, k: usize) -> Result<bool, RunError> {
@@ -244,10 +249,7 @@ impl Runner {
     ) -> Result<Summary, RunError> {
         let start = Instant::now();
         let total_frames = self.frame_count(frames);
-        let total_steps = match frames {
-            Some(f) => f * self.output.every,
-            None => (self.duration / self.dt).round().max(1.0) as usize,
-        };
+        let total_steps = self.total_steps(frames);
         let frames_dir = self.out_dir.join("frames");
         std::fs::create_dir_all(&frames_dir).map_err(io_err(&frames_dir))?;
         let csv_path = self.out_dir.join("energy.csv");

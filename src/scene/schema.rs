@@ -9,7 +9,7 @@
 //! gravity = [0.0, -9.81, 0.0] # m/s^2
 //!
 //! [solver]                    # implicit integrators only (all optional)
-//! linear = "auto"             # auto | pcg | cholesky
+//! linear = "auto"             # auto (Cholesky up to 30,000 unknowns, PCG above) | pcg | cholesky
 //! tolerance = 1e-8            # PCG relative residual
 //! max_iterations = 1000       # PCG
 //! preconditioner = "block-jacobi"  # none | jacobi | block-jacobi

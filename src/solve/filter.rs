@@ -44,11 +44,6 @@ impl Filter {
         self.verts.is_empty()
     }
 
-    /// Constrained vertices, in the order they were first constrained.
-    pub fn vertices(&self) -> &[u32] {
-        &self.verts
-    }
-
     /// The projection of vertex i (identity if free).
     pub fn projection(&self, i: usize) -> [f64; 9] {
         match self.index_of[i] {
@@ -113,7 +108,7 @@ impl Filter {
         assert_eq!(v.len(), 3 * n);
         for (&i, s) in self.verts.iter().zip(&self.s) {
             let i = i as usize;
-            let x = [v[i], v[n + i], v[2 * n + i]];
+            let x = largestep_kernels::get3(v, n, i);
             for r in 0..3 {
                 v[r * n + i] = s[3 * r] * x[0] + s[3 * r + 1] * x[1] + s[3 * r + 2] * x[2];
             }

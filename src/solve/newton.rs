@@ -22,6 +22,12 @@
 use super::{SolveError, SolveInfo};
 use largestep_kernels::vec as kv;
 
+/// Residual norm below which rounding dominates, for a residual whose entries each sum
+/// terms of total size `size_i`, given `sum_sq = sum_i size_i^2`: a few eps per entry.
+pub fn rounding_floor(sum_sq: f64) -> f64 {
+    16.0 * f64::EPSILON * sum_sq.sqrt()
+}
+
 /// Newton settings.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct NewtonParams {

@@ -168,9 +168,14 @@ impl Pcg {
         };
         let pre = self.params.preconditioner;
         filt(x);
-        // r = S (b - A x); |S b| measured in p, which is overwritten below.
-        a.spmv(&mut self.q, x);
-        kv::waxpy(&mut self.r, b, -1.0, &self.q);
+        // r = S (b - A x); a zero initial guess (the usual case) needs no product.
+        // |S b| is measured in p, which is overwritten below.
+        if x.iter().any(|&v| v != 0.0) {
+            a.spmv(&mut self.q, x);
+            kv::waxpy(&mut self.r, b, -1.0, &self.q);
+        } else {
+            self.r.copy_from_slice(b);
+        }
         filt(&mut self.r);
         self.p.copy_from_slice(b);
         filt(&mut self.p);

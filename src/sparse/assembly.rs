@@ -111,7 +111,7 @@ pub struct VectorGather {
 #[derive(Clone, Debug)]
 pub struct ElementAssembly {
     pattern: Arc<Bsr3Pattern>,
-    layout: LocalLayout,
+    blocks_per_element: usize,
     elements: usize,
     elem_slots: Vec<u32>,
     block_ptr: Vec<u32>,
@@ -187,7 +187,7 @@ impl ElementAssembly {
         let (block_ptr, block_src) = csr(pattern.nnz_blocks(), block_pairs);
         Ok(Self {
             pattern,
-            layout,
+            blocks_per_element: layout.blocks,
             elements: elements.len(),
             elem_slots,
             block_ptr,
@@ -200,19 +200,9 @@ impl ElementAssembly {
         &self.pattern
     }
 
-    /// The local layout.
-    pub fn layout(&self) -> &LocalLayout {
-        &self.layout
-    }
-
-    /// Number of elements.
-    pub fn elements(&self) -> usize {
-        self.elements
-    }
-
     /// Length of the element block buffer the kernels write (`elements * blocks * 9`).
     pub fn block_buffer_len(&self) -> usize {
-        self.elements * self.layout.blocks * 9
+        self.elements * self.blocks_per_element * 9
     }
 
     /// The element -> slot map: slot of local block (p, q) of element e at

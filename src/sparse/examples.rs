@@ -74,6 +74,6 @@ pub fn grid_spd(dims: &[usize], k: f64, m: f64) -> Bsr3 {
     }
     let mut a = Bsr3::zeros(asm.pattern().clone());
     asm.gather_blocks(&blocks, &mut a);
-    a.add_diagonal(&vec![m; n], 1.0);
+    a.add_diagonal(&vec![m; n]);
     a
 }

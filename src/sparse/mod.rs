@@ -163,15 +163,6 @@ impl Bsr3Pattern {
             .ok()
             .map(|k| s + k)
     }
-
-    /// The block rows of each slot (inverse of `row_ptr`), computed on demand.
-    pub fn slot_rows(&self) -> Vec<u32> {
-        let mut rows = vec![0u32; self.nnz_blocks()];
-        for i in 0..self.n {
-            rows[self.row_ptr[i] as usize..self.row_ptr[i + 1] as usize].fill(i as u32);
-        }
-        rows
-    }
 }
 
 /// A block-sparse 3x3 matrix: a shared pattern and nine row-major values per block.
@@ -228,13 +219,6 @@ impl Bsr3 {
         &mut self.val[9 * slot..9 * slot + 9]
     }
 
-    /// Block (i, j), or `None` if it is not in the pattern.
-    pub fn get_block(&self, i: usize, j: usize) -> Option<[f64; 9]> {
-        self.pattern
-            .slot(i, j)
-            .map(|s| self.block(s).try_into().expect("nine values"))
-    }
-
     /// Sets every value to zero.
     pub fn set_zero(&mut self) {
         self.val.fill(0.0);
@@ -269,14 +253,14 @@ impl Bsr3 {
         }
     }
 
-    /// Adds `scale * d_i * I` to every diagonal block i (a lumped mass matrix when `d`
-    /// holds the vertex masses).
-    pub fn add_diagonal(&mut self, d: &[f64], scale: f64) {
+    /// Adds `d_i I` to every diagonal block i (a lumped mass matrix when `d` holds the
+    /// vertex masses).
+    pub fn add_diagonal(&mut self, d: &[f64]) {
         assert_eq!(d.len(), self.n());
         for (i, &di) in d.iter().enumerate() {
             let s = self.pattern.diag[i] as usize;
             for c in 0..3 {
-                self.val[9 * s + 4 * c] += scale * di;
+                self.val[9 * s + 4 * c] += di;
             }
         }
     }
