@@ -25,7 +25,7 @@ pub mod vec;
 pub const PAR_CHUNK: usize = 2048;
 
 /// Vector i of component-major data `v` holding n 3-vectors: `[v[i], v[n+i], v[2n+i]]`.
-#[inline]
+#[inline(always)]
 pub fn get3(v: &[f64], n: usize, i: usize) -> [f64; 3] {
     [v[i], v[n + i], v[2 * n + i]]
 }
