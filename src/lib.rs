@@ -4,6 +4,9 @@
 pub use largestep_kernels as kernels;
 
 pub mod machine;
+#[cfg(feature = "cli")]
+pub mod plot;
+pub mod render;
 
 pub mod integrate;
 pub mod io;

@@ -283,3 +283,169 @@ fn blow_up_stops_with_the_step_and_keeps_earlier_frames() {
         "one log line per frame written"
     );
 }
+
+#[test]
+fn output_camera_and_image_settings_are_validated_with_lines() {
+    let with = |extra: &str| format!("{BASE}\n[output]\nframes = \"obj\"\n{extra}\n");
+    let cases: Vec<(String, &str, Vec<&str>)> = vec![
+        (
+            with("width = 0"),
+            "width = 0",
+            vec!["output.width", "1..=16384"],
+        ),
+        (
+            with("supersample = 9"),
+            "supersample = 9",
+            vec!["output.supersample", "1..=4"],
+        ),
+        (
+            with("[output.camera]\neye = [1.0, 2.0, 3.0]"),
+            "eye =",
+            vec!["output.camera.eye", "needs `target`"],
+        ),
+        (
+            with("[output.camera]\ntarget = [0.0, 0.0, 0.0]"),
+            "target =",
+            vec!["output.camera.target", "needs `eye`"],
+        ),
+        (
+            with("[output.camera]\neye = [1.0, 1.0, 1.0]\ntarget = [1.0, 1.0, 1.0]"),
+            "eye =",
+            vec!["same point"],
+        ),
+        (
+            with("[output.camera]\neye = [0.0, 5.0, 0.0]\ntarget = [0.0, 0.0, 0.0]"),
+            "eye =",
+            vec!["up vector", "parallel"],
+        ),
+        (
+            with("[output.camera]\nup = [0.0, 0.0, 0.0]"),
+            "up =",
+            vec!["output.camera.up", "non-zero"],
+        ),
+        (
+            with("[output.camera]\nfov = 180.0"),
+            "fov =",
+            vec!["output.camera.fov", "(0, 180)"],
+        ),
+        (
+            with("[output.camera]\nelevation = 95.0"),
+            "elevation =",
+            vec!["output.camera.elevation"],
+        ),
+        (
+            with(
+                "[output.camera]\neye = [1.0, 2.0, 3.0]\ntarget = [0.0, 0.0, 0.0]\nazimuth = 10.0",
+            ),
+            "azimuth =",
+            vec!["fixed camera"],
+        ),
+        (
+            with("[output.camera]\nzoom = 2.0"),
+            "zoom",
+            vec!["unknown field `zoom`"],
+        ),
+    ];
+    for (text, needle, words) in cases {
+        expect_error(&text, line_of(&text, needle), &words);
+    }
+    // Valid settings arrive in the preview settings; up defaults to against gravity.
+    let s = Scene::parse(
+        &with("width = 320\nheight = 200\nsupersample = 3\nwireframe = true\n[output.camera]\nazimuth = -20.0"),
+        "ok.toml",
+    )
+    .unwrap();
+    let p = s.output.preview;
+    assert_eq!(
+        (p.render.width, p.render.height, p.render.supersample),
+        (320, 200, 3)
+    );
+    assert!(p.wireframe);
+    match p.camera {
+        largestep::render::CameraSpec::Auto {
+            azimuth_deg, up, ..
+        } => {
+            assert_eq!(azimuth_deg, -20.0);
+            assert_eq!(up, [0.0, 1.0, 0.0]);
+        }
+        other => panic!("expected an auto camera, got {other:?}"),
+    }
+}
+
+#[test]
+fn cli_run_with_preview_and_render_write_images_and_plots() {
+    let exe = env!("CARGO_BIN_EXE_largestep");
+    let out = tmp("cli-preview");
+    let st = std::process::Command::new(exe)
+        .args([
+            "run",
+            scene_path("hanging-chain.toml").to_str().unwrap(),
+            "--frames",
+            "4",
+            "--preview",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(
+        st.status.success(),
+        "{}",
+        String::from_utf8_lossy(&st.stderr)
+    );
+    for f in [
+        "run.svg",
+        "run.png",
+        "preview/frame_00004.png",
+        "preview/animation.gif",
+        "preview/contact-sheet.png",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    let im = largestep::io::read_png(&out.join("preview/frame_00000.png")).unwrap();
+    assert_eq!((im.width, im.height), (1280, 720));
+    // Re-render the OBJ frames with another camera and size.
+    let again = out.join("again");
+    let st = std::process::Command::new(exe)
+        .args(["render"])
+        .arg(out.join("frames"))
+        .args([
+            "--size",
+            "200x100",
+            "--azimuth",
+            "-60",
+            "--wireframe",
+            "--out",
+        ])
+        .arg(&again)
+        .output()
+        .unwrap();
+    assert!(
+        st.status.success(),
+        "{}",
+        String::from_utf8_lossy(&st.stderr)
+    );
+    let im = largestep::io::read_png(&again.join("frame_00002.png")).unwrap();
+    assert_eq!((im.width, im.height), (200, 100));
+    // Bad input: a malformed frame names file and line (exit 2); a lone --eye too.
+    std::fs::write(out.join("frames/frame_00001.obj"), "v 0 0 0\nf 1 2\n").unwrap();
+    let st = std::process::Command::new(exe)
+        .arg("render")
+        .arg(out.join("frames"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&st.stderr);
+    assert_eq!(st.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("frame_00001.obj") && err.contains("line 2"),
+        "{err}"
+    );
+    let st = std::process::Command::new(exe)
+        .arg("render")
+        .arg(out.join("frames"))
+        .args(["--eye", "1,2,3"])
+        .output()
+        .unwrap();
+    assert_eq!(st.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&st.stderr).contains("--eye and --target"));
+}

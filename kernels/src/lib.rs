@@ -16,6 +16,7 @@
 pub mod bsr3;
 pub mod interp;
 pub mod par;
+pub mod raster;
 pub mod spring;
 pub mod vec;
 

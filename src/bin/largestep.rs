@@ -5,6 +5,10 @@
 
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
+use largestep::render::preview::{load_frames, write_preview, PreviewSettings};
+use largestep::render::{
+    Camera, CameraSpec, RenderError, DEFAULT_AZIMUTH_DEG, DEFAULT_ELEVATION_DEG,
+};
 use largestep::scene::{Runner, Scene};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -38,6 +42,23 @@ enum Command {
         /// List the stages built and those left out, then run.
         #[arg(long)]
         explain: bool,
+        /// Also render the frames: preview/frame_NNNNN.png, preview/animation.gif and
+        /// preview/contact-sheet.png (camera and size from the scene's [output] table).
+        #[arg(long)]
+        preview: bool,
+    },
+    /// Render a folder of OBJ frames to PNGs, an animated GIF and a contact sheet.
+    Render {
+        /// Folder of frame_NNNNN.obj files (any *.obj, in name order).
+        frames: PathBuf,
+        /// Output folder (default: a `preview` folder beside FRAMES).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Take size, camera and timing from this scene's [output] table.
+        #[arg(long)]
+        scene: Option<PathBuf>,
+        #[command(flatten)]
+        view: ViewArgs,
     },
     /// Run a study: error against run time, orders, stability.
     Study {
@@ -58,6 +79,124 @@ enum Command {
     },
 }
 
+/// Camera and image options of `render` (each overrides the scene's or the default).
+#[derive(clap::Args)]
+struct ViewArgs {
+    /// Image size, WIDTHxHEIGHT (default 1280x720).
+    #[arg(long, value_parser = parse_size)]
+    size: Option<(u32, u32)>,
+    /// Samples per pixel along each axis, 1..=4 (default 2).
+    #[arg(long)]
+    supersample: Option<u32>,
+    /// Fixed camera position X,Y,Z (needs --target).
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    eye: Option<[f64; 3]>,
+    /// Point the fixed camera looks at, X,Y,Z.
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    target: Option<[f64; 3]>,
+    /// World up direction X,Y,Z (default 0,1,0).
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    up: Option<[f64; 3]>,
+    /// Vertical field of view in degrees (default 40).
+    #[arg(long)]
+    fov: Option<f64>,
+    /// Auto-framing direction about the up axis, degrees (default 35; 0 looks from +z).
+    #[arg(long, allow_hyphen_values = true)]
+    azimuth: Option<f64>,
+    /// Auto-framing height above the ground, degrees (default 22).
+    #[arg(long, allow_hyphen_values = true)]
+    elevation: Option<f64>,
+    /// Draw triangle edges.
+    #[arg(long)]
+    wireframe: bool,
+    /// Leave out the ground plane.
+    #[arg(long)]
+    no_ground: bool,
+    /// Frames per second of the animation (default 30, or the scene's frame rate).
+    #[arg(long)]
+    fps: Option<f64>,
+}
+
+fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("expected WIDTHxHEIGHT, got `{s}`"))?;
+    let p = |v: &str| v.trim().parse::<u32>().map_err(|e| format!("`{v}`: {e}"));
+    Ok((p(w)?, p(h)?))
+}
+
+fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|c| c.trim().parse::<f64>().map_err(|e| format!("`{c}`: {e}")))
+        .collect::<Result<_, _>>()?;
+    <[f64; 3]>::try_from(v).map_err(|v| format!("expected X,Y,Z, got {} numbers", v.len()))
+}
+
+impl ViewArgs {
+    /// `base` with these options applied.
+    fn apply(&self, mut p: PreviewSettings) -> Result<PreviewSettings, String> {
+        if let Some((w, h)) = self.size {
+            p.render.width = w;
+            p.render.height = h;
+        }
+        if let Some(s) = self.supersample {
+            p.render.supersample = s;
+        }
+        p.render.ground &= !self.no_ground;
+        p.wireframe |= self.wireframe;
+        if let Some(fps) = self.fps {
+            if !(fps > 0.0 && fps.is_finite()) {
+                return Err(format!("--fps must be > 0, got {fps}"));
+            }
+            p.frame_interval = 1.0 / fps;
+        }
+        let (az, el, fov, up) = match p.camera {
+            CameraSpec::Auto {
+                azimuth_deg,
+                elevation_deg,
+                fov_y_deg,
+                up,
+            } => (azimuth_deg, elevation_deg, fov_y_deg, up),
+            CameraSpec::Fixed(c) => (
+                DEFAULT_AZIMUTH_DEG,
+                DEFAULT_ELEVATION_DEG,
+                c.fov_y_deg,
+                c.up,
+            ),
+        };
+        let (fov, up) = (self.fov.unwrap_or(fov), self.up.unwrap_or(up));
+        match (self.eye, self.target) {
+            (Some(eye), Some(target)) => {
+                p.camera = CameraSpec::Fixed(Camera {
+                    eye,
+                    target,
+                    up,
+                    fov_y_deg: fov,
+                })
+            }
+            (None, None) => {
+                if self.azimuth.is_some()
+                    || self.elevation.is_some()
+                    || self.fov.is_some()
+                    || self.up.is_some()
+                    || matches!(p.camera, CameraSpec::Auto { .. })
+                {
+                    p.camera = CameraSpec::Auto {
+                        azimuth_deg: self.azimuth.unwrap_or(az),
+                        elevation_deg: self.elevation.unwrap_or(el),
+                        fov_y_deg: fov,
+                        up,
+                    };
+                }
+            }
+            _ => return Err("--eye and --target go together".into()),
+        }
+        p.render.validate().map_err(|e| e.to_string())?;
+        Ok(p)
+    }
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     if let Some(t) = cli.threads {
@@ -75,7 +214,14 @@ fn main() -> ExitCode {
             out,
             frames,
             explain,
-        } => run(scene, out, frames, explain),
+            preview,
+        } => run(scene, out, frames, explain, preview),
+        Command::Render {
+            frames,
+            out,
+            scene,
+            view,
+        } => render(&frames, out, scene, &view),
         Command::Study { name, out, quick } => study(&name, &out, quick),
         Command::Machine { triad_mib } => {
             let l = largestep::machine::measure(triad_mib);
@@ -99,6 +245,7 @@ fn run(
     out: Option<PathBuf>,
     frames: Option<usize>,
     explain: bool,
+    preview: bool,
 ) -> ExitCode {
     let scene = match Scene::load(&scene_path) {
         Ok(s) => s,
@@ -118,6 +265,7 @@ fn run(
     if explain {
         print!("{}", runner.explain());
     }
+    runner.keep_frames(preview);
     let total = runner.frame_count(frames);
     let bar = ProgressBar::new(total as u64);
     bar.set_style(
@@ -131,14 +279,100 @@ fn run(
         bar.set_message(format!("t = {:.3} s, {} steps", p.time, p.steps));
     });
     bar.finish_and_clear();
-    match result {
-        Ok(summary) => {
-            println!("{summary}");
+    // The plot and the preview cover what was simulated, also when the run failed.
+    let mut status = ExitCode::SUCCESS;
+    match &result {
+        Ok(summary) => println!("{summary}"),
+        Err(e) => {
+            eprintln!("error: {e}");
+            status = ExitCode::from(1);
+        }
+    }
+    match runner.write_plot() {
+        Ok(path) => println!("  plot           {}", path.display()),
+        Err(e) => {
+            eprintln!("error: {e}");
+            status = ExitCode::from(1);
+        }
+    }
+    if preview {
+        let settings = runner.output().preview;
+        let dir = runner.out_dir().join("preview");
+        match write_preview_with_bar(&dir, runner.kept_frames(), &settings) {
+            Ok(s) => println!("{s}"),
+            Err(e) => {
+                eprintln!("error: {e}");
+                status = ExitCode::from(1);
+            }
+        }
+    }
+    status
+}
+
+fn write_preview_with_bar(
+    dir: &std::path::Path,
+    frames: &[largestep::io::Mesh],
+    settings: &PreviewSettings,
+) -> Result<largestep::render::preview::PreviewSummary, largestep::render::RenderError> {
+    let bar = ProgressBar::new(frames.len() as u64);
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} images")
+            .expect("valid template"),
+    );
+    let r = write_preview(dir, frames, settings, &mut |done, _| {
+        bar.set_position(done as u64)
+    });
+    bar.finish_and_clear();
+    r
+}
+
+fn render(
+    frames_dir: &std::path::Path,
+    out: Option<PathBuf>,
+    scene: Option<PathBuf>,
+    view: &ViewArgs,
+) -> ExitCode {
+    let base = match scene {
+        Some(path) => match Scene::load(&path) {
+            Ok(s) => s.output.preview,
+            Err(e) => {
+                eprintln!("error: {e}");
+                return ExitCode::from(2);
+            }
+        },
+        None => PreviewSettings::default(),
+    };
+    let settings = match view.apply(base) {
+        Ok(s) => s,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    let frames = match load_frames(frames_dir) {
+        Ok(f) => f,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    let out = out.unwrap_or_else(|| {
+        frames_dir
+            .parent()
+            .unwrap_or(std::path::Path::new("."))
+            .join("preview")
+    });
+    match write_preview_with_bar(&out, &frames, &settings) {
+        Ok(s) => {
+            println!("{s}");
             ExitCode::SUCCESS
         }
         Err(e) => {
             eprintln!("error: {e}");
-            ExitCode::from(1)
+            match e {
+                RenderError::Camera(_) | RenderError::Settings(_) => ExitCode::from(2),
+                _ => ExitCode::from(1),
+            }
         }
     }
 }

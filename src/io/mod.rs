@@ -5,7 +5,9 @@
 
 mod mesh;
 
-pub use mesh::{write_obj, write_ply, MeshRef};
+pub use mesh::{parse_obj, read_obj, write_obj, write_ply, Mesh, MeshRef, ReadError};
+mod image;
+pub use image::{read_png, write_gif, write_png};
 
 use std::io::{BufWriter, Write};
 use std::path::Path;

@@ -14,10 +14,14 @@ mod run;
 pub mod schema;
 
 pub use build::{Simulation, Stage};
-pub use run::{FrameFormat, Output, Progress, RunError, Runner, Summary};
+pub use run::{FrameFormat, FrameRecord, Output, Progress, RunError, Runner, Summary};
 
 use crate::integrate::{LinearSolverKind, MechSettings, Method};
 use crate::mass_spring::{self as ms, MassSpringDesc, ModelError, SpringDesc};
+use crate::render::preview::PreviewSettings;
+use crate::render::{
+    Camera, CameraSpec, DEFAULT_AZIMUTH_DEG, DEFAULT_ELEVATION_DEG, DEFAULT_FOV_DEG,
+};
 use crate::solve::{PcgParams, Preconditioner};
 use std::fmt;
 use std::path::Path;
@@ -229,7 +233,7 @@ impl Scene {
         })?;
         let gravity = s.gravity.unwrap_or([0.0; 3]);
         let settings = solver_settings(method, raw.solver.as_ref(), &err)?;
-        let output = output_settings(raw.output.as_ref(), dt, &err)?;
+        let output = output_settings(raw.output.as_ref(), dt, gravity, &err)?;
 
         let Some(table) = &raw.mass_spring else {
             return Err(err(
@@ -336,15 +340,12 @@ fn solver_settings(
 fn output_settings(
     t: Option<&schema::OutputTable>,
     dt: f64,
+    gravity: [f64; 3],
     err: &ErrFn<'_>,
 ) -> Result<Output, SceneError> {
     let default_every = ((1.0 / 30.0) / dt).round().max(1.0) as usize;
-    let Some(t) = t else {
-        return Ok(Output {
-            frames: FrameFormat::Obj,
-            every: default_every,
-        });
-    };
+    let empty = schema::OutputTable::default();
+    let t = t.unwrap_or(&empty);
     let frames = match t.frames.as_deref() {
         None | Some("obj") => FrameFormat::Obj,
         Some("ply") => FrameFormat::Ply,
@@ -366,7 +367,114 @@ fn output_settings(
             ))
         }
     };
-    Ok(Output { frames, every })
+    let mut preview = PreviewSettings {
+        frame_interval: every as f64 * dt,
+        ..PreviewSettings::default()
+    };
+    let int_in = |v: Option<i64>, name: &str, lo: i64, hi: i64, default: u32| match v {
+        None => Ok(default),
+        Some(v) if (lo..=hi).contains(&v) => Ok(v as u32),
+        Some(v) => Err(err(
+            path(&[&"output", &name]),
+            format!("must be an integer in {lo}..={hi}, not {v}"),
+        )),
+    };
+    let r = &mut preview.render;
+    r.width = int_in(t.width, "width", 1, 16384, r.width)?;
+    r.height = int_in(t.height, "height", 1, 16384, r.height)?;
+    r.supersample = int_in(t.supersample, "supersample", 1, 4, r.supersample)?;
+    r.ground = t.ground.unwrap_or(r.ground);
+    preview.wireframe = t.wireframe.unwrap_or(false);
+    preview.camera = camera_spec(t.camera.as_ref(), gravity, err)?;
+    Ok(Output {
+        frames,
+        every,
+        preview,
+    })
+}
+
+/// The camera of `[output.camera]`: fixed when `eye` is given (then `target` is required
+/// and azimuth/elevation are not allowed), auto-framed otherwise. Up defaults to against
+/// gravity, or +y without gravity. Problems a renderer would work round with a warning
+/// (an up vector along the view) are errors here, where the user can fix them.
+fn camera_spec(
+    t: Option<&schema::CameraTable>,
+    gravity: [f64; 3],
+    err: &ErrFn<'_>,
+) -> Result<CameraSpec, SceneError> {
+    let g = gravity.map(|c| -c);
+    let g_len = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+    let default_up = if g_len > 0.0 {
+        g.map(|c| c / g_len)
+    } else {
+        [0.0, 1.0, 0.0]
+    };
+    let empty = schema::CameraTable::default();
+    let t = t.unwrap_or(&empty);
+    let at = |name: &str| path(&[&"output", &"camera", &name]);
+    let up = t.up.unwrap_or(default_up);
+    let fov = t.fov.unwrap_or(DEFAULT_FOV_DEG);
+    if !(fov > 0.0 && fov < 180.0) {
+        return Err(err(
+            at("fov"),
+            format!("must lie in (0, 180) degrees, not {fov}"),
+        ));
+    }
+    if t.up.is_some() && !(up.iter().all(|c| c.is_finite()) && up.iter().any(|c| *c != 0.0)) {
+        return Err(err(
+            at("up"),
+            format!("must be a finite non-zero vector, not {up:?}"),
+        ));
+    }
+    match (t.eye, t.target) {
+        (Some(eye), Some(target)) => {
+            if t.azimuth.is_some() || t.elevation.is_some() {
+                let which = if t.azimuth.is_some() { "azimuth" } else { "elevation" };
+                return Err(err(
+                    at(which),
+                    "a fixed camera (eye, target) has no azimuth or elevation; give one or the other".into(),
+                ));
+            }
+            let camera = Camera {
+                eye,
+                target,
+                up,
+                fov_y_deg: fov,
+            };
+            let mut warnings = Vec::new();
+            let problem = match camera.basis(&mut warnings) {
+                Err(e) => Some(e.to_string()),
+                Ok(_) => warnings.pop(),
+            };
+            if let Some(message) = problem {
+                return Err(err(at("eye"), message));
+            }
+            Ok(CameraSpec::Fixed(camera))
+        }
+        (Some(_), None) => Err(err(at("eye"), "a fixed camera needs `target` as well as `eye`".into())),
+        (None, Some(_)) => Err(err(
+            at("target"),
+            "`target` needs `eye` (without eye the camera frames the scene from azimuth and elevation)".into(),
+        )),
+        (None, None) => {
+            let (azimuth_deg, elevation_deg) = (
+                t.azimuth.unwrap_or(DEFAULT_AZIMUTH_DEG),
+                t.elevation.unwrap_or(DEFAULT_ELEVATION_DEG),
+            );
+            if !azimuth_deg.is_finite() {
+                return Err(err(at("azimuth"), format!("must be finite, not {azimuth_deg}")));
+            }
+            if elevation_deg.is_nan() || elevation_deg.abs() >= 90.0 {
+                return Err(err(at("elevation"), format!("must lie in (-90, 90) degrees, not {elevation_deg}")));
+            }
+            Ok(CameraSpec::Auto {
+                azimuth_deg,
+                elevation_deg,
+                fov_y_deg: fov,
+                up,
+            })
+        }
+    }
 }
 
 fn finite_positive(v: f64, p: Vec<Key>, what: &str, err: &ErrFn<'_>) -> Result<f64, SceneError> {

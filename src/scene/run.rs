@@ -7,7 +7,8 @@
 
 use super::{Scene, Simulation};
 use crate::integrate::IntegrateError;
-use crate::io::{write_atomically, write_obj, write_ply};
+use crate::io::{write_atomically, write_obj, write_ply, Mesh};
+use crate::render::preview::PreviewSettings;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -24,12 +25,15 @@ pub enum FrameFormat {
 }
 
 /// Output settings.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Output {
     /// Frame format.
     pub frames: FrameFormat,
     /// Steps per frame.
     pub every: usize,
+    /// Preview images, camera and animation timing (used when frames are kept, see
+    /// [`Runner::keep_frames`]).
+    pub preview: PreviewSettings,
 }
 
 /// Progress of a run, reported after every frame.
@@ -43,6 +47,46 @@ pub struct Progress {
     pub steps: u64,
     /// Simulated time (s).
     pub time: f64,
+}
+
+/// One line of the run log (`energy.csv`), recorded for every frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FrameRecord {
+    /// Frame number (0 is the initial state).
+    pub frame: usize,
+    /// Simulated time (s).
+    pub time: f64,
+    /// Kinetic energy (J).
+    pub kinetic: f64,
+    /// Potential energy (J).
+    pub potential: f64,
+    /// Newton iterations over the frame's steps.
+    pub newton_iterations: usize,
+    /// Linear-solver iterations over the frame's steps.
+    pub linear_iterations: usize,
+    /// Steps in the frame.
+    pub steps: usize,
+    /// Wall time of the frame's steps (s).
+    pub step_seconds: f64,
+}
+
+impl FrameRecord {
+    const CSV_HEADER: &'static str = "frame,time_s,kinetic_J,potential_J,total_J,newton_iterations,linear_iterations,step_seconds";
+
+    fn write_csv(&self, w: &mut dyn Write) -> std::io::Result<()> {
+        writeln!(
+            w,
+            "{},{},{},{},{},{},{},{}",
+            self.frame,
+            self.time,
+            self.kinetic,
+            self.potential,
+            self.kinetic + self.potential,
+            self.newton_iterations,
+            self.linear_iterations,
+            self.step_seconds
+        )
+    }
 }
 
 /// What a finished run reports.
@@ -161,6 +205,8 @@ pub struct Runner {
     dt: f64,
     output: Output,
     out_dir: PathBuf,
+    records: Vec<FrameRecord>,
+    kept: Option<Vec<Mesh>>,
 }
 
 impl Runner {
@@ -180,7 +226,35 @@ impl Runner {
             dt,
             output,
             out_dir: out_dir.to_path_buf(),
+            records: Vec::new(),
+            kept: None,
         })
+    }
+
+    /// Keeps a copy of every frame's mesh in memory (for a preview after the run; 24 bytes
+    /// per vertex and frame, topology shared).
+    pub fn keep_frames(&mut self, keep: bool) {
+        self.kept = keep.then(Vec::new);
+    }
+
+    /// The frames kept so far (empty unless [`Runner::keep_frames`] was set).
+    pub fn kept_frames(&self) -> &[Mesh] {
+        self.kept.as_deref().unwrap_or(&[])
+    }
+
+    /// The run log so far, one record per frame (also after a failed run).
+    pub fn records(&self) -> &[FrameRecord] {
+        &self.records
+    }
+
+    /// The output settings.
+    pub fn output(&self) -> &Output {
+        &self.output
+    }
+
+    /// The output folder.
+    pub fn out_dir(&self) -> &Path {
+        &self.out_dir
     }
 
     /// The simulation.
@@ -221,7 +295,14 @@ impl Runner {
         }
     }
 
-    fn write_frame(&self, k: usize) -> Result<bool, RunError> {
+    fn write_frame(&mut self, k: usize) -> Result<bool, RunError> {
+        if let Some(kept) = &mut self.kept {
+            let mut m = Mesh::from_ref(self.sim.mesh());
+            if let Some(prev) = kept.last() {
+                m.share_topology(prev);
+            }
+            kept.push(m);
+        }
         let ext = match self.output.frames {
             FrameFormat::Obj => "obj",
             FrameFormat::Ply => "ply",
@@ -255,29 +336,31 @@ impl Runner {
         let csv_path = self.out_dir.join("energy.csv");
         let mut csv =
             std::io::BufWriter::new(std::fs::File::create(&csv_path).map_err(io_err(&csv_path))?);
-        writeln!(csv, "frame,time_s,kinetic_J,potential_J,total_J,newton_iterations,linear_iterations,step_seconds")
-            .map_err(io_err(&csv_path))?;
+        writeln!(csv, "{}", FrameRecord::CSV_HEADER).map_err(io_err(&csv_path))?;
 
         let (k0, p0) = self.sim.energy();
         let e_start = k0 + p0;
         let mut max_kinetic = k0;
+        self.records.clear();
         let mut written = self.write_frame(0)? as usize;
-        let log = |csv: &mut std::io::BufWriter<std::fs::File>,
-                   frame: usize,
-                   sim: &Simulation,
-                   newton: usize,
-                   linear: usize,
-                   secs: f64| {
-            let (k, p) = sim.energy();
-            writeln!(
-                csv,
-                "{frame},{},{k},{p},{},{newton},{linear},{secs}",
-                sim.time(),
-                k + p
-            )?;
-            csv.flush()
+        let record = |frame: usize, sim: &Simulation, newton, linear, steps, secs| {
+            let (kinetic, potential) = sim.energy();
+            FrameRecord {
+                frame,
+                time: sim.time(),
+                kinetic,
+                potential,
+                newton_iterations: newton,
+                linear_iterations: linear,
+                steps,
+                step_seconds: secs,
+            }
         };
-        log(&mut csv, 0, &self.sim, 0, 0, 0.0).map_err(io_err(&csv_path))?;
+        let mut log = |r: FrameRecord, records: &mut Vec<FrameRecord>| {
+            records.push(r);
+            r.write_csv(&mut csv).and_then(|_| csv.flush())
+        };
+        log(record(0, &self.sim, 0, 0, 0, 0.0), &mut self.records).map_err(io_err(&csv_path))?;
         let mut summary = Summary {
             name: self.name.clone(),
             method: self.sim.method().to_string(),
@@ -317,7 +400,11 @@ impl Runner {
             summary.linear_iterations += linear;
             max_kinetic = max_kinetic.max(self.sim.energy().0);
             written += self.write_frame(frame)? as usize;
-            log(&mut csv, frame, &self.sim, newton, linear, secs).map_err(io_err(&csv_path))?;
+            log(
+                record(frame, &self.sim, newton, linear, n, secs),
+                &mut self.records,
+            )
+            .map_err(io_err(&csv_path))?;
             progress(&Progress {
                 frame,
                 frames: total_frames,
@@ -334,5 +421,68 @@ impl Runner {
         summary.energy_drift = (k1 + p1 - e_start) / scale;
         summary.wall_seconds = start.elapsed().as_secs_f64();
         Ok(summary)
+    }
+}
+
+#[cfg(feature = "cli")]
+impl Runner {
+    /// Writes `run.svg` and `run.png` into the output folder: energy, solver iterations
+    /// per step (implicit integrators only) and wall time per step, against simulated
+    /// time, one point per frame. Works after a failed run too (up to the failure).
+    pub fn write_plot(&self) -> Result<PathBuf, RunError> {
+        use crate::plot::{write_panels, Curve, Panel, Scale};
+        let r = &self.records;
+        let series = |label: &str, f: &dyn Fn(&FrameRecord) -> f64, skip_first: bool| Curve {
+            label: label.to_string(),
+            points: r
+                .iter()
+                .skip(skip_first as usize)
+                .map(|x| (x.time, f(x)))
+                .collect(),
+        };
+        let panel = |title: &str, y: &str, curves: Vec<Curve>| Panel {
+            title: title.to_string(),
+            x_label: "simulated time (s)".into(),
+            y_label: y.to_string(),
+            scale: Scale::Linear,
+            curves: curves.into_iter().enumerate().collect(),
+        };
+        let per_step = |v: usize, x: &FrameRecord| v as f64 / x.steps.max(1) as f64;
+        let mut panels = vec![panel(
+            &format!("{}: energy", self.name),
+            "energy (J)",
+            vec![
+                series("kinetic", &|x| x.kinetic, false),
+                series("potential", &|x| x.potential, false),
+                series("total", &|x| x.kinetic + x.potential, false),
+            ],
+        )];
+        if r.iter()
+            .any(|x| x.newton_iterations + x.linear_iterations > 0)
+        {
+            panels.push(panel(
+                "solver iterations per step",
+                "iterations",
+                vec![
+                    series("Newton", &|x| per_step(x.newton_iterations, x), true),
+                    series("linear solver", &|x| per_step(x.linear_iterations, x), true),
+                ],
+            ));
+        }
+        panels.push(panel(
+            "wall time per step",
+            "time per step (ms)",
+            vec![series(
+                "step",
+                &|x| 1e3 * x.step_seconds / x.steps.max(1) as f64,
+                true,
+            )],
+        ));
+        let stem = self.out_dir.join("run");
+        write_panels(&stem, &panels, panels.len(), (520, 380)).map_err(|message| RunError::Io {
+            path: stem.clone(),
+            source: std::io::Error::other(message),
+        })?;
+        Ok(stem.with_extension("png"))
     }
 }

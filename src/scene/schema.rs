@@ -26,6 +26,18 @@
 //! [output]
 //! frames = "obj"              # obj | ply | none
 //! every = 33                  # steps per frame (default: about 30 frames per second)
+//! width = 1280                # preview images (`largestep run --preview`, `largestep render`)
+//! height = 720
+//! supersample = 2             # 1..=4 samples per pixel each way
+//! wireframe = false
+//! ground = true
+//! [output.camera]             # default: auto-framed from azimuth and elevation
+//! azimuth = 35.0              # degrees about the up axis, 0 looks from +z
+//! elevation = 22.0            # degrees above the ground
+//! fov = 40.0                  # vertical field of view, degrees
+//! up = [0.0, 1.0, 0.0]        # default: against gravity, else +y
+//! # eye = [3.0, 2.0, 3.0]     # a fixed camera instead (then target is required)
+//! # target = [0.0, 0.0, 0.0]
 //! ```
 
 use serde::Deserialize;
@@ -206,4 +218,34 @@ pub struct OutputTable {
     pub frames: Option<String>,
     /// Steps per frame.
     pub every: Option<i64>,
+    /// Preview width (pixels).
+    pub width: Option<i64>,
+    /// Preview height (pixels).
+    pub height: Option<i64>,
+    /// Samples per pixel along each axis.
+    pub supersample: Option<i64>,
+    /// Triangle edges over the shading.
+    pub wireframe: Option<bool>,
+    /// Ground plane with grid and shadows.
+    pub ground: Option<bool>,
+    /// `[output.camera]`
+    pub camera: Option<CameraTable>,
+}
+
+/// `[output.camera]`
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraTable {
+    /// Eye position (m): a fixed camera.
+    pub eye: Option<[f64; 3]>,
+    /// Point looked at (m), with `eye`.
+    pub target: Option<[f64; 3]>,
+    /// World up.
+    pub up: Option<[f64; 3]>,
+    /// Vertical field of view (degrees).
+    pub fov: Option<f64>,
+    /// Auto-framing azimuth (degrees).
+    pub azimuth: Option<f64>,
+    /// Auto-framing elevation (degrees).
+    pub elevation: Option<f64>,
 }

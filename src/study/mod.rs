@@ -1,11 +1,8 @@
 //! Studies: error against run time, observed orders and stability, written as
-//! `NAME.md` (tables, the error measure and the reference stated), `NAME.svg` (log-log
-//! error against run time, one curve per method) and `NAME.json` (all numbers).
+//! `NAME.md` (tables, the error measure and the reference stated), `NAME.svg` and `NAME.png`
+//! (log-log error against run time, one curve per method) and `NAME.json` (all numbers).
 
 mod integrators;
-mod plot;
-
-pub use plot::{loglog_panels, Curve, Panel};
 
 use std::path::Path;
 

@@ -1,0 +1,237 @@
+//! Previews of an animation: a PNG per frame, a looping GIF and a contact sheet.
+//!
+//! The camera and the ground stay put for the whole animation: both come from the union of
+//! every frame's bounds. Each PNG is written atomically as soon as it is rendered, so a
+//! failure later leaves the earlier frames valid.
+
+use super::{Bounds, Camera, CameraSpec, Image, Object, RenderError, Renderer, Settings, Style};
+use crate::io::{read_obj, write_atomically, write_gif, write_png, Mesh};
+use std::path::{Path, PathBuf};
+
+/// What to render and write.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PreviewSettings {
+    /// Image size and quality of the PNG frames.
+    pub render: Settings,
+    /// The camera.
+    pub camera: CameraSpec,
+    /// Draw triangle edges.
+    pub wireframe: bool,
+    /// Simulated seconds between frames (the GIF plays in real time, at most 50 frames
+    /// per second, the GIF format's limit).
+    pub frame_interval: f64,
+    /// Widest GIF frame (pixels): frames are shrunk by the smallest integer factor that fits.
+    pub animation_max_width: u32,
+    /// Most GIF frames: longer animations are subsampled evenly (and play at the same speed).
+    pub animation_max_frames: usize,
+    /// Frames on the contact sheet (evenly spaced, first and last included).
+    pub sheet_frames: usize,
+    /// Columns of the contact sheet.
+    pub sheet_cols: u32,
+}
+
+impl Default for PreviewSettings {
+    fn default() -> Self {
+        PreviewSettings {
+            render: Settings::default(),
+            camera: CameraSpec::default(),
+            wireframe: false,
+            frame_interval: 1.0 / 30.0,
+            animation_max_width: 480,
+            animation_max_frames: 120,
+            sheet_frames: 9,
+            sheet_cols: 3,
+        }
+    }
+}
+
+/// What a preview wrote.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PreviewSummary {
+    /// PNG frames written.
+    pub frames: usize,
+    /// The folder.
+    pub dir: PathBuf,
+    /// Warnings (camera fallbacks, skipped primitives), each once with the first frame
+    /// it occurred in.
+    pub warnings: Vec<String>,
+    /// Wall time spent rendering (s), excluding encoding and writing.
+    pub render_seconds: f64,
+}
+
+impl std::fmt::Display for PreviewSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "  preview        {} PNG frames, animation.gif and contact-sheet.png in {} ({:.1} ms/frame)",
+            self.frames,
+            self.dir.display(),
+            1e3 * self.render_seconds / self.frames.max(1) as f64
+        )?;
+        for w in &self.warnings {
+            write!(f, "\n  warning        {w}")?;
+        }
+        Ok(())
+    }
+}
+
+/// Frame indices `0..n` chosen evenly, `m` of them (all when `n <= m`), first and last
+/// included.
+fn evenly(n: usize, m: usize) -> Vec<usize> {
+    if n <= m || m < 2 {
+        return (0..n.min(m.max(1))).collect();
+    }
+    (0..m)
+        .map(|i| (i as f64 * (n - 1) as f64 / (m - 1) as f64).round() as usize)
+        .collect()
+}
+
+fn file_err(path: &Path) -> impl FnOnce(std::io::Error) -> RenderError + '_ {
+    move |e| RenderError::File {
+        path: path.display().to_string(),
+        message: e.to_string(),
+    }
+}
+
+/// The camera `spec` gives for `bounds` and `settings`.
+pub fn camera_for(
+    spec: &CameraSpec,
+    bounds: &Bounds,
+    settings: &Settings,
+) -> Result<Camera, RenderError> {
+    match *spec {
+        CameraSpec::Fixed(c) => Ok(c),
+        CameraSpec::Auto {
+            azimuth_deg,
+            elevation_deg,
+            fov_y_deg,
+            up,
+        } => Camera::auto(
+            bounds,
+            settings.width as f64 / settings.height as f64,
+            azimuth_deg,
+            elevation_deg,
+            fov_y_deg,
+            up,
+        ),
+    }
+}
+
+/// The union of the bounds of `frames`.
+pub fn bounds_of(frames: &[Mesh]) -> Bounds {
+    let mut b = Bounds::EMPTY;
+    for m in frames {
+        let n = m.positions.len() / 3;
+        for i in 0..n {
+            b.add(largestep_kernels::get3(&m.positions, n, i));
+        }
+    }
+    b
+}
+
+/// Renders `frames` into `dir`: `frame_NNNNN.png`, `animation.gif`, `contact-sheet.png`;
+/// `progress(done, total)` is called after each frame.
+pub fn write_preview(
+    dir: &Path,
+    frames: &[Mesh],
+    settings: &PreviewSettings,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<PreviewSummary, RenderError> {
+    if frames.is_empty() {
+        return Err(RenderError::File {
+            path: dir.display().to_string(),
+            message: "no frames to preview".into(),
+        });
+    }
+    std::fs::create_dir_all(dir).map_err(file_err(dir))?;
+    let bounds = bounds_of(frames);
+    let camera = camera_for(&settings.camera, &bounds, &settings.render)?;
+    let mut renderer = Renderer::new(settings.render)?;
+    let shrink = settings
+        .render
+        .width
+        .div_ceil(settings.animation_max_width.max(1))
+        .max(1);
+    let gif_frames = evenly(frames.len(), settings.animation_max_frames);
+    let sheet = evenly(frames.len(), settings.sheet_frames);
+    let mut gif_images = Vec::with_capacity(gif_frames.len());
+    let mut sheet_images = Vec::with_capacity(sheet.len());
+    let mut warnings: Vec<String> = Vec::new();
+    let mut image = Image::new(1, 1);
+    let mut render_seconds = 0.0;
+    for (k, mesh) in frames.iter().enumerate() {
+        let mut style = Style::palette(0, &mesh.as_ref());
+        style.wireframe = settings.wireframe;
+        let objects = [Object {
+            mesh: mesh.as_ref(),
+            style,
+        }];
+        let t0 = std::time::Instant::now();
+        let stats = renderer.render(&camera, &bounds, &objects, &mut image)?;
+        render_seconds += t0.elapsed().as_secs_f64();
+        for w in stats.warning_lines() {
+            if !warnings.iter().any(|x| x.ends_with(&w)) {
+                warnings.push(format!("frame {k}: {w}"));
+            }
+        }
+        let path = dir.join(format!("frame_{k:05}.png"));
+        write_atomically(&path, |w| write_png(w, &image)).map_err(file_err(&path))?;
+        if gif_frames.contains(&k) {
+            gif_images.push(image.downsample(shrink));
+        }
+        if sheet.contains(&k) {
+            sheet_images.push(image.clone());
+        }
+        progress(k + 1, frames.len());
+    }
+    // GIF delays are whole hundredths of a second and at least 2 (browsers slow shorter
+    // ones down): play in real time with the subsampled frames.
+    let stride = frames.len() as f64 / gif_images.len() as f64;
+    let delay = (100.0 * settings.frame_interval * stride)
+        .round()
+        .clamp(2.0, 65535.0) as u16;
+    let path = dir.join("animation.gif");
+    write_atomically(&path, |w| write_gif(w, &gif_images, delay)).map_err(file_err(&path))?;
+    let path = dir.join("contact-sheet.png");
+    let sheet_image = Image::contact_sheet(&sheet_images, settings.sheet_cols, 4);
+    write_atomically(&path, |w| write_png(w, &sheet_image)).map_err(file_err(&path))?;
+    Ok(PreviewSummary {
+        frames: frames.len(),
+        dir: dir.to_path_buf(),
+        warnings,
+        render_seconds,
+    })
+}
+
+/// Reads every `*.obj` in `dir`, in name order (frames written by `largestep run` sort by
+/// number). A malformed file is an error naming the file and line.
+pub fn load_frames(dir: &Path) -> Result<Vec<Mesh>, RenderError> {
+    let entries = std::fs::read_dir(dir).map_err(file_err(dir))?;
+    let mut paths: Vec<PathBuf> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case("obj")))
+        .collect();
+    paths.sort();
+    if paths.is_empty() {
+        return Err(RenderError::File {
+            path: dir.display().to_string(),
+            message: "no .obj files in this folder".into(),
+        });
+    }
+    let mut frames: Vec<Mesh> = Vec::with_capacity(paths.len());
+    for p in &paths {
+        let mut m = read_obj(p).map_err(|e| RenderError::File {
+            path: e.path.clone(),
+            message: if e.line > 0 {
+                format!("line {}: {}", e.line, e.message)
+            } else {
+                e.message.clone()
+            },
+        })?;
+        if let Some(prev) = frames.last() {
+            m.share_topology(prev);
+        }
+        frames.push(m);
+    }
+    Ok(frames)
+}
