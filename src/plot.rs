@@ -130,10 +130,29 @@ fn draw_all<DB: DrawingBackend>(
                 |v| format!("{v:.0e}"),
             )?;
         } else {
-            draw_panel(area, panel, xs.0..xs.1, ys.0..ys.1, |v| format!("{v:.3}"))?;
+            draw_panel(area, panel, xs.0..xs.1, ys.0..ys.1, linear_tick)?;
         }
     }
     Ok(())
+}
+
+/// A linear-axis tick label: up to 4 significant digits without trailing zeros, in
+/// exponent form when very large or small.
+fn linear_tick(v: &f64) -> String {
+    let a = v.abs();
+    if a == 0.0 {
+        return "0".into();
+    }
+    if !(1e-3..1e5).contains(&a) {
+        return format!("{v:.2e}");
+    }
+    let decimals = (3 - a.log10().floor() as i32).clamp(0, 6) as usize;
+    let s = format!("{v:.decimals$}");
+    if s.contains('.') {
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        s
+    }
 }
 
 fn draw_panel<DB, X, Y>(

@@ -78,7 +78,7 @@ fn golden_dir() -> PathBuf {
 }
 
 /// Peak signal-to-noise ratio (dB) over all channels, and the fraction of pixels with a
-/// channel off by more than 32 levels.
+/// channel off by more than 8 levels.
 fn compare(a: &Image, b: &Image) -> (f64, f64) {
     assert_eq!(
         (a.width, a.height),
@@ -96,7 +96,7 @@ fn compare(a: &Image, b: &Image) -> (f64, f64) {
         .rgb
         .chunks(3)
         .zip(b.rgb.chunks(3))
-        .filter(|(p, q)| p.iter().zip(*q).any(|(x, y)| x.abs_diff(*y) > 32))
+        .filter(|(p, q)| p.iter().zip(*q).any(|(x, y)| x.abs_diff(*y) > 8))
         .count() as f64
         / (a.width * a.height) as f64;
     let psnr = if mse == 0.0 {
@@ -107,8 +107,10 @@ fn compare(a: &Image, b: &Image) -> (f64, f64) {
     (psnr, off)
 }
 
-/// Compares with `tests/golden/NAME.png` within PSNR >= 40 dB and at most 0.5% of pixels
-/// off by more than 32 levels (room for another CPU's rounding, none for a changed look).
+/// Compares with `tests/golden/NAME.png` within PSNR >= 50 dB and at most 0.2% of pixels
+/// off by more than 8 levels: room for another CPU's or libm's last-bit rounding (the
+/// renderer is deterministic f32 code), none for a changed look (a 50% change of the
+/// specular strength alone fails it).
 fn check_golden(name: &str, im: &Image) {
     let path = golden_dir().join(format!("{name}.png"));
     if std::env::var_os("LARGESTEP_BLESS").is_some() {
@@ -120,8 +122,8 @@ fn check_golden(name: &str, im: &Image) {
         read_png(&path).unwrap_or_else(|e| panic!("{e} (bless with LARGESTEP_BLESS=1)"));
     let (psnr, off) = compare(im, &reference);
     assert!(
-        psnr >= 40.0 && off <= 0.005,
-        "{name}: PSNR {psnr:.1} dB, {:.2}% of pixels off by > 32 levels",
+        psnr >= 50.0 && off <= 0.002,
+        "{name}: PSNR {psnr:.1} dB, {:.2}% of pixels off by > 8 levels",
         100.0 * off
     );
 }

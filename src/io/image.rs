@@ -52,8 +52,11 @@ pub fn read_png(path: &std::path::Path) -> Result<Image, String> {
 }
 
 /// Writes `frames` (all the same size, at most 65535 x 65535) as a looping animated GIF
-/// with `delay_cs` hundredths of a second per frame. Each frame gets its own 256-colour
-/// palette (NeuQuant, as the gif crate implements it); frames are quantized in parallel.
+/// with `delay_cs` hundredths of a second per frame. After the first frame only the
+/// rectangle that changed since the previous one is stored (the rest is kept on screen),
+/// which is most of the saving for simulations over a still background. Each stored
+/// rectangle gets its own 256-colour palette (NeuQuant, as the gif crate implements it);
+/// rectangles are quantized in parallel.
 pub fn write_gif(w: &mut dyn Write, frames: &[Image], delay_cs: u16) -> std::io::Result<()> {
     use rayon::prelude::*;
     let Some(first) = frames.first() else {
@@ -65,11 +68,31 @@ pub fn write_gif(w: &mut dyn Write, frames: &[Image], delay_cs: u16) -> std::io:
         u16::try_from(first.width).map_err(std::io::Error::other)?,
         u16::try_from(first.height).map_err(std::io::Error::other)?,
     );
-    let encoded: Vec<gif::Frame<'static>> = frames
-        .par_iter()
-        .map(|f| {
-            let mut fr = gif::Frame::from_rgb_speed(width, height, &f.rgb, 10);
+    if frames
+        .iter()
+        .any(|f| (f.width, f.height) != (first.width, first.height))
+    {
+        return Err(std::io::Error::other("animation frames differ in size"));
+    }
+    let encoded: Vec<gif::Frame<'static>> = (0..frames.len())
+        .into_par_iter()
+        .map(|k| {
+            let [x0, y0, x1, y1] = if k == 0 {
+                [0, 0, first.width, first.height]
+            } else {
+                changed_rect(&frames[k - 1], &frames[k])
+            };
+            let (w, h) = (x1 - x0, y1 - y0);
+            let mut rgb = Vec::with_capacity(3 * (w * h) as usize);
+            for y in y0..y1 {
+                let row = 3 * (y * first.width) as usize;
+                rgb.extend_from_slice(&frames[k].rgb[row + 3 * x0 as usize..row + 3 * x1 as usize]);
+            }
+            let mut fr = gif::Frame::from_rgb_speed(w as u16, h as u16, &rgb, 10);
+            fr.left = x0 as u16;
+            fr.top = y0 as u16;
             fr.delay = delay_cs;
+            fr.dispose = gif::DisposalMethod::Keep;
             fr
         })
         .collect();
@@ -80,4 +103,36 @@ pub fn write_gif(w: &mut dyn Write, frames: &[Image], delay_cs: u16) -> std::io:
         enc.write_frame(f).map_err(std::io::Error::other)?;
     }
     Ok(())
+}
+
+/// The smallest rectangle `[x0, y0, x1, y1)` holding every pixel that differs between two
+/// images of one size; a 1 x 1 rectangle when nothing changed (a GIF frame is not empty).
+fn changed_rect(a: &Image, b: &Image) -> [u32; 4] {
+    let (mut x0, mut y0, mut x1, mut y1) = (a.width, a.height, 0, 0);
+    for y in 0..a.height {
+        let row = 3 * (y * a.width) as usize..3 * ((y + 1) * a.width) as usize;
+        let (ra, rb) = (&a.rgb[row.clone()], &b.rgb[row]);
+        if ra == rb {
+            continue;
+        }
+        let first = ra
+            .chunks(3)
+            .zip(rb.chunks(3))
+            .position(|(p, q)| p != q)
+            .unwrap_or(0) as u32;
+        let last = ra
+            .chunks(3)
+            .zip(rb.chunks(3))
+            .rposition(|(p, q)| p != q)
+            .unwrap_or(0) as u32;
+        x0 = x0.min(first);
+        x1 = x1.max(last + 1);
+        y0 = y0.min(y);
+        y1 = y + 1;
+    }
+    if x1 == 0 {
+        [0, 0, 1, 1]
+    } else {
+        [x0, y0, x1, y1]
+    }
 }

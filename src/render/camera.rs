@@ -152,8 +152,8 @@ pub struct Basis {
 
 impl Camera {
     /// Frames `bounds` from the direction of `spec` for an image of width/height `aspect`:
-    /// the bounding sphere fits the narrower field of view with 8% to spare, so the eye is
-    /// always outside the bounds.
+    /// every corner of the box is in view with 8% to spare, and the eye is outside the
+    /// bounding sphere.
     pub fn auto(
         bounds: &Bounds,
         aspect: f64,
@@ -178,10 +178,32 @@ impl Camera {
         let dir: [f64; 3] = std::array::from_fn(|k| {
             el.cos() * (az.cos() * front[k] + az.sin() * side[k]) + el.sin() * world_up[k]
         });
-        let half_y = 0.5 * fov_y_deg.to_radians();
-        let half_x = (half_y.tan() * aspect).atan();
-        let dist = 1.08 * b.radius() / half_y.min(half_x).sin();
+        // Distance at which all eight corners of the box fit the view: a corner p
+        // (relative to the centre) has depth D - p.dir and must satisfy
+        // |p.right| <= depth tan(fov_x / 2) and |p.up| <= depth tan(fov_y / 2).
+        let tan_y = (0.5 * fov_y_deg.to_radians()).tan();
+        let tan_x = tan_y * aspect;
         let c = b.center();
+        let right = normalize(cross(dir.map(|x| -x), world_up)).unwrap_or(side);
+        let up_s = cross(right, dir.map(|x| -x));
+        let r = b.radius();
+        let mut dist: f64 = 0.0;
+        for corner in 0..8 {
+            let p: [f64; 3] = std::array::from_fn(|k| {
+                if corner >> k & 1 == 1 {
+                    b.max[k] - c[k]
+                } else {
+                    b.min[k] - c[k]
+                }
+            });
+            let along = dot(p, dir);
+            dist = dist
+                .max(along + dot(p, right).abs() / tan_x)
+                .max(along + dot(p, up_s).abs() / tan_y)
+                .max(along + 0.05 * r);
+        }
+        // 8% margin; never inside the bounding sphere.
+        let dist = (1.08 * dist).max(1.05 * r);
         Ok(Camera {
             eye: std::array::from_fn(|k| c[k] + dist * dir[k]),
             target: c,

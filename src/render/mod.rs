@@ -317,18 +317,29 @@ fn unit3(a: [f32; 3]) -> [f32; 3] {
     }
 }
 
-/// Linear RGB in [0, 1] to 8 bits with gamma 2 (`sqrt`), by a 4096-entry table: three
-/// square roots per pixel were a tenth of the frame time, and scalar saturating float to
-/// integer casts another tenth, hence the one 4-lane conversion.
-#[inline(always)]
-fn encode(c: [f32; 3], lut: &[u8; GAMMA_LUT]) -> [u8; 3] {
-    let v = wide::f32x4::from([c[0], c[1], c[2], 0.0])
-        .fast_max(wide::f32x4::ZERO)
-        .fast_min(wide::f32x4::ONE)
-        * (GAMMA_LUT - 1) as f32;
-    let i = v.round_int().to_array();
-    // Masking keeps a NaN (converted to i32::MIN) in range and drops the bounds check.
-    [0, 1, 2].map(|k| lut[i[k] as usize & (GAMMA_LUT - 1)])
+/// Linear RGB in [0, 1] to 8 bits with gamma 2 (`sqrt`) by a 4096-entry table, eight
+/// values at a time: per-pixel square roots and scalar saturating float-to-integer casts
+/// were a fifth of the frame time.
+fn encode_row(out: &mut [u8], rgb: &[f32], lut: &[u8; GAMMA_LUT]) {
+    use wide::f32x8;
+    debug_assert_eq!(out.len(), rgb.len());
+    let scale = f32x8::splat((GAMMA_LUT - 1) as f32);
+    let mut chunks = rgb.chunks_exact(8);
+    let mut o = 0;
+    for c in &mut chunks {
+        let v = f32x8::from(<[f32; 8]>::try_from(c).expect("8 values"));
+        let i = (v.fast_max(f32x8::ZERO).fast_min(f32x8::ONE) * scale)
+            .round_int()
+            .to_array();
+        // Masking keeps a NaN (converted to i32::MIN) in range and drops bounds checks.
+        for (dst, k) in out[o..o + 8].iter_mut().zip(i) {
+            *dst = lut[k as usize & (GAMMA_LUT - 1)];
+        }
+        o += 8;
+    }
+    for (dst, c) in out[o..].iter_mut().zip(chunks.remainder()) {
+        *dst = lut[(c.clamp(0.0, 1.0) * (GAMMA_LUT - 1) as f32).round() as usize & (GAMMA_LUT - 1)];
+    }
 }
 
 const GAMMA_LUT: usize = 4096;
@@ -596,7 +607,7 @@ impl Renderer {
                     .sum::<f32>()
                     / m.segments.len() as f32
             };
-            let half_width = 0.6 * v.ss as f32;
+            let half_width = 0.9 * v.ss as f32;
             for s in m.segments {
                 if s.iter().any(|&k| k as usize >= n) {
                     stats.skipped_degenerate += 1;
@@ -659,7 +670,7 @@ impl Renderer {
                 let radius = if o.style.point_radius > 0.0 {
                     o.style.point_radius as f32
                 } else if mean_seg > 0.0 {
-                    0.2 * mean_seg
+                    0.3 * mean_seg
                 } else {
                     (bounds.radius() / 150.0) as f32
                 };
@@ -671,6 +682,9 @@ impl Renderer {
                     let p = self.view_pos[k];
                     if p[2] - radius <= v.near {
                         continue;
+                    }
+                    if v.ground {
+                        self.push_disc_shadow(v, p, radius);
                     }
                     let c = Self::project(v, p);
                     let r = (v.focal * radius / p[2]).max(0.8 * v.ss as f32);
@@ -690,6 +704,36 @@ impl Renderer {
             }
         }
         stats.triangles = self.tris.iter().filter(|t| !t.line).count();
+    }
+
+    /// The shadow of a sphere (centre `p` in camera space, radius in m) on the ground: an
+    /// octagon round the centre's projection along the key light.
+    fn push_disc_shadow(&mut self, v: &View, p: [f32; 3], radius: f32) {
+        let w = self.view_world(v, p);
+        let h = dot3(w, v.world_up) + v.eye_height;
+        let c = axpy3(-h / dot3(v.light, v.world_up), v.light, w);
+        let corner = |k: usize| {
+            let a = std::f32::consts::TAU * k as f32 / 8.0;
+            let q = axpy3(
+                radius * a.cos(),
+                v.ground_axes[0],
+                axpy3(radius * a.sin(), v.ground_axes[1], c),
+            );
+            [dot3(q, v.right), dot3(q, v.up), dot3(q, v.forward)]
+        };
+        let centre = [dot3(c, v.right), dot3(c, v.up), dot3(c, v.forward)];
+        for k in 0..8 {
+            let tri = [centre, corner(k), corner(k + 1)];
+            if tri.iter().all(|x| x[2] > v.near) {
+                let st = ScreenTri {
+                    p: tri.map(|x| Self::project(v, x)),
+                    q: [1.0; 3],
+                };
+                if let Some(f) = FixedTri::new(&st) {
+                    self.shadows.push(f);
+                }
+            }
+        }
     }
 
     /// A camera-space point back in world axes (still relative to the eye).
@@ -854,108 +898,105 @@ impl Renderer {
         let px0 = tx * TILE_PX;
         let pw = TILE_PX.min(width - px0);
         let ph = TILE_PX.min(band.len() / (3 * width));
-        let n = (ss * ss) as f32;
         let lut = gamma_lut();
         let mut idx = [0usize; 16];
+        let mut bg = [Background::default(); TILE_PX];
+        let mut row = [0f32; 3 * TILE_PX];
+        // A tile no primitive touches is ground and sky only (no shadow either).
+        let empty_tile = self.bins[ty * tiles_x + tx].is_empty();
         for py in 0..ph {
+            // The ground and sky of the whole pixel row at once (SIMD); pixels that turn
+            // out covered waste that work, which is cheaper than branching per pixel.
+            let cy = y0 as f32 + ((py * ss) as f32 + 0.5 * ss as f32);
+            let cx0 = x0 as f32 + 0.5 * ss as f32;
+            background_row(v, cx0, ss as f32, cy, &mut bg);
             for px in 0..pw {
-                for sy in 0..ss {
-                    for sx in 0..ss {
-                        idx[sy * ss + sx] = (py * ss + sy) * side + px * ss + sx;
-                    }
-                }
-                let idx = &idx[..ss * ss];
-                // Pixel centre in samples, its ray and where that ray meets the ground.
-                let cx = x0 as f32 + ((px * ss) as f32 + 0.5 * ss as f32);
-                let cy = y0 as f32 + ((py * ss) as f32 + 0.5 * ss as f32);
-                let d = v.ray(cx, cy);
-                let ground_t = v.ground_t(d);
-                let first = buf.prim[idx[0]];
-                let uniform = idx.iter().all(|&i| buf.prim[i] == first);
-                let c = if uniform && first == NO_PRIM {
-                    let shadow: u32 = idx.iter().map(|&i| buf.shadow[i] as u32).sum();
-                    self.background(v, d, ground_t, shadow as f32 / n)
-                } else if uniform {
-                    // One primitive covers the whole pixel: barycentrics and depth are
-                    // affine in screen space, so their mean over the samples is their
-                    // value at the centre, and one shading serves all samples.
-                    let mut attr = [0.0f32; 2];
-                    let mut q = 0.0;
-                    for &i in idx {
-                        attr = [attr[0] + buf.attr[i][0], attr[1] + buf.attr[i][1]];
-                        q += buf.depth[i];
-                    }
-                    if q / n * ground_t >= 1.0 {
-                        self.shade_object(v, objects, first, attr.map(|a| a / n), d)
-                    } else {
-                        self.background(v, d, ground_t, 0.0)
-                    }
+                let c = if empty_tile {
+                    bg[px].shaded(0.0)
                 } else {
-                    // Edges: shade each covered sample; the ground and sky once for the
-                    // pixel, weighted by the samples that see them.
-                    let mut acc = [0f32; 3];
-                    let (mut empty, mut shadow) = (0u32, 0u32);
-                    for (k, &i) in idx.iter().enumerate() {
-                        let sx = x0 as f32 + (px * ss + k % ss) as f32 + 0.5;
-                        let sy = y0 as f32 + (py * ss + k / ss) as f32 + 0.5;
-                        let ds = v.ray(sx, sy);
-                        if buf.prim[i] != NO_PRIM && buf.depth[i] * v.ground_t(ds) >= 1.0 {
-                            let c = self.shade_object(v, objects, buf.prim[i], buf.attr[i], ds);
-                            acc = axpy3(1.0, c, acc);
-                        } else {
-                            empty += 1;
-                            shadow += buf.shadow[i] as u32;
+                    for sy in 0..ss {
+                        for sx in 0..ss {
+                            idx[sy * ss + sx] = (py * ss + sy) * side + px * ss + sx;
                         }
                     }
-                    if empty > 0 {
-                        let bg = self.background(v, d, ground_t, shadow as f32 / empty as f32);
-                        acc = axpy3(empty as f32, bg, acc);
-                    }
-                    acc.map(|c| c / n)
+                    let cx = x0 as f32 + ((px * ss) as f32 + 0.5 * ss as f32);
+                    self.shade_pixel(
+                        v,
+                        objects,
+                        buf,
+                        &idx[..ss * ss],
+                        &bg[px],
+                        [cx, cy],
+                        [x0 + (px * ss) as i32, y0 + (py * ss) as i32],
+                    )
                 };
-                let o = 3 * (py * width + px0 + px);
-                band[o..o + 3].copy_from_slice(&encode(c, lut));
+                row[3 * px..3 * px + 3].copy_from_slice(&c);
             }
+            let o = 3 * (py * width + px0);
+            encode_row(&mut band[o..o + 3 * pw], &row[..3 * pw], lut);
         }
     }
 
-    /// Ground (grid lines filtered over the pixel, planar shadow covering the fraction
-    /// `shadow` of it, fading with distance) or sky, for the ray `d` through a pixel centre.
-    fn background(&self, v: &View, d: [f32; 3], ground_t: f32, shadow: f32) -> [f32; 3] {
-        let du = dot3(d, v.world_up);
-        let inv_len = 1.0 / dot3(d, d).sqrt();
-        let sky_mix = (du * inv_len).clamp(0.0, 1.0);
-        let sky = [
-            0.78 - 0.40 * sky_mix,
-            0.81 - 0.32 * sky_mix,
-            0.86 - 0.22 * sky_mix,
-        ];
-        if !ground_t.is_finite() {
-            return sky;
+    /// The colour of one pixel from its samples `idx` (tile indices), its ground and sky,
+    /// its centre and its first sample's position (samples).
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn shade_pixel(
+        &self,
+        v: &View,
+        objects: &[Object<'_>],
+        buf: &TileBuffers,
+        idx: &[usize],
+        bg: &Background,
+        centre: [f32; 2],
+        corner: [i32; 2],
+    ) -> [f32; 3] {
+        let n = idx.len() as f32;
+        let ss = v.ss;
+        let first = buf.prim[idx[0]];
+        let uniform = idx.iter().all(|&i| buf.prim[i] == first);
+        if uniform && first == NO_PRIM {
+            let shadow: u32 = idx.iter().map(|&i| buf.shadow[i] as u32).sum();
+            return bg.shaded(shadow as f32 / n);
         }
-        let dist = ground_t / inv_len;
-        // Grid coordinates in units of the grid step, and the pixel's footprint in the
-        // same units: a line's coverage is its box-filtered width, and lines closer
-        // together than a few pixels fade out instead of aliasing.
-        let hit = axpy3(ground_t, d, [0.0; 3]);
-        let foot = dist * v.inv_focal_grid;
-        let mut line = 0.0f32;
-        for a in 0..2 {
-            let u = (dot3(hit, v.ground_axes[a]) + v.eye_on_ground[a]) * v.inv_grid;
-            let off = (u + 0.5 - (u + 0.5).floor() - 0.5).abs();
-            let cover = ((1.25 * foot - off) / foot).clamp(0.0, 1.0);
-            line = line.max(cover);
+        if uniform {
+            // One primitive covers the whole pixel: barycentrics and depth are affine in
+            // screen space, so their mean over the samples is their value at the centre,
+            // and one shading serves all samples.
+            let d = v.ray(centre[0], centre[1]);
+            let mut attr = [0.0f32; 2];
+            let mut q = 0.0;
+            for &i in idx {
+                attr = [attr[0] + buf.attr[i][0], attr[1] + buf.attr[i][1]];
+                q += buf.depth[i];
+            }
+            return if q / n * v.ground_t(d) >= 1.0 {
+                self.shade_object(v, objects, first, attr.map(|a| a / n), d)
+            } else {
+                bg.shaded(0.0)
+            };
         }
-        let fade = (1.0 - dist * v.inv_fade).clamp(0.0, 1.0);
-        let contrast = 0.45 * fade * (1.0 - (foot - 0.08) / 0.2).clamp(0.0, 1.0);
-        let k = (1.0 - contrast * line) * (1.0 - 0.45 * shadow);
-        let alpha = (1.6 * fade).min(1.0);
-        let ground = [0.62 * k, 0.62 * k, 0.60 * k];
-        [
-            alpha * ground[0] + (1.0 - alpha) * sky[0],
-            alpha * ground[1] + (1.0 - alpha) * sky[1],
-            alpha * ground[2] + (1.0 - alpha) * sky[2],
-        ]
+        // Edges: shade each covered sample; the ground and sky once for the pixel,
+        // weighted by the samples that see them.
+        let mut acc = [0f32; 3];
+        let (mut empty, mut shadow) = (0u32, 0u32);
+        for (k, &i) in idx.iter().enumerate() {
+            let sx = (corner[0] + (k % ss) as i32) as f32 + 0.5;
+            let sy = (corner[1] + (k / ss) as i32) as f32 + 0.5;
+            let ds = v.ray(sx, sy);
+            if buf.prim[i] != NO_PRIM && buf.depth[i] * v.ground_t(ds) >= 1.0 {
+                let c = self.shade_object(v, objects, buf.prim[i], buf.attr[i], ds);
+                acc = axpy3(1.0, c, acc);
+            } else {
+                empty += 1;
+                shadow += buf.shadow[i] as u32;
+            }
+        }
+        if empty > 0 {
+            let c = bg.shaded(shadow as f32 / empty as f32);
+            acc = axpy3(empty as f32, c, acc);
+        }
+        acc.map(|c| c / n)
     }
 
     fn shade_object(
@@ -1023,6 +1064,96 @@ impl Renderer {
             }
         }
         c
+    }
+}
+
+/// The ground and sky seen through one pixel, before its shadow: the colour is
+/// `ground * (1 - 0.45 shadow) + sky` for the fraction `shadow` of the pixel's ground in
+/// shadow (both already weighted by how far the ground has faded into the sky).
+#[derive(Clone, Copy, Debug, Default)]
+struct Background {
+    ground: [f32; 3],
+    sky: [f32; 3],
+}
+
+impl Background {
+    #[inline(always)]
+    fn shaded(&self, shadow: f32) -> [f32; 3] {
+        axpy3(1.0 - 0.45 * shadow, self.ground, self.sky)
+    }
+}
+
+/// Ground (grid lines box-filtered over the pixel footprint, fading with distance) and sky
+/// for the pixel centres `(x0 + k * step, y)` (samples) of a row, eight at a time
+/// (`wide::f32x8`).
+fn background_row(v: &View, x0: f32, step: f32, y: f32, out: &mut [Background; TILE_PX]) {
+    use wide::f32x8;
+    let splat = f32x8::splat;
+    let b = (v.cy - y) * v.inv_focal;
+    // Ray d = forward + a right + b up, with a varying along the row.
+    let base: [f32; 3] = std::array::from_fn(|k| v.forward[k] + b * v.up[k]);
+    let lane = f32x8::from([0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0]);
+    for chunk in 0..TILE_PX / 8 {
+        let xs = splat(x0 + (8 * chunk) as f32 * step) + lane * splat(step);
+        let a = (xs - splat(v.cx)) * splat(v.inv_focal);
+        let d: [f32x8; 3] = std::array::from_fn(|k| splat(base[k]) + a * splat(v.right[k]));
+        let dot = |p: &[f32x8; 3], q: [f32; 3]| {
+            p[0] * splat(q[0]) + p[1] * splat(q[1]) + p[2] * splat(q[2])
+        };
+        let du = dot(&d, v.world_up);
+        let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        let sky_mix = (du / len).fast_max(f32x8::ZERO).fast_min(f32x8::ONE);
+        let sky = [
+            splat(0.78) - splat(0.40) * sky_mix,
+            splat(0.81) - splat(0.32) * sky_mix,
+            splat(0.86) - splat(0.22) * sky_mix,
+        ];
+        // Lanes looking up (or with the ground off) keep the sky; their ground terms may
+        // be infinite or NaN and are masked out.
+        let hits = if v.ground {
+            du.simd_lt(f32x8::ZERO)
+        } else {
+            f32x8::ZERO.simd_lt(f32x8::ZERO)
+        };
+        let t = splat(v.eye_height) / -du;
+        let dist = t * len;
+        let foot = dist * splat(v.inv_focal_grid);
+        let inv_foot = f32x8::ONE / foot;
+        let mut line = f32x8::ZERO;
+        for ax in 0..2 {
+            let hit = t * dot(&d, v.ground_axes[ax]);
+            let u = (hit + splat(v.eye_on_ground[ax])) * splat(v.inv_grid);
+            let off = (u + splat(0.5) - (u + splat(0.5)).floor() - splat(0.5)).abs();
+            let cover = (splat(1.25) - off * inv_foot)
+                .fast_max(f32x8::ZERO)
+                .fast_min(f32x8::ONE);
+            line = line.fast_max(cover);
+        }
+        let fade = (f32x8::ONE - dist * splat(v.inv_fade))
+            .fast_max(f32x8::ZERO)
+            .fast_min(f32x8::ONE);
+        let contrast = splat(0.45)
+            * fade
+            * (f32x8::ONE - (foot - splat(0.08)) * splat(5.0))
+                .fast_max(f32x8::ZERO)
+                .fast_min(f32x8::ONE);
+        let k = f32x8::ONE - contrast * line;
+        let alpha = (splat(1.6) * fade).fast_min(f32x8::ONE);
+        let ground_rgb = [splat(0.62), splat(0.62), splat(0.60)];
+        let g: [[f32; 8]; 3] = std::array::from_fn(|c| {
+            hits.bitselect(alpha * ground_rgb[c] * k, f32x8::ZERO)
+                .to_array()
+        });
+        let sk: [[f32; 8]; 3] = std::array::from_fn(|c| {
+            hits.bitselect((f32x8::ONE - alpha) * sky[c], sky[c])
+                .to_array()
+        });
+        for l in 0..8 {
+            out[8 * chunk + l] = Background {
+                ground: [g[0][l], g[1][l], g[2][l]],
+                sky: [sk[0][l], sk[1][l], sk[2][l]],
+            };
+        }
     }
 }
 
