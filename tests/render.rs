@@ -526,3 +526,73 @@ fn key_light_comes_from_above() {
     let (top, bottom) = (im.pixel(80, 48 - 20), im.pixel(80, 48 + 20));
     assert!(lum(top) > lum(bottom) + 60, "top {top:?} bottom {bottom:?}");
 }
+
+#[test]
+fn plots_are_written_as_svg_and_png_and_survive_bad_points() {
+    use largestep::plot::{write_panels, Curve, Panel, Scale};
+    let dir = temp_dir("plots");
+    let curve = |label: &str, pts: Vec<(f64, f64)>| Curve {
+        label: label.into(),
+        points: pts,
+    };
+    let panels = vec![
+        Panel {
+            title: "log-log".into(),
+            x_label: "run time (s)".into(),
+            y_label: "error".into(),
+            scale: Scale::LogLog,
+            curves: vec![
+                (
+                    0,
+                    curve(
+                        "a",
+                        (1..8)
+                            .map(|k| (10f64.powi(-k), 10f64.powi(-2 * k)))
+                            .collect(),
+                    ),
+                ),
+                // Zero, negative and NaN points cannot go on log axes: left out.
+                (
+                    1,
+                    curve(
+                        "bad",
+                        vec![(0.0, 1.0), (-1.0, 2.0), (f64::NAN, 1.0), (1e-3, 1e-2)],
+                    ),
+                ),
+                (2, curve("empty", vec![])),
+            ],
+        },
+        Panel {
+            title: "linear".into(),
+            x_label: "t".into(),
+            y_label: "E".into(),
+            scale: Scale::Linear,
+            curves: vec![(0, curve("flat", vec![(0.0, 3.0), (1.0, 3.0)]))],
+        },
+        Panel {
+            title: "no data".into(),
+            x_label: "x".into(),
+            y_label: "y".into(),
+            scale: Scale::Linear,
+            curves: vec![],
+        },
+    ];
+    let stem = dir.join("p");
+    write_panels(&stem, &panels, 2, (300, 200)).unwrap();
+    let svg = std::fs::read_to_string(stem.with_extension("svg")).unwrap();
+    assert!(svg.starts_with("<svg") && svg.contains("log-log") && svg.contains("no data"));
+    let png = read_png(&stem.with_extension("png")).unwrap();
+    assert_eq!((png.width, png.height), (600, 400));
+    // Drawn, not blank: white background, dark text and axes.
+    let dark = png
+        .rgb
+        .chunks(3)
+        .filter(|p| p.iter().all(|&c| c < 80))
+        .count();
+    let white = png
+        .rgb
+        .chunks(3)
+        .filter(|p| p.iter().all(|&c| c == 255))
+        .count();
+    assert!(dark > 500 && white > 100_000, "dark {dark}, white {white}");
+}
