@@ -1,4 +1,4 @@
-//! Generators of common mass-spring layouts: a chain and a rectangular grid.
+//! Generators of common mass-spring layouts: a chain, a rectangular grid and a 3-D lattice.
 
 use super::{MassSpringDesc, SpringDesc};
 
@@ -137,6 +137,156 @@ pub fn grid(o: &GridOptions) -> MassSpringDesc {
     MassSpringDesc {
         positions,
         masses: vec![o.total_mass / count as f64; count],
+        springs,
+        triangles,
+        ..Default::default()
+    }
+}
+
+/// Options of [`lattice`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LatticeOptions {
+    /// Particles along x, y and z (each >= 2).
+    pub n: [usize; 3],
+    /// Rest position of particle (0, 0, 0) (m).
+    pub origin: [f64; 3],
+    /// Rest extent along x, y and z (m).
+    pub size: [f64; 3],
+    /// Mass of each particle (kg).
+    pub mass: f64,
+    /// Structural spring stiffness (N/m): the 6 direct neighbours.
+    pub structural: f64,
+    /// Shear spring stiffness (N/m): face and body diagonals; 0 leaves them out.
+    pub shear: f64,
+    /// Bend spring stiffness (N/m): second neighbours along each axis; 0 leaves them out.
+    pub bend: f64,
+    /// Damping of every spring (N s/m).
+    pub damping: f64,
+}
+
+impl LatticeOptions {
+    /// Index of particle (i, j, k): i outermost and k innermost, the order of the jello
+    /// assignment's world files (`p[i][j][k]`).
+    pub fn index(&self, i: usize, j: usize, k: usize) -> usize {
+        (i * self.n[1] + j) * self.n[2] + k
+    }
+
+    /// Rest position of particle (i, j, k) (m).
+    pub fn rest_position(&self, i: usize, j: usize, k: usize) -> [f64; 3] {
+        let ijk = [i, j, k];
+        std::array::from_fn(|a| {
+            self.origin[a] + self.size[a] * ijk[a] as f64 / (self.n[a] - 1).max(1) as f64
+        })
+    }
+}
+
+/// A block of `nx x ny x nz` particles (course notes, section 4, the jello cube) with
+/// structural springs to the 6 direct neighbours, shear springs along every face and body
+/// diagonal of each cell, and bend springs to the second neighbour along each axis. Rest
+/// lengths come from the rest lattice, so the caller may move `positions` afterwards (a
+/// world file's deformed start) without changing them. The surface is triangulated for
+/// output, two triangles per face cell, facing outwards. Nothing is pinned, gravity is
+/// zero.
+pub fn lattice(o: &LatticeOptions) -> MassSpringDesc {
+    let [nx, ny, nz] = o.n.map(|c| c.max(2));
+    let o = LatticeOptions {
+        n: [nx, ny, nz],
+        ..*o
+    };
+    let mut positions = Vec::with_capacity(nx * ny * nz);
+    for i in 0..nx {
+        for j in 0..ny {
+            for k in 0..nz {
+                positions.push(o.rest_position(i, j, k));
+            }
+        }
+    }
+    // Offsets to the neighbours each particle links to (one direction of each pair).
+    let mut offsets: Vec<([i64; 3], f64)> = Vec::new();
+    for di in -1i64..=1 {
+        for dj in -1i64..=1 {
+            for dk in -1i64..=1 {
+                let d = [di, dj, dk];
+                let first = d.iter().find(|&&c| c != 0);
+                if first.is_none_or(|&c| c < 0) {
+                    continue;
+                }
+                let nonzero = d.iter().filter(|&&c| c != 0).count();
+                offsets.push((d, if nonzero == 1 { o.structural } else { o.shear }));
+            }
+        }
+    }
+    for a in 0..3 {
+        let mut d = [0i64; 3];
+        d[a] = 2;
+        offsets.push((d, o.bend));
+    }
+    let mut springs = Vec::new();
+    for i in 0..nx {
+        for j in 0..ny {
+            for k in 0..nz {
+                for &(d, stiffness) in &offsets {
+                    if stiffness <= 0.0 {
+                        continue;
+                    }
+                    let (p, q, r) = (i as i64 + d[0], j as i64 + d[1], k as i64 + d[2]);
+                    if p < 0 || q < 0 || r < 0 || p >= nx as i64 || q >= ny as i64 || r >= nz as i64
+                    {
+                        continue;
+                    }
+                    let (a, b) = (
+                        o.index(i, j, k),
+                        o.index(p as usize, q as usize, r as usize),
+                    );
+                    let (pa, pb) = (positions[a], positions[b]);
+                    let rest = ((pa[0] - pb[0]).powi(2)
+                        + (pa[1] - pb[1]).powi(2)
+                        + (pa[2] - pb[2]).powi(2))
+                    .sqrt();
+                    springs.push(SpringDesc {
+                        a,
+                        b,
+                        stiffness,
+                        damping: o.damping,
+                        rest_length: Some(rest),
+                    });
+                }
+            }
+        }
+    }
+    // Surface: on the face normal to axis `a` at index 0 or n-1, the other two axes
+    // (b, c) = (a+1, a+2) run over the face; (e_b, e_c) is right-handed about +e_a.
+    let mut triangles = Vec::new();
+    let n = [nx, ny, nz];
+    for a in 0..3 {
+        let (b, c) = ((a + 1) % 3, (a + 2) % 3);
+        for side in [0, n[a] - 1] {
+            let at = |u: usize, v: usize| {
+                let mut ijk = [0; 3];
+                ijk[a] = side;
+                ijk[b] = u;
+                ijk[c] = v;
+                o.index(ijk[0], ijk[1], ijk[2]) as u32
+            };
+            for u in 0..n[b] - 1 {
+                for v in 0..n[c] - 1 {
+                    let (p00, p10, p11, p01) =
+                        (at(u, v), at(u + 1, v), at(u + 1, v + 1), at(u, v + 1));
+                    if side == 0 {
+                        triangles.push([p00, p11, p10]);
+                        triangles.push([p00, p01, p11]);
+                    } else {
+                        triangles.push([p00, p10, p11]);
+                        triangles.push([p00, p11, p01]);
+                    }
+                }
+            }
+        }
+    }
+    let count = nx * ny * nz;
+    MassSpringDesc {
+        positions,
+        masses: vec![o.mass; count],
         springs,
         triangles,
         ..Default::default()

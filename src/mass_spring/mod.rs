@@ -10,9 +10,12 @@
 //! built when an implicit stepper asks for them ([`Mechanical::prepare_jacobians`]); the
 //! damping Jacobian only when some spring has damping.
 
+mod environment;
 mod generators;
+pub mod world;
 
-pub use generators::{chain, grid, GridOptions};
+pub use environment::{ForceField, HalfSpace, Penalty};
+pub use generators::{chain, grid, lattice, GridOptions, LatticeOptions};
 
 use crate::integrate::{IntegrateError, Mechanical};
 use crate::soa::Vec3s;
@@ -56,6 +59,24 @@ pub struct MassSpringDesc {
     pub definiteness_fix: bool,
     /// Triangles over the particles for surface output (optional; not used by the physics).
     pub triangles: Vec<[u32; 3]>,
+    /// An external force field (N per particle), if any.
+    pub force_field: Option<ForceField>,
+    /// Penalty collisions, if any.
+    pub collisions: Option<CollisionDesc>,
+}
+
+/// Penalty collision surfaces as a user describes them.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CollisionDesc {
+    /// A bounding box `(lo, hi)` the particles must stay inside.
+    pub bounds: Option<([f64; 3], [f64; 3])>,
+    /// Planes `a x + b y + c z + d = 0`. Particles must stay on the side where most of
+    /// them start (the side `a x + b y + c z + d >= 0` when they start on the plane).
+    pub planes: Vec<[f64; 4]>,
+    /// Collision spring stiffness k_c (N/m), >= 0.
+    pub stiffness: f64,
+    /// Collision spring damping d_c (N s/m), >= 0.
+    pub damping: f64,
 }
 
 /// Invalid model input, naming the item and its index.
@@ -134,6 +155,8 @@ pub struct MassSpring {
     params: SpringParams,
     triangles: Vec<[u32; 3]>,
     has_damping: bool,
+    field: Option<ForceField>,
+    penalty: Option<Penalty>,
     gather: VectorGather,
     elem_f: Vec<f64>,
     jac: Option<Jacobians>,
@@ -332,6 +355,14 @@ impl MassSpringDesc {
                 });
             }
         }
+        let field = match &self.force_field {
+            Some(f) => Some(validate_field(f)?),
+            None => None,
+        };
+        let penalty = match &self.collisions {
+            Some(c) => Some(build_penalty(c, &self.positions)?),
+            None => None,
+        };
         let mut pinned: Vec<u32> = self.pinned.iter().map(|&p| p as u32).collect();
         pinned.sort_unstable();
         pinned.dedup();
@@ -351,6 +382,8 @@ impl MassSpringDesc {
             },
             triangles: self.triangles.clone(),
             has_damping,
+            field,
+            penalty,
             jac: None,
         };
         let mut v = if self.velocities.is_empty() {
@@ -369,7 +402,142 @@ impl MassSpringDesc {
     }
 }
 
+fn validate_field(f: &ForceField) -> Result<ForceField, ModelError> {
+    let g = f.grid;
+    for a in 0..3 {
+        check(
+            "force_field",
+            a,
+            "resolution",
+            g.n[a] as f64,
+            g.n[a] >= 2,
+            "needs at least 2 nodes along each axis",
+        )?;
+        check(
+            "force_field",
+            a,
+            "spacing",
+            g.spacing[a],
+            g.spacing[a].is_finite() && g.spacing[a] > 0.0,
+            "must be finite and > 0",
+        )?;
+        check(
+            "force_field",
+            a,
+            "origin",
+            g.origin[a],
+            g.origin[a].is_finite(),
+            "must be finite",
+        )?;
+    }
+    for (c, comp) in f.force.iter().enumerate() {
+        if comp.len() != g.len() {
+            return Err(ModelError::Length {
+                what: ["force_field.fx", "force_field.fy", "force_field.fz"][c],
+                got: comp.len(),
+                expected: g.len(),
+            });
+        }
+        if let Some(i) = comp.iter().position(|v| !v.is_finite()) {
+            return Err(ModelError::Value {
+                item: "force_field node",
+                index: i,
+                field: ["fx", "fy", "fz"][c],
+                value: comp[i],
+                why: "must be finite",
+            });
+        }
+    }
+    Ok(f.clone())
+}
+
+fn build_penalty(c: &CollisionDesc, positions: &[[f64; 3]]) -> Result<Penalty, ModelError> {
+    check(
+        "collisions",
+        0,
+        "stiffness",
+        c.stiffness,
+        c.stiffness.is_finite() && c.stiffness >= 0.0,
+        "must be finite and >= 0",
+    )?;
+    check(
+        "collisions",
+        0,
+        "damping",
+        c.damping,
+        c.damping.is_finite() && c.damping >= 0.0,
+        "must be finite and >= 0",
+    )?;
+    let mut surfaces = Vec::new();
+    if let Some((lo, hi)) = c.bounds {
+        for a in 0..3 {
+            check(
+                "collisions.box",
+                a,
+                "min",
+                lo[a],
+                lo[a].is_finite(),
+                "must be finite",
+            )?;
+            check(
+                "collisions.box",
+                a,
+                "max",
+                hi[a],
+                hi[a].is_finite() && hi[a] > lo[a],
+                "must be finite and larger than min",
+            )?;
+        }
+        surfaces.extend(HalfSpace::box_walls(lo, hi));
+    }
+    for (i, p) in c.planes.iter().enumerate() {
+        let Some(mut h) = HalfSpace::from_plane(*p) else {
+            let bad = if p[3].is_finite() { 0.0 } else { p[3] };
+            return Err(ModelError::Value {
+                item: "plane",
+                index: i,
+                field: if p[3].is_finite() {
+                    "normal (a, b, c)"
+                } else {
+                    "d"
+                },
+                value: bad,
+                why: "a plane needs a finite, non-zero normal (a, b, c) and a finite d",
+            });
+        };
+        // The allowed side is where most particles start.
+        let behind = positions.iter().filter(|x| h.distance(**x) < 0.0).count();
+        if 2 * behind > positions.len() {
+            h = HalfSpace {
+                normal: h.normal.map(|c| -c),
+                offset: -h.offset,
+            };
+        }
+        surfaces.push(h);
+    }
+    Ok(Penalty {
+        surfaces,
+        stiffness: c.stiffness,
+        damping: c.damping,
+    })
+}
+
 impl MassSpring {
+    /// The force field, if any.
+    pub fn force_field(&self) -> Option<&ForceField> {
+        self.field.as_ref()
+    }
+
+    /// The penalty collisions, if any.
+    pub fn collisions(&self) -> Option<&Penalty> {
+        self.penalty.as_ref()
+    }
+
+    /// The deepest penetration into a collision surface (m), 0 without collisions.
+    pub fn max_penetration(&self, x: &[f64]) -> f64 {
+        self.penalty.as_ref().map_or(0.0, |p| p.max_penetration(x))
+    }
+
     /// Number of particles.
     pub fn particle_count(&self) -> usize {
         self.n
@@ -415,6 +583,15 @@ impl MassSpring {
         self.jac.is_some()
     }
 
+    fn environment_forces(&self, x: &[f64], v: &[f64], f: &mut [f64]) {
+        if let Some(field) = &self.field {
+            field.add_forces(x, f);
+        }
+        if let Some(p) = &self.penalty {
+            p.add_forces(x, v, f);
+        }
+    }
+
     fn gravity_force(&self, f: &mut [f64]) {
         let n = self.n;
         for c in 0..3 {
@@ -446,6 +623,7 @@ impl Mechanical for MassSpring {
             ks::spring_forces(&mut self.elem_f, x, v, self.springs.view());
             self.gather.gather_vectors_add(&self.elem_f, f);
         }
+        self.environment_forces(x, v, f);
     }
 
     fn potential_energy(&self, _t: f64, x: &[f64]) -> Option<f64> {
@@ -454,15 +632,18 @@ impl Mechanical for MassSpring {
         let gravity: f64 = (0..n)
             .map(|i| -self.mass[i] * (g[0] * x[i] + g[1] * x[n + i] + g[2] * x[2 * n + i]))
             .sum();
-        Some(gravity + ks::springs_energy(x, self.springs.view()))
+        // The force field is left out: a sampled field need not have a potential.
+        let penalty = self.penalty.as_ref().map_or(0.0, |p| p.energy(x));
+        Some(gravity + ks::springs_energy(x, self.springs.view()) + penalty)
     }
 
     fn dissipation(&self, x: &[f64], v: &[f64]) -> f64 {
-        if self.has_damping {
+        let springs = if self.has_damping {
             ks::springs_dissipation(x, v, self.springs.view())
         } else {
             0.0
-        }
+        };
+        springs + self.penalty.as_ref().map_or(0.0, |p| p.dissipation(x, v))
     }
 
     fn prepare_jacobians(&mut self) -> Result<Option<Arc<Bsr3Pattern>>, SparseError> {
@@ -479,7 +660,7 @@ impl Mechanical for MassSpring {
     }
 
     fn has_velocity_jacobian(&self) -> bool {
-        self.has_damping
+        self.has_damping || self.penalty.as_ref().is_some_and(|p| p.damping > 0.0)
     }
 
     fn force_jacobians(
@@ -507,12 +688,18 @@ impl Mechanical for MassSpring {
         );
         self.gather.gather_vectors_add(&self.elem_f, f);
         jac.assembly.gather_blocks(&jac.kx, dfdx);
-        if let Some(d) = dfdv {
+        let mut dfdv = dfdv;
+        if let Some(d) = dfdv.as_deref_mut() {
             if want_kv {
                 jac.assembly.gather_blocks(&jac.kv, d);
             } else {
                 d.set_zero();
             }
+        }
+        self.environment_forces(x, v, f);
+        if let Some(p) = &self.penalty {
+            // The field's gradient is left out of the Jacobian: it is an external load.
+            p.add_jacobians(x, dfdx, dfdv);
         }
         Ok(())
     }

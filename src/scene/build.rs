@@ -121,11 +121,27 @@ impl Simulation {
                 format!("{method} is explicit"),
             ));
         }
-        stages.push(stage(
-            "collision structures",
-            false,
-            "the scene has no colliders",
-        ));
+        stages.push(match model.collisions() {
+            Some(p) => stage(
+                "penalty collisions",
+                true,
+                format!(
+                    "{} surfaces, k_c = {} N/m, d_c = {} N s/m",
+                    p.surfaces.len(),
+                    p.stiffness,
+                    p.damping
+                ),
+            ),
+            None => stage("collision structures", false, "the scene has no colliders"),
+        });
+        stages.push(match model.force_field() {
+            Some(f) => stage(
+                "force field",
+                true,
+                format!("{:?} nodes, trilinear", f.grid.n),
+            ),
+            None => stage("force field", false, "the scene has none"),
+        });
         Ok(Self {
             model,
             state,
@@ -167,6 +183,11 @@ impl Simulation {
                 .potential_energy(self.t, self.state.x.as_slice())
                 .unwrap_or(0.0),
         )
+    }
+
+    /// The deepest penetration into a collision surface (m), 0 without collisions.
+    pub fn max_penetration(&self) -> f64 {
+        self.model.max_penetration(self.state.x.as_slice())
     }
 
     /// The stages built and left out.

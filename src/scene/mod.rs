@@ -17,6 +17,7 @@ pub use build::{Simulation, Stage};
 pub use run::{FrameFormat, FrameRecord, Output, Progress, RunError, Runner, Summary};
 
 use crate::integrate::{LinearSolverKind, MechSettings, Method};
+use crate::mass_spring::world::World;
 use crate::mass_spring::{self as ms, MassSpringDesc, ModelError, SpringDesc};
 use crate::render::preview::PreviewSettings;
 use crate::render::{
@@ -62,6 +63,23 @@ impl fmt::Display for SceneError {
 }
 
 impl std::error::Error for SceneError {}
+
+impl SceneError {
+    /// A malformed input file's error (file and line, no field).
+    pub fn from_read(e: crate::io::ReadError) -> SceneError {
+        SceneError {
+            file: e.path,
+            line: e.line,
+            column: 0,
+            field: String::new(),
+            message: e.message,
+            snippet: None,
+        }
+    }
+}
+
+/// Simulated time (s) of a run of a world file, which has no duration of its own.
+pub const WORLD_DURATION: f64 = 5.0;
 
 /// One step of a path into the TOML document.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -183,6 +201,13 @@ impl Scene {
     /// Reads and validates a scene file.
     pub fn load(path: &Path) -> Result<Scene, SceneError> {
         let file = path.display().to_string();
+        if path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("w"))
+        {
+            let world = World::read(path).map_err(SceneError::from_read)?;
+            return Self::from_world(&world, &file);
+        }
         let src = std::fs::read_to_string(path).map_err(|e| SceneError {
             file: file.clone(),
             line: 0,
@@ -192,6 +217,43 @@ impl Scene {
             snippet: None,
         })?;
         Self::parse(&src, &file)
+    }
+
+    /// The scene of a jello world file: its integrator, dt, springs, plane and force
+    /// field in the box `[-2, 2]^3`, run for [`WORLD_DURATION`] seconds with a frame every
+    /// `max(n, 1/30 s)` steps (the file's display interval n, but not more than 30 frames
+    /// per simulated second).
+    pub fn from_world(world: &World, file: &str) -> Result<Scene, SceneError> {
+        let (model, state) = world.to_desc().build().map_err(|e| SceneError {
+            file: file.to_string(),
+            line: 0,
+            column: 0,
+            field: String::new(),
+            message: e.to_string(),
+            snippet: None,
+        })?;
+        let every = world
+            .every
+            .max(((1.0 / 30.0) / world.dt).round() as usize)
+            .max(1);
+        Ok(Scene {
+            file: file.to_string(),
+            name: Path::new(file)
+                .file_stem()
+                .map_or("world".into(), |x| x.to_string_lossy().into_owned()),
+            dt: world.dt,
+            duration: WORLD_DURATION,
+            settings: MechSettings::new(world.method),
+            system: System::MassSpring(model, state),
+            output: Output {
+                frames: FrameFormat::Obj,
+                every,
+                preview: PreviewSettings {
+                    frame_interval: every as f64 * world.dt,
+                    ..PreviewSettings::default()
+                },
+            },
+        })
     }
 
     /// Parses and validates scene text; `file` names it in errors.

@@ -60,6 +60,8 @@ pub struct FrameRecord {
     pub kinetic: f64,
     /// Potential energy (J).
     pub potential: f64,
+    /// Deepest penetration into a collision surface (m).
+    pub penetration: f64,
     /// Newton iterations over the frame's steps.
     pub newton_iterations: usize,
     /// Linear-solver iterations over the frame's steps.
@@ -71,17 +73,18 @@ pub struct FrameRecord {
 }
 
 impl FrameRecord {
-    const CSV_HEADER: &'static str = "frame,time_s,kinetic_J,potential_J,total_J,newton_iterations,linear_iterations,step_seconds";
+    const CSV_HEADER: &'static str = "frame,time_s,kinetic_J,potential_J,total_J,penetration_m,newton_iterations,linear_iterations,step_seconds";
 
     fn write_csv(&self, w: &mut dyn Write) -> std::io::Result<()> {
         writeln!(
             w,
-            "{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{}",
             self.frame,
             self.time,
             self.kinetic,
             self.potential,
             self.kinetic + self.potential,
+            self.penetration,
             self.newton_iterations,
             self.linear_iterations,
             self.step_seconds
@@ -350,6 +353,7 @@ impl Runner {
                 time: sim.time(),
                 kinetic,
                 potential,
+                penetration: sim.max_penetration(),
                 newton_iterations: newton,
                 linear_iterations: linear,
                 steps,
