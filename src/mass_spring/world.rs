@@ -288,24 +288,35 @@ impl World {
 
     /// The force field on our grid layout (x fastest), if the world has one.
     pub fn force_field(&self) -> Option<ForceField> {
-        let r = self.resolution;
-        if r < 2 {
-            return None;
-        }
-        let grid = Grid3::spanning([r; 3], [-BOX_HALF; 3], [BOX_HALF; 3]);
+        (self.resolution >= 2).then(|| {
+            World::field_from_samples(self.resolution, [-BOX_HALF; 3], [BOX_HALF; 3], &self.field)
+        })
+    }
+
+    /// A force field from `r^3` samples in the world files' order (sample
+    /// `i r^2 + j r + k` at node (i, j, k), x outermost) over the box `[lo, hi]`,
+    /// reordered to the grid layout (x fastest). `samples.len()` must be `r^3`.
+    pub fn field_from_samples(
+        r: usize,
+        lo: [f64; 3],
+        hi: [f64; 3],
+        samples: &[[f64; 3]],
+    ) -> ForceField {
+        assert_eq!(samples.len(), r * r * r, "r^3 samples");
+        let grid = Grid3::spanning([r; 3], lo, hi);
         let mut force = [
             vec![0.0; r * r * r],
             vec![0.0; r * r * r],
             vec![0.0; r * r * r],
         ];
-        for (line, f) in self.field.iter().enumerate() {
+        for (line, f) in samples.iter().enumerate() {
             let (i, j, k) = (line / (r * r), (line / r) % r, line % r);
             let node = i + r * (j + r * k);
             for c in 0..3 {
                 force[c][node] = f[c];
             }
         }
-        Some(ForceField { grid, force })
+        ForceField { grid, force }
     }
 
     /// The lattice of the assignment: 8 x 8 x 8 points, rest side 1 m, every spring

@@ -577,12 +577,14 @@ fn mass_spring_desc(
         p.extend(path(f));
         p
     };
-    let sources =
-        t.chain.is_some() as usize + t.grid.is_some() as usize + (!t.particle.is_empty()) as usize;
+    let sources = t.chain.is_some() as usize
+        + t.grid.is_some() as usize
+        + t.lattice.is_some() as usize
+        + (!t.particle.is_empty()) as usize;
     if sources != 1 {
         return Err(err(
             at(&[]),
-            "give exactly one of [mass_spring.chain], [mass_spring.grid] or [[mass_spring.particle]] lists".into(),
+            "give exactly one of [mass_spring.chain], [mass_spring.grid], [mass_spring.lattice] or [[mass_spring.particle]] lists".into(),
         ));
     }
     let mut desc = if let Some(c) = &t.chain {
@@ -651,6 +653,44 @@ fn mass_spring_desc(
             return Err(err(at(&[&"grid"]), "origin and axes must be finite".into()));
         }
         d
+    } else if let Some(l) = &t.lattice {
+        for (a, &v) in l.n.iter().enumerate() {
+            if !(2..=1024).contains(&v) {
+                return Err(err(
+                    at(&[&"lattice", &"n", &a]),
+                    format!("a lattice needs 2..=1024 particles per side, not {v}"),
+                ));
+            }
+        }
+        for (i, &s) in l.size.iter().enumerate() {
+            finite_positive(s, at(&[&"lattice", &"size", &i]), "size", err)?;
+        }
+        let mass = finite_positive(l.mass, at(&[&"lattice", &"mass"]), "mass", err)?;
+        let k = |name: &str, v: f64| finite_nonneg(v, at(&[&"lattice", &name]), "stiffness", err);
+        let (structural, shear, bend) = (
+            k("structural", l.structural)?,
+            k("shear", l.shear)?,
+            k("bend", l.bend)?,
+        );
+        let damping = finite_nonneg(l.damping, at(&[&"lattice", &"damping"]), "damping", err)?;
+        let origin = l.origin.unwrap_or([0.0; 3]);
+        if !origin.iter().all(|v| v.is_finite()) {
+            return Err(err(at(&[&"lattice", &"origin"]), "must be finite".into()));
+        }
+        let mut d = ms::lattice(&ms::LatticeOptions {
+            n: l.n.map(|v| v as usize),
+            origin,
+            size: l.size,
+            mass,
+            structural,
+            shear,
+            bend,
+            damping,
+        });
+        if let Some(v) = l.velocity {
+            d.velocities = vec![v; d.positions.len()];
+        }
+        d
     } else {
         let mut d = MassSpringDesc::default();
         for p in &t.particle {
@@ -660,7 +700,7 @@ fn mass_spring_desc(
         }
         d
     };
-    if (t.chain.is_some() || t.grid.is_some()) && !t.spring.is_empty() {
+    if (t.chain.is_some() || t.grid.is_some() || t.lattice.is_some()) && !t.spring.is_empty() {
         return Err(err(
             at(&[&"spring"]),
             "springs come from the generator; list springs only with explicit particles".into(),
@@ -693,6 +733,52 @@ fn mass_spring_desc(
     // first particle, a grid nothing).
     if !pinned.is_empty() {
         desc.pinned = pinned;
+    }
+    if let Some(c) = &t.collisions {
+        let bounds = match (c.box_min, c.box_max) {
+            (Some(lo), Some(hi)) => Some((lo, hi)),
+            (None, None) => None,
+            (Some(_), None) => {
+                return Err(err(
+                    at(&[&"collisions", &"box_min"]),
+                    "needs box_max as well".into(),
+                ))
+            }
+            (None, Some(_)) => {
+                return Err(err(
+                    at(&[&"collisions", &"box_max"]),
+                    "needs box_min as well".into(),
+                ))
+            }
+        };
+        desc.collisions = Some(ms::CollisionDesc {
+            bounds,
+            planes: c.planes.clone(),
+            stiffness: c.stiffness,
+            damping: c.damping,
+        });
+    }
+    if let Some(f) = &t.force_field {
+        let r = f.resolution;
+        if !(2..=1000).contains(&r) {
+            return Err(err(
+                at(&[&"force_field", &"resolution"]),
+                format!("must be an integer in 2..=1000, not {r}"),
+            ));
+        }
+        let r = r as usize;
+        if f.forces.len() != r * r * r {
+            return Err(err(
+                at(&[&"force_field", &"forces"]),
+                format!(
+                    "resolution {r} needs {} forces (r^3), found {}",
+                    r * r * r,
+                    f.forces.len()
+                ),
+            ));
+        }
+        let world = ms::world::World::field_from_samples(r, f.min, f.max, &f.forces);
+        desc.force_field = Some(world);
     }
     desc.gravity = gravity;
     desc.definiteness_fix = t.definiteness_fix.unwrap_or(true);
@@ -749,6 +835,27 @@ fn model_error_path(
             ms(&[&"spring", index, &end])
         }
         ModelError::SelfSpring { index, .. } => ms(&[&"spring", index, &"b"]),
+        ModelError::Value {
+            item: "plane",
+            index,
+            ..
+        } => ms(&[&"collisions", &"planes", index]),
+        ModelError::Value {
+            item: "collisions",
+            field,
+            ..
+        } => ms(&[&"collisions", field]),
+        ModelError::Value {
+            item: "collisions.box",
+            index,
+            field,
+            ..
+        } => ms(&[&"collisions", &format!("box_{field}").as_str(), index]),
+        ModelError::Value { item, .. } | ModelError::Length { what: item, .. }
+            if item.starts_with("force_field") =>
+        {
+            ms(&[&"force_field"])
+        }
         ModelError::MissingParticle {
             item: "pinned",
             index,

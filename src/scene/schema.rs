@@ -16,12 +16,29 @@
 //! newton_tolerance = 1e-9
 //! newton_max_iterations = 50
 //!
-//! [mass_spring]               # one of: chain, grid, or particle + spring lists
+//! [mass_spring]               # one of: chain, grid, lattice, or particle + spring lists
 //! pinned = [0]
 //! definiteness_fix = true
 //! [mass_spring.chain]
 //! count = 20
 //! ...
+//!
+//! [mass_spring.lattice]       # the jello cube: structural, shear and bend springs
+//! n = [8, 8, 8]
+//! size = [1.0, 1.0, 1.0]      # rest extent (m); origin = [x, y, z] optional
+//! mass = 0.001953             # per particle (kg)
+//! structural = 200.0          # shear, bend, damping, velocity optional
+//! [mass_spring.collisions]    # penalty springs (rest length 0) while a point penetrates
+//! box_min = [-2.0, -2.0, -2.0]
+//! box_max = [2.0, 2.0, 2.0]
+//! planes = [[-1.0, 1.0, 1.0, 2.0]]   # a x + b y + c z + d = 0; points stay where they start
+//! stiffness = 400.0
+//! damping = 0.25
+//! [mass_spring.force_field]   # forces (N) on an r^3 grid over [min, max], trilinear
+//! min = [-2.0, -2.0, -2.0]
+//! max = [2.0, 2.0, 2.0]
+//! resolution = 2
+//! forces = [[0.0, -0.02, 0.0], ...]  # r^3 entries, x outermost, z innermost
 //!
 //! [output]
 //! frames = "obj"              # obj | ply | none
@@ -111,6 +128,15 @@ pub struct MassSpringTable {
     /// A grid generator.
     #[serde(default)]
     pub grid: Option<GridTable>,
+    /// A 3-D lattice generator (the jello cube).
+    #[serde(default)]
+    pub lattice: Option<LatticeTable>,
+    /// Penalty collisions.
+    #[serde(default)]
+    pub collisions: Option<CollisionsTable>,
+    /// An external force field.
+    #[serde(default)]
+    pub force_field: Option<ForceFieldTable>,
     /// Explicit particles.
     #[serde(default)]
     pub particle: Vec<ParticleTable>,
@@ -174,6 +200,70 @@ pub struct GridTable {
     /// Damping of every spring (N s/m).
     #[serde(default)]
     pub damping: f64,
+}
+
+/// `[mass_spring.lattice]`
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LatticeTable {
+    /// Particles along x, y, z (each >= 2).
+    pub n: [i64; 3],
+    /// Rest position of particle (0, 0, 0) (m).
+    #[serde(default)]
+    pub origin: Option<[f64; 3]>,
+    /// Rest extent (m).
+    pub size: [f64; 3],
+    /// Mass of each particle (kg).
+    pub mass: f64,
+    /// Structural stiffness (N/m).
+    pub structural: f64,
+    /// Shear stiffness (N/m).
+    #[serde(default)]
+    pub shear: f64,
+    /// Bend stiffness (N/m).
+    #[serde(default)]
+    pub bend: f64,
+    /// Damping of every spring (N s/m).
+    #[serde(default)]
+    pub damping: f64,
+    /// Initial velocity of every particle (m/s).
+    #[serde(default)]
+    pub velocity: Option<[f64; 3]>,
+}
+
+/// `[mass_spring.collisions]`
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CollisionsTable {
+    /// Bounding box corner (m), with `box_max`.
+    #[serde(default)]
+    pub box_min: Option<[f64; 3]>,
+    /// Bounding box corner (m), with `box_min`.
+    #[serde(default)]
+    pub box_max: Option<[f64; 3]>,
+    /// Planes `[a, b, c, d]` of `a x + b y + c z + d = 0`.
+    #[serde(default)]
+    pub planes: Vec<[f64; 4]>,
+    /// Collision spring stiffness (N/m).
+    pub stiffness: f64,
+    /// Collision spring damping (N s/m).
+    #[serde(default)]
+    pub damping: f64,
+}
+
+/// `[mass_spring.force_field]`
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ForceFieldTable {
+    /// Box corner the grid spans from (m).
+    pub min: [f64; 3],
+    /// Opposite corner (m).
+    pub max: [f64; 3],
+    /// Nodes per axis r (>= 2).
+    pub resolution: i64,
+    /// r^3 forces `[fx, fy, fz]` (N), node (i, j, k) at entry `i r^2 + j r + k` (the
+    /// world files' order: x outermost).
+    pub forces: Vec<[f64; 3]>,
 }
 
 /// `[[mass_spring.particle]]`
