@@ -277,3 +277,35 @@ fn coincident_spring_endpoints_give_zero_not_nan() {
     );
     assert!(f == [0.0; 3] && kx == [0.0; 9] && kv == [0.0; 9]);
 }
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(32))]
+    /// The SIMD spring force kernel equals its scalar twin bitwise, with 1 and 3 threads,
+    /// including coincident endpoints and a count that leaves a scalar tail.
+    #[test]
+    fn simd_spring_forces_equal_scalar_bitwise(
+        coords in prop::collection::vec(-1f64..1.0, 60..61),
+        m in 1usize..40,
+        seed in 0u64..1000,
+    ) {
+        use largestep::kernels::spring::{spring_forces, spring_forces_scalar, Springs};
+        let n = 10;
+        let x = coords[..30].to_vec();
+        let v = coords[30..].to_vec();
+        let mut r = seed;
+        let mut next = || { r = r.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407); (r >> 33) as usize };
+        let ends: Vec<[u32; 2]> = (0..m).map(|e| if e % 7 == 3 { [2, 2] } else { [(next() % n) as u32, (next() % n) as u32] }).collect();
+        let k: Vec<f64> = (0..m).map(|e| 10.0 + e as f64).collect();
+        let kd: Vec<f64> = (0..m).map(|e| 0.1 * (e % 3) as f64).collect();
+        let rest: Vec<f64> = (0..m).map(|e| 0.05 * (e % 5) as f64).collect();
+        let s = || Springs { ends: &ends, k: &k, kd: &kd, rest: &rest };
+        let mut scalar = vec![0.0; 3 * m];
+        spring_forces_scalar(&mut scalar, &x, &v, s());
+        for threads in [1, 3] {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            let mut simd = vec![1.0; 3 * m];
+            pool.install(|| spring_forces(&mut simd, &x, &v, s()));
+            prop_assert!(simd.iter().zip(&scalar).all(|(a, b)| a.to_bits() == b.to_bits()));
+        }
+    }
+}

@@ -177,20 +177,87 @@ const SPRING_CHUNK: usize = 4096;
 
 /// Force on endpoint A of every spring, `fa[3e..3e+3]` (element-major; the force on B is
 /// the negative). `x`, `v` are component-major Vec3s data of the n vertices.
+///
+/// SIMD over springs (`f64x4`, four springs per step: their endpoints are gathered into
+/// lanes, the arithmetic runs in lanes, the forces are scattered back), in parallel over
+/// fixed chunks of springs. Each spring's force depends on that spring only and the lanes
+/// do the scalar twin's operations in the same order, so the result is bitwise that of
+/// [`spring_forces_scalar`] whatever the thread count.
 pub fn spring_forces(fa: &mut [f64], x: &[f64], v: &[f64], s: Springs<'_>) {
     s.check();
     let n = x.len() / 3;
     assert!(x.len() == 3 * n && v.len() == 3 * n && fa.len() == 3 * s.len());
     fa.par_chunks_mut(3 * SPRING_CHUNK)
         .enumerate()
-        .for_each(|(c, out)| {
-            let e0 = c * SPRING_CHUNK;
-            for (le, f) in out.chunks_exact_mut(3).enumerate() {
-                let e = e0 + le;
-                let [xa, xb, va, vb] = s.ends_of(e, x, v, n);
-                f.copy_from_slice(&spring_force(xa, xb, va, vb, s.k[e], s.kd[e], s.rest[e]));
+        .for_each(|(c, out)| spring_forces_simd_range(out, c * SPRING_CHUNK, x, v, n, &s));
+}
+
+/// Scalar twin of [`spring_forces`] (same layout, same result, one thread).
+pub fn spring_forces_scalar(fa: &mut [f64], x: &[f64], v: &[f64], s: Springs<'_>) {
+    s.check();
+    let n = x.len() / 3;
+    assert!(x.len() == 3 * n && v.len() == 3 * n && fa.len() == 3 * s.len());
+    spring_forces_scalar_range(fa, 0, x, v, n, &s);
+}
+
+fn spring_forces_scalar_range(
+    out: &mut [f64],
+    e0: usize,
+    x: &[f64],
+    v: &[f64],
+    n: usize,
+    s: &Springs<'_>,
+) {
+    for (le, f) in out.chunks_exact_mut(3).enumerate() {
+        let e = e0 + le;
+        let [xa, xb, va, vb] = s.ends_of(e, x, v, n);
+        f.copy_from_slice(&spring_force(xa, xb, va, vb, s.k[e], s.kd[e], s.rest[e]));
+    }
+}
+
+fn spring_forces_simd_range(
+    out: &mut [f64],
+    e0: usize,
+    x: &[f64],
+    v: &[f64],
+    n: usize,
+    s: &Springs<'_>,
+) {
+    use wide::f64x4;
+    let m = out.len() / 3;
+    let full = m / 4 * 4;
+    for g in (0..full).step_by(4) {
+        // Gather: lane l holds spring e0 + g + l.
+        let mut p = [[[0.0f64; 4]; 3]; 4]; // [xa, xb, va, vb][component][lane]
+        let (mut k, mut kd, mut rest) = ([0.0f64; 4], [0.0f64; 4], [0.0f64; 4]);
+        for l in 0..4 {
+            let e = e0 + g + l;
+            let ends = s.ends_of(e, x, v, n);
+            for (q, end) in ends.iter().enumerate() {
+                for c in 0..3 {
+                    p[q][c][l] = end[c];
+                }
             }
-        });
+            k[l] = s.k[e];
+            kd[l] = s.kd[e];
+            rest[l] = s.rest[e];
+        }
+        let lane = |q: usize, c: usize| f64x4::from(p[q][c]);
+        let l = [0, 1, 2].map(|c| lane(0, c) - lane(1, c));
+        let len = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
+        let d = l.map(|c| c / len);
+        let rate = (lane(2, 0) - lane(3, 0)) * d[0]
+            + (lane(2, 1) - lane(3, 1)) * d[1]
+            + (lane(2, 2) - lane(3, 2)) * d[2];
+        let sc = -f64x4::from(k) * (len - f64x4::from(rest)) - f64x4::from(kd) * rate;
+        // Coincident endpoints (len = 0) have no direction: zero force, as the scalar twin.
+        let live = len.simd_gt(f64x4::ZERO);
+        let f = d.map(|dc| live.bitselect(sc * dc, f64x4::ZERO).to_array());
+        for (l, o) in out[3 * g..3 * g + 12].chunks_exact_mut(3).enumerate() {
+            o.copy_from_slice(&[f[0][l], f[1][l], f[2][l]]);
+        }
+    }
+    spring_forces_scalar_range(&mut out[3 * full..], e0 + full, x, v, n, s);
 }
 
 /// Forces on endpoint A (`fa[3e..]`) and the blocks `dF_A/dx_A` (`kx[9e..]`) and, when

@@ -186,7 +186,7 @@ impl LatticeOptions {
 /// lengths come from the rest lattice, so the caller may move `positions` afterwards (a
 /// world file's deformed start) without changing them. The surface is triangulated for
 /// output, two triangles per face cell, facing outwards. Nothing is pinned, gravity is
-/// zero.
+/// zero, and the spring Jacobians' definiteness fix is on.
 pub fn lattice(o: &LatticeOptions) -> MassSpringDesc {
     let [nx, ny, nz] = o.n.map(|c| c.max(2));
     let o = LatticeOptions {
@@ -289,6 +289,8 @@ pub fn lattice(o: &LatticeOptions) -> MassSpringDesc {
         masses: vec![o.mass; count],
         springs,
         triangles,
+        // A jello cube compresses springs on every impact: keep implicit systems definite.
+        definiteness_fix: true,
         ..Default::default()
     }
 }

@@ -3,6 +3,7 @@
 //! (log-log error against run time, one curve per method) and `NAME.json` (all numbers).
 
 mod integrators;
+mod jello;
 
 use std::path::Path;
 
@@ -24,7 +25,7 @@ pub enum StudyError {
 }
 
 /// Study names.
-pub const NAMES: [&str; 1] = ["integrators"];
+pub const NAMES: [&str; 3] = ["integrators", "jello-stability", "jello-accuracy"];
 
 /// Runs the study `name`, writing its report into `out`; returns a short text summary.
 pub fn run(name: &str, out: &Path, quick: bool) -> Result<String, StudyError> {
@@ -34,6 +35,8 @@ pub fn run(name: &str, out: &Path, quick: bool) -> Result<String, StudyError> {
     })?;
     match name {
         "integrators" => integrators::run(out, quick),
+        "jello-stability" => jello::stability(out, quick),
+        "jello-accuracy" => jello::accuracy(out, quick),
         other => Err(StudyError::Unknown(other.to_string())),
     }
 }
