@@ -536,3 +536,46 @@ fn resting_cube_stays_at_rest_on_the_floor() {
     let lowest = end.x.y().iter().fold(f64::INFINITY, |m, y| m.min(*y));
     assert!(lowest > -2.002 && lowest < -2.0, "lowest point {lowest}");
 }
+
+#[test]
+fn cli_runs_world_files_and_rejects_bad_ones_before_running() {
+    let exe = env!("CARGO_BIN_EXE_largestep");
+    let out = std::env::temp_dir().join(format!("largestep-cli-world-{}", std::process::id()));
+    let st = std::process::Command::new(exe)
+        .arg("run")
+        .arg(world_path("rotate.w"))
+        .args(["--frames", "2", "--explain", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&st.stdout);
+    assert!(
+        st.status.success(),
+        "{}",
+        String::from_utf8_lossy(&st.stderr)
+    );
+    assert!(
+        stdout.contains("penalty collisions") && stdout.contains("force field"),
+        "{stdout}"
+    );
+    assert!(out.join("frames/frame_00002.obj").is_file());
+    // A truncated world: exit 2, the line, and no output folder written.
+    let bad = std::env::temp_dir().join(format!("largestep-cli-bad-{}.w", std::process::id()));
+    let text = std::fs::read_to_string(world_path("jello.w")).unwrap();
+    std::fs::write(&bad, text.lines().take(5).collect::<Vec<_>>().join("\n")).unwrap();
+    let out2 = out.with_extension("bad");
+    let st = std::process::Command::new(exe)
+        .arg("run")
+        .arg(&bad)
+        .arg("--out")
+        .arg(&out2)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&st.stderr);
+    assert_eq!(st.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains(":6:") && err.contains("expected `a b c d`"),
+        "{err}"
+    );
+    assert!(!out2.exists(), "nothing half-run");
+}
