@@ -14,6 +14,7 @@
 //!   never by the number of threads, so their results are bitwise independent of it.
 
 pub mod bsr3;
+pub mod cloth;
 pub mod interp;
 pub mod par;
 pub mod raster;

@@ -1,0 +1,190 @@
+//! Baraff-Witkin cloth elements: stretch and shear condition functions over triangles
+//! with rest (u, v) coordinates, their energies, forces and exact Jacobians.
+//!
+//! Baraff and Witkin, "Large Steps in Cloth Simulation" (SIGGRAPH 1998), section 4, and
+//! the course notes, section 3. Each triangle maps its rest (u, v) linearly to the world:
+//! `w(u, v)`, so `w_u = dw/du` and `w_v = dw/dv` are constant over it and linear in the
+//! vertex positions, `w_u = sum_i du_i x_i`, `w_v = sum_i dv_i x_i` with coefficients from
+//! the rest (u, v) alone ([`TriangleRest`], computed once). With `a` the rest (u, v) area:
+//!
+//! ```text
+//! stretch: C = a (|w_u| - b_u, |w_v| - b_v)      shear: C = a w_u . w_v
+//! E = k/2 |C|^2,   f_i = -k C dC/dx_i - k_d (dC/dt) dC/dx_i,   dC/dt = sum_j dC/dx_j . v_j
+//! df_i/dx_j = -k (dC/dx_i dC/dx_j^T + C d2C/dx_i dx_j),   df_i/dv_j = -k_d dC/dx_i dC/dx_j^T
+//! d|w_u|/dx_i = a du_i w_u/|w_u|,   d2|w_u|/dx_i dx_j = a du_i du_j (I - n n^T)/|w_u|
+//! d(w_u . w_v)/dx_i = du_i w_v + dv_i w_u,   d2/dx_i dx_j = (du_i dv_j + dv_i du_j) I
+//! ```
+//!
+//! (per component of C, summed). The damping force's position derivative is left out as
+//! in the paper (section 5.2): it is not symmetric. A stretch direction of zero length has
+//! no direction: that component gives no force and no Jacobian. Units: positions m,
+//! velocities m/s, k N/m, k_d N s/m (per unit (u, v) area squared), energy J.
+
+/// Constants of one triangle, from its rest (u, v) coordinates.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TriangleRest {
+    /// Coefficients of `w_u` in the three vertex positions.
+    pub du: [f64; 3],
+    /// Coefficients of `w_v` in the three vertex positions.
+    pub dv: [f64; 3],
+    /// Rest area in (u, v) (m^2).
+    pub area: f64,
+}
+
+impl TriangleRest {
+    /// From the rest (u, v) of the vertices; `None` when they are collinear (zero area)
+    /// or not finite.
+    pub fn new(uv: [[f64; 2]; 3]) -> Option<TriangleRest> {
+        let (u1, v1) = (uv[1][0] - uv[0][0], uv[1][1] - uv[0][1]);
+        let (u2, v2) = (uv[2][0] - uv[0][0], uv[2][1] - uv[0][1]);
+        let det = u1 * v2 - u2 * v1;
+        if !(det.is_finite() && det != 0.0) {
+            return None;
+        }
+        // [w_u w_v] = [dx1 dx2] [[u1 u2], [v1 v2]]^-1 with dx_i = x_i - x_0.
+        let du = [(v1 - v2) / det, v2 / det, -v1 / det];
+        let dv = [(u2 - u1) / det, -u2 / det, u1 / det];
+        Some(TriangleRest {
+            du,
+            dv,
+            area: 0.5 * det.abs(),
+        })
+    }
+
+    /// `(w_u, w_v)` at positions `x`.
+    #[inline]
+    pub fn wuv(&self, x: &[[f64; 3]; 3]) -> ([f64; 3], [f64; 3]) {
+        let w = |coef: &[f64; 3]| -> [f64; 3] {
+            std::array::from_fn(|c| coef[0] * x[0][c] + coef[1] * x[1][c] + coef[2] * x[2][c])
+        };
+        (w(&self.du), w(&self.dv))
+    }
+}
+
+/// What an element gives: energy, forces on its vertices, and Jacobian blocks
+/// `df_i/dx_j` and `df_i/dv_j` (3x3, row-major) at `[i][j]`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ElementOut<const N: usize> {
+    /// Elastic energy (J).
+    pub energy: f64,
+    /// Force on each vertex (N).
+    pub f: [[f64; 3]; N],
+    /// `df_i/dx_j`.
+    pub kx: [[[f64; 9]; N]; N],
+    /// `df_i/dv_j`.
+    pub kv: [[[f64; 9]; N]; N],
+}
+
+impl<const N: usize> ElementOut<N> {
+    /// Zero energy, force and Jacobians.
+    pub fn zero() -> Self {
+        ElementOut {
+            energy: 0.0,
+            f: [[0.0; 3]; N],
+            kx: [[[0.0; 9]; N]; N],
+            kv: [[[0.0; 9]; N]; N],
+        }
+    }
+
+    /// Adds one scalar condition `c` with gradient `g` (per vertex) and Hessian blocks
+    /// `hess(i, j)` (3x3 row-major), stiffness `k` and damping `kd`, at velocities `v`.
+    #[inline]
+    pub fn add_condition(
+        &mut self,
+        c: f64,
+        g: &[[f64; 3]; N],
+        hess: impl Fn(usize, usize) -> [f64; 9],
+        k: f64,
+        kd: f64,
+        v: &[[f64; 3]; N],
+    ) {
+        let c_dot: f64 = (0..N).map(|j| dot(g[j], v[j])).sum();
+        self.energy += 0.5 * k * c * c;
+        let s = -k * c - kd * c_dot;
+        for i in 0..N {
+            for (fa, ga) in self.f[i].iter_mut().zip(g[i]) {
+                *fa += s * ga;
+            }
+            for j in 0..N {
+                let h = hess(i, j);
+                for a in 0..3 {
+                    for b in 0..3 {
+                        let gg = g[i][a] * g[j][b];
+                        self.kx[i][j][3 * a + b] -= k * (gg + c * h[3 * a + b]);
+                        self.kv[i][j][3 * a + b] -= kd * gg;
+                    }
+                }
+            }
+        }
+    }
+}
+
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// The stretch element of a triangle: `C = a (|w_u| - b[0], |w_v| - b[1])` with stiffness
+/// `k` and damping `kd`; `b` the rest stretch (1 for no stretch at rest).
+pub fn stretch_element(
+    r: &TriangleRest,
+    x: &[[f64; 3]; 3],
+    v: &[[f64; 3]; 3],
+    k: f64,
+    kd: f64,
+    b: [f64; 2],
+) -> ElementOut<3> {
+    let (wu, wv) = r.wuv(x);
+    let mut out = ElementOut::zero();
+    for (w, coef, rest) in [(wu, r.du, b[0]), (wv, r.dv, b[1])] {
+        let len = dot(w, w).sqrt();
+        // No direction (and NaN-safe): no force, no Jacobian.
+        if len.is_nan() || len <= 0.0 {
+            continue;
+        }
+        let n = w.map(|c| c / len);
+        let a = r.area;
+        let c = a * (len - rest);
+        let g: [[f64; 3]; 3] = std::array::from_fn(|i| n.map(|nc| a * coef[i] * nc));
+        let proj: [f64; 9] = std::array::from_fn(|e| {
+            let (p, q) = (e / 3, e % 3);
+            (if p == q { 1.0 } else { 0.0 }) - n[p] * n[q]
+        });
+        out.add_condition(
+            c,
+            &g,
+            |i, j| proj.map(|pe| a * coef[i] * coef[j] * pe / len),
+            k,
+            kd,
+            v,
+        );
+    }
+    out
+}
+
+/// The shear element of a triangle: `C = a w_u . w_v` with stiffness `k` and damping `kd`.
+pub fn shear_element(
+    r: &TriangleRest,
+    x: &[[f64; 3]; 3],
+    v: &[[f64; 3]; 3],
+    k: f64,
+    kd: f64,
+) -> ElementOut<3> {
+    let (wu, wv) = r.wuv(x);
+    let a = r.area;
+    let c = a * dot(wu, wv);
+    let g: [[f64; 3]; 3] =
+        std::array::from_fn(|i| std::array::from_fn(|q| a * (r.du[i] * wv[q] + r.dv[i] * wu[q])));
+    let mut out = ElementOut::zero();
+    out.add_condition(
+        c,
+        &g,
+        |i, j| {
+            let s = a * (r.du[i] * r.dv[j] + r.dv[i] * r.du[j]);
+            [s, 0.0, 0.0, 0.0, s, 0.0, 0.0, 0.0, s]
+        },
+        k,
+        kd,
+        v,
+    );
+    out
+}

@@ -1,0 +1,192 @@
+//! Baraff-Witkin cloth elements (stretch, shear): forces are minus the energy gradient,
+//! Jacobians are the derivatives of the forces and symmetric, rest and rigid motions give
+//! no force, internal forces have no net force or torque.
+
+use largestep::kernels::cloth::{shear_element, stretch_element, ElementOut, TriangleRest};
+use proptest::prelude::*;
+
+type Element = fn(&TriangleRest, &[[f64; 3]; 3], &[[f64; 3]; 3], f64, f64) -> ElementOut<3>;
+
+fn stretch(
+    r: &TriangleRest,
+    x: &[[f64; 3]; 3],
+    v: &[[f64; 3]; 3],
+    k: f64,
+    kd: f64,
+) -> ElementOut<3> {
+    stretch_element(r, x, v, k, kd, [1.0, 1.0])
+}
+
+const ELEMENTS: [(&str, Element); 2] = [("stretch", stretch), ("shear", shear_element)];
+
+/// Three vertices' positions or velocities.
+type Tri3 = [[f64; 3]; 3];
+
+fn triangle(vals: &[f64]) -> Option<(TriangleRest, Tri3, Tri3)> {
+    let uv = [[vals[0], vals[1]], [vals[2], vals[3]], [vals[4], vals[5]]];
+    let area = 0.5
+        * ((uv[1][0] - uv[0][0]) * (uv[2][1] - uv[0][1])
+            - (uv[2][0] - uv[0][0]) * (uv[1][1] - uv[0][1]));
+    if area.abs() < 0.02 {
+        return None;
+    }
+    let r = TriangleRest::new(uv)?;
+    let x = std::array::from_fn(|i| std::array::from_fn(|c| vals[6 + 3 * i + c]));
+    let v = std::array::from_fn(|i| std::array::from_fn(|c| vals[15 + 3 * i + c]));
+    Some((r, x, v))
+}
+
+fn rotation(a: f64, b: f64) -> [[f64; 3]; 3] {
+    let (ca, sa, cb, sb) = (a.cos(), a.sin(), b.cos(), b.sin());
+    // Rz(a) * Rx(b)
+    [
+        [ca, -sa * cb, sa * sb],
+        [sa, ca * cb, -ca * sb],
+        [0.0, sb, cb],
+    ]
+}
+
+fn apply(r: &[[f64; 3]; 3], p: [f64; 3]) -> [f64; 3] {
+    std::array::from_fn(|i| r[i][0] * p[0] + r[i][1] * p[1] + r[i][2] * p[2])
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+
+    #[test]
+    fn forces_are_minus_the_energy_gradient_and_jacobians_match_finite_differences(
+        vals in prop::collection::vec(-1f64..1.0, 24..25),
+    ) {
+        let Some((r, x, v)) = triangle(&vals) else { return Ok(()) };
+        for (name, el) in ELEMENTS {
+            let out = el(&r, &x, &v, 3.0, 0.0);
+            let h = 1e-6;
+            for i in 0..3 {
+                for a in 0..3 {
+                    let (mut xp, mut xm) = (x, x);
+                    xp[i][a] += h;
+                    xm[i][a] -= h;
+                    let (op, om) = (el(&r, &xp, &v, 3.0, 0.0), el(&r, &xm, &v, 3.0, 0.0));
+                    let grad = (op.energy - om.energy) / (2.0 * h);
+                    prop_assert!((out.f[i][a] + grad).abs() < 1e-6 * (1.0 + grad.abs()), "{name}: f[{i}][{a}] = {} vs -dE = {}", out.f[i][a], -grad);
+                    for j in 0..3 {
+                        for b in 0..3 {
+                            let fd = (op.f[j][b] - om.f[j][b]) / (2.0 * h);
+                            let an = out.kx[j][i][3 * b + a];
+                            prop_assert!((fd - an).abs() < 1e-5 * (1.0 + an.abs()), "{name}: df[{j}][{b}]/dx[{i}][{a}] fd {fd} vs {an}");
+                        }
+                    }
+                }
+            }
+            // Symmetric: df_i/dx_j = (df_j/dx_i)^T.
+            for i in 0..3 {
+                for j in 0..3 {
+                    for a in 0..3 {
+                        for b in 0..3 {
+                            prop_assert!((out.kx[i][j][3 * a + b] - out.kx[j][i][3 * b + a]).abs() < 1e-12 * (1.0 + out.kx[i][j][3 * a + b].abs()));
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn damping_jacobian_matches_finite_differences_in_velocity(
+        vals in prop::collection::vec(-1f64..1.0, 24..25),
+    ) {
+        let Some((r, x, v)) = triangle(&vals) else { return Ok(()) };
+        for (name, el) in ELEMENTS {
+            let out = el(&r, &x, &v, 3.0, 0.7);
+            let h = 1e-6;
+            for i in 0..3 {
+                for a in 0..3 {
+                    let (mut vp, mut vm) = (v, v);
+                    vp[i][a] += h;
+                    vm[i][a] -= h;
+                    let (op, om) = (el(&r, &x, &vp, 3.0, 0.7), el(&r, &x, &vm, 3.0, 0.7));
+                    for j in 0..3 {
+                        for b in 0..3 {
+                            let fd = (op.f[j][b] - om.f[j][b]) / (2.0 * h);
+                            let an = out.kv[j][i][3 * b + a];
+                            prop_assert!((fd - an).abs() < 1e-6 * (1.0 + an.abs()), "{name}: df/dv fd {fd} vs {an}");
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn internal_forces_have_no_net_force_or_torque_and_rigid_motions_change_nothing(
+        vals in prop::collection::vec(-1f64..1.0, 24..25),
+        angles in (-3.0f64..3.0, -3.0f64..3.0),
+        shift in prop::array::uniform3(-5f64..5.0),
+    ) {
+        let Some((r, x, _)) = triangle(&vals) else { return Ok(()) };
+        let rot = rotation(angles.0, angles.1);
+        let moved: [[f64; 3]; 3] = std::array::from_fn(|i| {
+            let p = apply(&rot, x[i]);
+            [p[0] + shift[0], p[1] + shift[1], p[2] + shift[2]]
+        });
+        for (name, el) in ELEMENTS {
+            let out = el(&r, &x, &[[0.0; 3]; 3], 2.0, 0.0);
+            let total: [f64; 3] = std::array::from_fn(|c| out.f.iter().map(|f| f[c]).sum());
+            let torque: [f64; 3] = std::array::from_fn(|c| {
+                (0..3).map(|i| {
+                    let (p, f) = (x[i], out.f[i]);
+                    [p[1] * f[2] - p[2] * f[1], p[2] * f[0] - p[0] * f[2], p[0] * f[1] - p[1] * f[0]][c]
+                }).sum()
+            });
+            let scale = 1.0 + out.f.iter().flatten().map(|c| c.abs()).sum::<f64>();
+            prop_assert!(total.iter().all(|c| c.abs() < 1e-12 * scale), "{name}: net force {total:?}");
+            prop_assert!(torque.iter().all(|c| c.abs() < 1e-11 * scale), "{name}: net torque {torque:?}");
+            let e2 = el(&r, &moved, &[[0.0; 3]; 3], 2.0, 0.0).energy;
+            prop_assert!((e2 - out.energy).abs() < 1e-10 * (1.0 + out.energy), "{name}: energy {} after a rigid motion, {} before", e2, out.energy);
+            // A rigid velocity field (rotation about an axis plus a translation) does not
+            // stretch or shear: no damping force.
+            let omega = [0.3, -1.1, 0.7];
+            let rigid: [[f64; 3]; 3] = std::array::from_fn(|i| {
+                let p = x[i];
+                [omega[1] * p[2] - omega[2] * p[1] + 0.5, omega[2] * p[0] - omega[0] * p[2], omega[0] * p[1] - omega[1] * p[0] - 2.0]
+            });
+            let damped = el(&r, &x, &rigid, 0.0, 1.0);
+            prop_assert!(damped.f.iter().flatten().all(|c| c.abs() < 1e-11), "{name}: damping under rigid motion {:?}", damped.f);
+        }
+    }
+
+    #[test]
+    fn the_rest_shape_and_its_rigid_motions_give_zero_condition_and_force(
+        uv in prop::collection::vec(-1f64..1.0, 6..7),
+        angles in (-3.0f64..3.0, -3.0f64..3.0),
+        shift in prop::array::uniform3(-5f64..5.0),
+    ) {
+        let uvt = [[uv[0], uv[1]], [uv[2], uv[3]], [uv[4], uv[5]]];
+        let Some(r) = TriangleRest::new(uvt) else { return Ok(()) };
+        if r.area < 0.01 { return Ok(()) }
+        let rot = rotation(angles.0, angles.1);
+        let x: [[f64; 3]; 3] = std::array::from_fn(|i| {
+            let p = apply(&rot, [uvt[i][0], uvt[i][1], 0.0]);
+            [p[0] + shift[0], p[1] + shift[1], p[2] + shift[2]]
+        });
+        for (name, el) in ELEMENTS {
+            let out = el(&r, &x, &[[0.0; 3]; 3], 5.0, 0.0);
+            prop_assert!(out.energy < 1e-24, "{name}: energy at rest {}", out.energy);
+            prop_assert!(out.f.iter().flatten().all(|c| c.abs() < 1e-11), "{name}: force at rest {:?}", out.f);
+        }
+    }
+}
+
+#[test]
+fn degenerate_rest_triangles_are_rejected() {
+    assert!(TriangleRest::new([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]]).is_none());
+    assert!(TriangleRest::new([[0.0, 0.0], [0.0, 0.0], [1.0, 0.0]]).is_none());
+    assert!(TriangleRest::new([[0.0, f64::NAN], [1.0, 0.0], [0.0, 1.0]]).is_none());
+    let r = TriangleRest::new([[0.0, 0.0], [2.0, 0.0], [0.0, 1.0]]).unwrap();
+    assert_eq!(r.area, 1.0);
+    // A collapsed triangle (all vertices at one point) has no stretch direction: zero
+    // stretch force rather than NaN.
+    let out = stretch_element(&r, &[[1.0; 3]; 3], &[[0.0; 3]; 3], 1.0, 1.0, [1.0, 1.0]);
+    assert!(out.f.iter().flatten().all(|c| *c == 0.0));
+    assert!(out.energy.is_finite());
+}
