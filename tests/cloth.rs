@@ -190,3 +190,120 @@ fn degenerate_rest_triangles_are_rejected() {
     assert!(out.f.iter().flatten().all(|c| *c == 0.0));
     assert!(out.energy.is_finite());
 }
+
+mod bend {
+    use super::{apply, rotation};
+    use largestep::kernels::cloth::{bend_element, dihedral_angle};
+    use proptest::prelude::*;
+
+    fn hinge(vals: &[f64]) -> [[f64; 3]; 4] {
+        // A well-shaped hinge near the flat one, then bent and moved by `vals`.
+        let base = [
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.4, 0.9, 0.0],
+            [0.6, -0.8, 0.0],
+        ];
+        std::array::from_fn(|i| std::array::from_fn(|c| base[i][c] + 0.3 * vals[3 * i + c]))
+    }
+
+    #[test]
+    fn the_angle_is_the_fold_angle() {
+        for phi in [0.0f64, 0.3, 1.0, 2.0, 3.0] {
+            let x = [
+                [0.0, 0.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [0.5, 1.0, 0.0],
+                [0.5, -phi.cos(), phi.sin()],
+            ];
+            let theta = dihedral_angle(&x);
+            assert!(
+                (theta.abs() - phi).abs() < 1e-12,
+                "fold {phi}: theta {theta}"
+            );
+        }
+        // Degenerate: a zero-area triangle has no normal.
+        let x = [[0.0; 3], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.5, -1.0, 0.0]];
+        assert!(bend_element(&x, &[[0.0; 3]; 4], 1.0, 0.0, 0.0).is_none());
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(48))]
+        #[test]
+        fn bend_forces_and_jacobians_are_exact(
+            vals in prop::collection::vec(-1f64..1.0, 24..25),
+            theta0 in -0.5f64..0.5,
+        ) {
+            let x = hinge(&vals);
+            let v: [[f64; 3]; 4] = std::array::from_fn(|i| std::array::from_fn(|c| vals[12 + 3 * i + c]));
+            let out = bend_element(&x, &v, 2.0, 0.0, theta0).unwrap();
+            let h = 1e-6;
+            for i in 0..4 {
+                for a in 0..3 {
+                    let (mut xp, mut xm) = (x, x);
+                    xp[i][a] += h;
+                    xm[i][a] -= h;
+                    let op = bend_element(&xp, &v, 2.0, 0.0, theta0).unwrap();
+                    let om = bend_element(&xm, &v, 2.0, 0.0, theta0).unwrap();
+                    let grad = (op.energy - om.energy) / (2.0 * h);
+                    prop_assert!((out.f[i][a] + grad).abs() < 1e-6 * (1.0 + grad.abs()), "f vs -dE: {} {}", out.f[i][a], -grad);
+                    for j in 0..4 {
+                        for b in 0..3 {
+                            let fd = (op.f[j][b] - om.f[j][b]) / (2.0 * h);
+                            let an = out.kx[j][i][3 * b + a];
+                            prop_assert!((fd - an).abs() < 1e-5 * (1.0 + an.abs()), "df[{j}][{b}]/dx[{i}][{a}]: fd {fd} vs {an}");
+                            prop_assert!((out.kx[i][j][3 * a + b] - out.kx[j][i][3 * b + a]).abs() < 1e-10 * (1.0 + an.abs()));
+                        }
+                    }
+                }
+            }
+            // Damping Jacobian against finite differences in velocity.
+            let damped = bend_element(&x, &v, 0.0, 0.4, theta0).unwrap();
+            for i in 0..4 {
+                for a in 0..3 {
+                    let (mut vp, mut vm) = (v, v);
+                    vp[i][a] += h;
+                    vm[i][a] -= h;
+                    let op = bend_element(&x, &vp, 0.0, 0.4, theta0).unwrap();
+                    let om = bend_element(&x, &vm, 0.0, 0.4, theta0).unwrap();
+                    for j in 0..4 {
+                        for b in 0..3 {
+                            let fd = (op.f[j][b] - om.f[j][b]) / (2.0 * h);
+                            prop_assert!((fd - damped.kv[j][i][3 * b + a]).abs() < 1e-6 * (1.0 + fd.abs()));
+                        }
+                    }
+                }
+            }
+        }
+
+        #[test]
+        fn bending_has_no_net_force_or_torque_and_ignores_rigid_motions(
+            vals in prop::collection::vec(-1f64..1.0, 12..13),
+            angles in (-3.0f64..3.0, -3.0f64..3.0),
+            shift in prop::array::uniform3(-5f64..5.0),
+        ) {
+            let x = hinge(&vals);
+            let out = bend_element(&x, &[[0.0; 3]; 4], 3.0, 0.0, 0.1).unwrap();
+            let total: [f64; 3] = std::array::from_fn(|c| out.f.iter().map(|f| f[c]).sum());
+            let torque: [f64; 3] = std::array::from_fn(|c| {
+                (0..4).map(|i| {
+                    let (p, f) = (x[i], out.f[i]);
+                    [p[1] * f[2] - p[2] * f[1], p[2] * f[0] - p[0] * f[2], p[0] * f[1] - p[1] * f[0]][c]
+                }).sum()
+            });
+            let scale = 1.0 + out.f.iter().flatten().map(|c| c.abs()).sum::<f64>();
+            prop_assert!(total.iter().all(|c| c.abs() < 1e-12 * scale), "net force {total:?}");
+            prop_assert!(torque.iter().all(|c| c.abs() < 1e-11 * scale), "net torque {torque:?}");
+            let rot = rotation(angles.0, angles.1);
+            let moved: [[f64; 3]; 4] = std::array::from_fn(|i| {
+                let p = apply(&rot, x[i]);
+                [p[0] + shift[0], p[1] + shift[1], p[2] + shift[2]]
+            });
+            prop_assert!((dihedral_angle(&moved) - dihedral_angle(&x)).abs() < 1e-11);
+            // Flat and at rest angle 0: no force.
+            let flat = hinge(&[0.0; 12]);
+            let rest = bend_element(&flat, &[[0.0; 3]; 4], 3.0, 0.0, 0.0).unwrap();
+            prop_assert!(rest.f.iter().flatten().all(|c| c.abs() < 1e-14));
+        }
+    }
+}
