@@ -8,6 +8,7 @@ pub mod machine;
 pub mod plot;
 pub mod render;
 
+pub mod cloth;
 pub mod integrate;
 pub mod io;
 #[cfg(feature = "mass-spring")]

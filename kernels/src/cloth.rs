@@ -327,22 +327,7 @@ pub fn bend_element(
     kd: f64,
     theta0: f64,
 ) -> Option<ElementOut<4>> {
-    let theta = dihedral_angle(x);
-    if !theta.is_finite() {
-        return None;
-    }
-    let seed1 = |var: usize| -> [[Dual<f64>; 3]; 4] {
-        std::array::from_fn(|i| {
-            std::array::from_fn(|c| Dual {
-                v: x[i][c],
-                d: if 3 * i + c == var { 1.0 } else { 0.0 },
-            })
-        })
-    };
-    let mut g = [[0.0; 3]; 4];
-    for var in 0..12 {
-        g[var / 3][var % 3] = dihedral_angle(&seed1(var)).d;
-    }
+    let (theta, g) = bend_gradient(x)?;
     // Second derivatives d2 theta / dx_p dx_q by seeding p in the outer and q in the inner
     // dual; symmetric, so only p <= q are evaluated (and mirrored, hence index loops).
     let mut h = [[0.0f64; 12]; 12];
@@ -379,4 +364,24 @@ pub fn bend_element(
         v,
     );
     Some(out)
+}
+
+/// The dihedral angle of a hinge and its gradient (12 forward-mode evaluations; what the
+/// force alone needs); `None` for a degenerate hinge.
+pub fn bend_gradient(x: &[[f64; 3]; 4]) -> Option<(f64, [[f64; 3]; 4])> {
+    let theta = dihedral_angle(x);
+    if !theta.is_finite() {
+        return None;
+    }
+    let mut g = [[0.0; 3]; 4];
+    for var in 0..12 {
+        let xs: [[Dual<f64>; 3]; 4] = std::array::from_fn(|i| {
+            std::array::from_fn(|c| Dual {
+                v: x[i][c],
+                d: if 3 * i + c == var { 1.0 } else { 0.0 },
+            })
+        });
+        g[var / 3][var % 3] = dihedral_angle(&xs).d;
+    }
+    Some((theta, g))
 }

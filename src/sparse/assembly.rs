@@ -160,11 +160,31 @@ impl ElementAssembly {
         );
         assert_eq!(layout.block_src.len(), K * K);
         assert_eq!(layout.vector_src.len(), K);
+        let pattern = Arc::new(Bsr3Pattern::from_elements(n, elements)?);
+        Self::with_pattern(pattern, elements, layout)
+    }
+
+    /// Maps for `elements` into an existing `pattern` that couples every pair of vertices
+    /// of each element (for models with several element kinds sharing one matrix: build
+    /// the pattern from all of them, then one assembly per kind).
+    ///
+    /// # Panics
+    /// When the pattern lacks a pair of some element.
+    pub fn with_pattern<const K: usize>(
+        pattern: Arc<Bsr3Pattern>,
+        elements: &[[u32; K]],
+        layout: LocalLayout,
+    ) -> Result<Self, SparseError> {
+        assert_eq!(
+            layout.k, K,
+            "layout and elements disagree on vertices per element"
+        );
+        assert_eq!(layout.block_src.len(), K * K);
+        assert_eq!(layout.vector_src.len(), K);
         let total = elements.len() * layout.blocks;
         if total > INDEX as usize {
             return Err(SparseError::TooLarge { blocks: total });
         }
-        let pattern = Arc::new(Bsr3Pattern::from_elements(n, elements)?);
         let mut elem_slots = Vec::with_capacity(elements.len() * K * K);
         for el in elements {
             for &a in el {
@@ -213,6 +233,16 @@ impl ElementAssembly {
 
     /// Overwrites `out` with the assembled matrix of the element blocks.
     pub fn gather_blocks(&self, elem_blocks: &[f64], out: &mut Bsr3) {
+        self.gather(elem_blocks, out, false);
+    }
+
+    /// Like [`ElementAssembly::gather_blocks`], but adds to `out` (a second element kind
+    /// sharing the pattern, see [`ElementAssembly::with_pattern`]).
+    pub fn gather_blocks_add(&self, elem_blocks: &[f64], out: &mut Bsr3) {
+        self.gather(elem_blocks, out, true);
+    }
+
+    fn gather(&self, elem_blocks: &[f64], out: &mut Bsr3, add: bool) {
         assert_eq!(elem_blocks.len(), self.block_buffer_len());
         assert!(Arc::ptr_eq(out.pattern(), &self.pattern) || **out.pattern() == *self.pattern);
         let (ptr, src) = (&self.block_ptr, &self.block_src);
@@ -239,7 +269,13 @@ impl ElementAssembly {
                             }
                         }
                     }
-                    v.copy_from_slice(&acc);
+                    if add {
+                        for (o, a) in v.iter_mut().zip(acc) {
+                            *o += a;
+                        }
+                    } else {
+                        v.copy_from_slice(&acc);
+                    }
                 }
             });
     }

@@ -1,0 +1,746 @@
+//! Baraff-Witkin cloth (SIGGRAPH 1998) on a triangle mesh with rest (u, v) coordinates.
+//!
+//! Every triangle carries a stretch and a shear condition, every interior edge (two
+//! triangles) a bend condition on its dihedral angle (`kernels::cloth`); energies
+//! `k/2 C^2`, forces `-k C dC/dx - k_d (dC/dt) dC/dx`, and exact Jacobians. Masses are
+//! lumped: `density * (u, v) area / 3` to each vertex of a triangle. Per-element constants
+//! (the (u, v) coefficients, areas, rest angles) are computed once; forces and Jacobians
+//! run in parallel over fixed chunks of elements and are gathered per vertex and per
+//! matrix slot in a fixed order, so results do not depend on the thread count. The model
+//! implements [`Mechanical`], so every integrator runs it; implicit ones get
+//! `df/dx` and `df/dv` on one block pattern shared by triangles and hinges.
+//!
+//! Rest: (u, v) as given (the stretch conditions use the rest stretch `b_u`, `b_v`, 1 by
+//! default); rest angles are the dihedral angles of the initial positions.
+
+mod generators;
+
+pub use generators::{cloth_grid, ClothGridOptions};
+
+use crate::integrate::{IntegrateError, Mechanical};
+use crate::soa::Vec3s;
+use crate::solve::Filter;
+use crate::sparse::{Bsr3, Bsr3Pattern, ElementAssembly, LocalLayout, SparseError, VectorGather};
+use largestep_kernels::cloth::{
+    bend_element, bend_gradient, dihedral_angle, shear_element, stretch_element, ElementOut,
+    TriangleRest,
+};
+use largestep_kernels::get3;
+use rayon::prelude::*;
+use std::collections::HashMap;
+use std::sync::Arc;
+
+/// Material constants (per unit (u, v) area for stretch and shear).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ClothMaterial {
+    /// Mass per unit (u, v) area (kg/m^2), > 0.
+    pub density: f64,
+    /// Stretch stiffness (N/m), >= 0.
+    pub stretch: f64,
+    /// Shear stiffness (N/m), >= 0.
+    pub shear: f64,
+    /// Bend stiffness (N m), >= 0; 0 leaves the bend elements out.
+    pub bend: f64,
+    /// Stretch damping (N s/m), >= 0.
+    pub stretch_damping: f64,
+    /// Shear damping (N s/m), >= 0.
+    pub shear_damping: f64,
+    /// Bend damping (N m s), >= 0.
+    pub bend_damping: f64,
+    /// Rest stretch along u and v (1: unstretched at the given (u, v)), > 0.
+    pub rest_stretch: [f64; 2],
+}
+
+/// An editable cloth description.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ClothDesc {
+    /// Initial positions (m).
+    pub positions: Vec<[f64; 3]>,
+    /// Initial velocities (m/s); empty means zero.
+    pub velocities: Vec<[f64; 3]>,
+    /// Rest (u, v) per vertex (m).
+    pub uv: Vec<[f64; 2]>,
+    /// Triangles.
+    pub triangles: Vec<[u32; 3]>,
+    /// Material.
+    pub material: ClothMaterial,
+    /// Gravity (m/s^2).
+    pub gravity: [f64; 3],
+    /// Pinned vertices.
+    pub pinned: Vec<usize>,
+    /// Project every element's stiffness matrix onto the negative semi-definite ones
+    /// (clamp its positive eigenvalues to zero), so implicit systems stay definite when
+    /// the cloth compresses or buckles ("projected Newton"); the Jacobian is then exact
+    /// only where no clamping happens. Default on in [`cloth_grid`].
+    pub definiteness_fix: bool,
+}
+
+/// Invalid cloth input, naming the element.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum ClothError {
+    /// Array lengths disagree.
+    #[error("{what} has {got} entries, expected {expected} (one per vertex)")]
+    Length {
+        /// The array.
+        what: &'static str,
+        /// Its length.
+        got: usize,
+        /// The vertex count.
+        expected: usize,
+    },
+    /// A value out of range.
+    #[error("{item} {index}: {field} = {value} is invalid ({why})")]
+    Value {
+        /// `vertex`, `material`, `gravity`.
+        item: &'static str,
+        /// Its index.
+        index: usize,
+        /// The field.
+        field: &'static str,
+        /// The value.
+        value: f64,
+        /// What is expected.
+        why: &'static str,
+    },
+    /// A triangle names a missing vertex.
+    #[error("triangle {triangle} names vertex {vertex}, but there are only {n} vertices")]
+    MissingVertex {
+        /// Triangle index.
+        triangle: usize,
+        /// The vertex named.
+        vertex: usize,
+        /// Vertex count.
+        n: usize,
+    },
+    /// A triangle with zero (u, v) area (or repeated vertices).
+    #[error(
+        "triangle {triangle} {vertices:?} has zero rest (u, v) area: check its (u, v) coordinates"
+    )]
+    Degenerate {
+        /// Triangle index.
+        triangle: usize,
+        /// Its vertices.
+        vertices: [u32; 3],
+    },
+    /// An edge shared by more than two triangles (bending needs a hinge of two).
+    #[error("edge ({a}, {b}) is shared by triangles {triangles:?}: bending needs every edge in at most two triangles")]
+    NonManifold {
+        /// Edge endpoints.
+        a: u32,
+        /// Edge endpoints.
+        b: u32,
+        /// The triangles sharing it.
+        triangles: Vec<usize>,
+    },
+    /// A hinge whose triangles are degenerate in the initial positions (no rest angle).
+    #[error("the hinge of edge ({a}, {b}) has a degenerate triangle in the initial positions: no rest angle")]
+    DegenerateHinge {
+        /// Edge endpoints.
+        a: u32,
+        /// Edge endpoints.
+        b: u32,
+    },
+    /// Pattern too large.
+    #[error("{0}")]
+    Sparse(String),
+}
+
+/// Positions and velocities of the cloth's vertices.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ClothState {
+    /// Positions (m).
+    pub x: Vec3s,
+    /// Velocities (m/s).
+    pub v: Vec3s,
+}
+
+/// A validated cloth (see the module docs).
+#[derive(Clone, Debug)]
+pub struct Cloth {
+    n: usize,
+    mass: Vec<f64>,
+    material: ClothMaterial,
+    gravity: [f64; 3],
+    pinned: Vec<u32>,
+    triangles: Vec<[u32; 3]>,
+    rest: Vec<TriangleRest>,
+    hinges: Vec<[u32; 4]>,
+    theta0: Vec<f64>,
+    definiteness_fix: bool,
+    tri_gather: VectorGather,
+    hinge_gather: VectorGather,
+    tri_f: Vec<f64>,
+    hinge_f: Vec<f64>,
+    jac: Option<ClothJacobians>,
+}
+
+#[derive(Clone, Debug)]
+struct ClothJacobians {
+    tri: ElementAssembly,
+    hinge: ElementAssembly,
+    tri_kx: Vec<f64>,
+    tri_kv: Vec<f64>,
+    hinge_kx: Vec<f64>,
+    hinge_kv: Vec<f64>,
+}
+
+/// Elements per parallel task (fixed: thread-count independent results).
+const CHUNK: usize = 1024;
+
+fn check(
+    item: &'static str,
+    index: usize,
+    field: &'static str,
+    value: f64,
+    ok: bool,
+    why: &'static str,
+) -> Result<(), ClothError> {
+    if ok {
+        Ok(())
+    } else {
+        Err(ClothError::Value {
+            item,
+            index,
+            field,
+            value,
+            why,
+        })
+    }
+}
+
+impl ClothDesc {
+    /// Validates and builds the cloth and its initial state.
+    pub fn build(&self) -> Result<(Cloth, ClothState), ClothError> {
+        let n = self.positions.len();
+        for (what, got) in [("uv", self.uv.len()), ("velocities", self.velocities.len())] {
+            if got != n && !(what == "velocities" && got == 0) {
+                return Err(ClothError::Length {
+                    what,
+                    got,
+                    expected: n,
+                });
+            }
+        }
+        for (i, p) in self.positions.iter().enumerate() {
+            for (c, &x) in p.iter().enumerate() {
+                check(
+                    "vertex",
+                    i,
+                    ["x", "y", "z"][c],
+                    x,
+                    x.is_finite(),
+                    "must be finite",
+                )?;
+            }
+        }
+        for (i, p) in self.velocities.iter().enumerate() {
+            for (c, &x) in p.iter().enumerate() {
+                check(
+                    "vertex",
+                    i,
+                    ["vx", "vy", "vz"][c],
+                    x,
+                    x.is_finite(),
+                    "must be finite",
+                )?;
+            }
+        }
+        for (i, p) in self.uv.iter().enumerate() {
+            for (c, &x) in p.iter().enumerate() {
+                check(
+                    "vertex",
+                    i,
+                    ["u", "v"][c],
+                    x,
+                    x.is_finite(),
+                    "must be finite",
+                )?;
+            }
+        }
+        let m = &self.material;
+        check(
+            "material",
+            0,
+            "density",
+            m.density,
+            m.density.is_finite() && m.density > 0.0,
+            "must be finite and > 0",
+        )?;
+        for (field, v) in [
+            ("stretch", m.stretch),
+            ("shear", m.shear),
+            ("bend", m.bend),
+            ("stretch_damping", m.stretch_damping),
+            ("shear_damping", m.shear_damping),
+            ("bend_damping", m.bend_damping),
+        ] {
+            check(
+                "material",
+                0,
+                field,
+                v,
+                v.is_finite() && v >= 0.0,
+                "must be finite and >= 0",
+            )?;
+        }
+        for (c, &b) in m.rest_stretch.iter().enumerate() {
+            check(
+                "material",
+                c,
+                "rest_stretch",
+                b,
+                b.is_finite() && b > 0.0,
+                "must be finite and > 0",
+            )?;
+        }
+        for (c, &g) in self.gravity.iter().enumerate() {
+            check(
+                "gravity",
+                c,
+                "component",
+                g,
+                g.is_finite(),
+                "must be finite",
+            )?;
+        }
+        let mut rest = Vec::with_capacity(self.triangles.len());
+        let mut mass = vec![0.0; n];
+        for (t, tri) in self.triangles.iter().enumerate() {
+            if let Some(&v) = tri.iter().find(|&&v| v as usize >= n) {
+                return Err(ClothError::MissingVertex {
+                    triangle: t,
+                    vertex: v as usize,
+                    n,
+                });
+            }
+            let r = TriangleRest::new(tri.map(|v| self.uv[v as usize])).ok_or(
+                ClothError::Degenerate {
+                    triangle: t,
+                    vertices: *tri,
+                },
+            )?;
+            for &v in tri {
+                mass[v as usize] += m.density * r.area / 3.0;
+            }
+            rest.push(r);
+        }
+        let mut pinned: Vec<u32> = Vec::with_capacity(self.pinned.len());
+        for (k, &p) in self.pinned.iter().enumerate() {
+            if p >= n {
+                return Err(ClothError::Value {
+                    item: "pinned",
+                    index: k,
+                    field: "vertex",
+                    value: p as f64,
+                    why: "names a vertex that does not exist",
+                });
+            }
+            pinned.push(p as u32);
+        }
+        pinned.sort_unstable();
+        pinned.dedup();
+        for (i, &mi) in mass.iter().enumerate() {
+            if mi == 0.0 && pinned.binary_search(&(i as u32)).is_err() {
+                // A vertex in no triangle has no mass: it is left where it is.
+                pinned.push(i as u32);
+            }
+        }
+        pinned.sort_unstable();
+        let (hinges, theta0) = if m.bend > 0.0 || m.bend_damping > 0.0 {
+            hinges_of(&self.triangles, &self.positions)?
+        } else {
+            (Vec::new(), Vec::new())
+        };
+        let sparse = |e: SparseError| ClothError::Sparse(e.to_string());
+        let tri_gather =
+            VectorGather::new(n, &self.triangles, &LocalLayout::dense(3)).map_err(sparse)?;
+        let hinge_gather = VectorGather::new(n, &hinges, &LocalLayout::dense(4)).map_err(sparse)?;
+        let cloth = Cloth {
+            n,
+            mass,
+            material: *m,
+            gravity: self.gravity,
+            tri_f: vec![0.0; tri_gather.vector_buffer_len()],
+            hinge_f: vec![0.0; hinge_gather.vector_buffer_len()],
+            tri_gather,
+            hinge_gather,
+            pinned,
+            triangles: self.triangles.clone(),
+            rest,
+            hinges,
+            theta0,
+            definiteness_fix: self.definiteness_fix,
+            jac: None,
+        };
+        let mut v = if self.velocities.is_empty() {
+            Vec3s::zeros(n)
+        } else {
+            Vec3s::from_aos(&self.velocities)
+        };
+        for &p in &cloth.pinned {
+            v.set(p as usize, [0.0; 3]);
+        }
+        Ok((
+            cloth,
+            ClothState {
+                x: Vec3s::from_aos(&self.positions),
+                v,
+            },
+        ))
+    }
+}
+
+/// A triangle using an edge: (triangle, edge start, edge end, opposite vertex), the edge
+/// in the triangle's winding.
+type EdgeUse = (usize, u32, u32, u32);
+
+/// Hinges `[x0, x1, x2, x3]` of every edge shared by two triangles (x0-x1 the edge, x2 and
+/// x3 the opposite vertices), with their rest angles at `positions`.
+fn hinges_of(
+    triangles: &[[u32; 3]],
+    positions: &[[f64; 3]],
+) -> Result<(Vec<[u32; 4]>, Vec<f64>), ClothError> {
+    let mut edges: HashMap<(u32, u32), Vec<EdgeUse>> = HashMap::new();
+    for (t, tri) in triangles.iter().enumerate() {
+        for k in 0..3 {
+            let (a, b, opp) = (tri[k], tri[(k + 1) % 3], tri[(k + 2) % 3]);
+            edges
+                .entry((a.min(b), a.max(b)))
+                .or_default()
+                .push((t, a, b, opp));
+        }
+    }
+    let mut list: Vec<((u32, u32), Vec<EdgeUse>)> = edges.into_iter().collect();
+    list.sort_unstable_by_key(|(k, _)| *k);
+    let mut hinges = Vec::new();
+    let mut theta0 = Vec::new();
+    for ((a, b), ts) in list {
+        match ts.len() {
+            1 => {}
+            2 => {
+                let (_, x0, x1, x2) = ts[0];
+                let x3 = ts[1].3;
+                let h = [x0, x1, x2, x3];
+                let theta = dihedral_angle(&h.map(|v| positions[v as usize]));
+                if !theta.is_finite() {
+                    return Err(ClothError::DegenerateHinge { a, b });
+                }
+                hinges.push(h);
+                theta0.push(theta);
+            }
+            _ => {
+                return Err(ClothError::NonManifold {
+                    a,
+                    b,
+                    triangles: ts.iter().map(|t| t.0).collect(),
+                })
+            }
+        }
+    }
+    Ok((hinges, theta0))
+}
+
+fn gather_nodes<const K: usize>(v: &[f64], n: usize, el: &[u32; K]) -> [[f64; 3]; K] {
+    el.map(|i| get3(v, n, i as usize))
+}
+
+impl Cloth {
+    /// Vertex count.
+    pub fn vertex_count(&self) -> usize {
+        self.n
+    }
+    /// Triangles.
+    pub fn triangles(&self) -> &[[u32; 3]] {
+        &self.triangles
+    }
+    /// Hinges (interior edges with their two opposite vertices).
+    pub fn hinges(&self) -> &[[u32; 4]] {
+        &self.hinges
+    }
+    /// Pinned vertices (including vertices in no triangle).
+    pub fn pinned(&self) -> &[u32] {
+        &self.pinned
+    }
+    /// Whether the Jacobian structures were built.
+    pub fn has_jacobians(&self) -> bool {
+        self.jac.is_some()
+    }
+
+    fn stretch_shear(&self, t: usize, x: &[[f64; 3]; 3], v: &[[f64; 3]; 3]) -> ElementOut<3> {
+        let m = &self.material;
+        let r = &self.rest[t];
+        let mut out = stretch_element(r, x, v, m.stretch, m.stretch_damping, m.rest_stretch);
+        let sh = shear_element(r, x, v, m.shear, m.shear_damping);
+        out.energy += sh.energy;
+        for i in 0..3 {
+            for c in 0..3 {
+                out.f[i][c] += sh.f[i][c];
+            }
+            for j in 0..3 {
+                for e in 0..9 {
+                    out.kx[i][j][e] += sh.kx[i][j][e];
+                    out.kv[i][j][e] += sh.kv[i][j][e];
+                }
+            }
+        }
+        out
+    }
+
+    fn gravity_force(&self, f: &mut [f64]) {
+        let n = self.n;
+        for c in 0..3 {
+            for (fi, m) in f[c * n..(c + 1) * n].iter_mut().zip(&self.mass) {
+                *fi = m * self.gravity[c];
+            }
+        }
+    }
+}
+
+impl Mechanical for Cloth {
+    fn vertex_count(&self) -> usize {
+        self.n
+    }
+
+    fn mass(&self) -> &[f64] {
+        &self.mass
+    }
+
+    fn constraints(&self, filter: &mut Filter) {
+        for &p in &self.pinned {
+            filter.fix(p as usize);
+        }
+    }
+
+    fn force(&mut self, _t: f64, x: &[f64], v: &[f64], f: &mut [f64]) {
+        self.gravity_force(f);
+        let n = self.n;
+        let mut tri_f = std::mem::take(&mut self.tri_f);
+        let this = &*self;
+        tri_f
+            .par_chunks_mut(9 * CHUNK)
+            .enumerate()
+            .for_each(|(c, out)| {
+                for (lt, o) in out.chunks_exact_mut(9).enumerate() {
+                    let t = c * CHUNK + lt;
+                    let el = &this.triangles[t];
+                    let e = this.stretch_shear(t, &gather_nodes(x, n, el), &gather_nodes(v, n, el));
+                    o.copy_from_slice(e.f.as_flattened());
+                }
+            });
+        self.tri_gather.gather_vectors_add(&tri_f, f);
+        self.tri_f = tri_f;
+        if !self.hinges.is_empty() {
+            let m = self.material;
+            let mut hinge_f = std::mem::take(&mut self.hinge_f);
+            let this = &*self;
+            hinge_f
+                .par_chunks_mut(12 * CHUNK)
+                .enumerate()
+                .for_each(|(c, out)| {
+                    for (lh, o) in out.chunks_exact_mut(12).enumerate() {
+                        let h = c * CHUNK + lh;
+                        let el = &this.hinges[h];
+                        let xs = gather_nodes(x, n, el);
+                        let vs = gather_nodes(v, n, el);
+                        let fo = match bend_gradient(&xs) {
+                            Some((theta, g)) => {
+                                let c_dot: f64 = (0..4)
+                                    .map(|j| (0..3).map(|a| g[j][a] * vs[j][a]).sum::<f64>())
+                                    .sum();
+                                let s = -m.bend * (theta - this.theta0[h]) - m.bend_damping * c_dot;
+                                g.map(|gi| gi.map(|ga| s * ga))
+                            }
+                            None => [[0.0; 3]; 4],
+                        };
+                        for (i, fi) in fo.iter().enumerate() {
+                            o[3 * i..3 * i + 3].copy_from_slice(fi);
+                        }
+                    }
+                });
+            self.hinge_gather.gather_vectors_add(&hinge_f, f);
+            self.hinge_f = hinge_f;
+        }
+    }
+
+    fn potential_energy(&self, _t: f64, x: &[f64]) -> Option<f64> {
+        let n = self.n;
+        let g = self.gravity;
+        let gravity: f64 = (0..n)
+            .map(|i| -self.mass[i] * (g[0] * x[i] + g[1] * x[n + i] + g[2] * x[2 * n + i]))
+            .sum();
+        let tris: f64 = (0..self.triangles.len())
+            .map(|t| {
+                let xs = gather_nodes(x, n, &self.triangles[t]);
+                self.stretch_shear(t, &xs, &[[0.0; 3]; 3]).energy
+            })
+            .sum();
+        let bends: f64 = self
+            .hinges
+            .iter()
+            .zip(&self.theta0)
+            .map(|(h, t0)| {
+                let theta = dihedral_angle(&gather_nodes(x, n, h));
+                if theta.is_finite() {
+                    0.5 * self.material.bend * (theta - t0).powi(2)
+                } else {
+                    0.0
+                }
+            })
+            .sum();
+        Some(gravity + tris + bends)
+    }
+
+    fn prepare_jacobians(&mut self) -> Result<Option<Arc<Bsr3Pattern>>, SparseError> {
+        if self.jac.is_none() {
+            // One pattern for both element kinds: triangles padded to four vertices (the
+            // pattern deduplicates the repeated vertex) next to the hinges.
+            let mut all: Vec<[u32; 4]> = self.hinges.clone();
+            all.extend(self.triangles.iter().map(|t| [t[0], t[1], t[2], t[2]]));
+            let pattern = Arc::new(Bsr3Pattern::from_elements(self.n, &all)?);
+            let tri = ElementAssembly::with_pattern(
+                pattern.clone(),
+                &self.triangles,
+                LocalLayout::dense(3),
+            )?;
+            let hinge =
+                ElementAssembly::with_pattern(pattern, &self.hinges, LocalLayout::dense(4))?;
+            let (nt, nh) = (self.triangles.len(), self.hinges.len());
+            self.jac = Some(ClothJacobians {
+                tri,
+                hinge,
+                tri_kx: vec![0.0; 81 * nt],
+                tri_kv: vec![0.0; 81 * nt],
+                hinge_kx: vec![0.0; 144 * nh],
+                hinge_kv: vec![0.0; 144 * nh],
+            });
+        }
+        Ok(self.jac.as_ref().map(|j| j.tri.pattern().clone()))
+    }
+
+    fn has_velocity_jacobian(&self) -> bool {
+        let m = &self.material;
+        m.stretch_damping > 0.0 || m.shear_damping > 0.0 || m.bend_damping > 0.0
+    }
+
+    fn force_jacobians(
+        &mut self,
+        _t: f64,
+        x: &[f64],
+        v: &[f64],
+        f: &mut [f64],
+        dfdx: &mut Bsr3,
+        dfdv: Option<&mut Bsr3>,
+    ) -> Result<(), IntegrateError> {
+        self.prepare_jacobians().map_err(IntegrateError::Sparse)?;
+        self.gravity_force(f);
+        let n = self.n;
+        let mut jac = self.jac.take().expect("prepared above");
+        let m = self.material;
+        {
+            let mut tri_f = std::mem::take(&mut self.tri_f);
+            let this = &*self;
+            tri_f
+                .par_chunks_mut(9 * CHUNK)
+                .zip(jac.tri_kx.par_chunks_mut(81 * CHUNK))
+                .zip(jac.tri_kv.par_chunks_mut(81 * CHUNK))
+                .enumerate()
+                .for_each(|(c, ((fo, kxo), kvo))| {
+                    for lt in 0..fo.len() / 9 {
+                        let t = c * CHUNK + lt;
+                        let el = &this.triangles[t];
+                        let e =
+                            this.stretch_shear(t, &gather_nodes(x, n, el), &gather_nodes(v, n, el));
+                        let kx = &mut kxo[81 * lt..81 * lt + 81];
+                        write_element(
+                            &e,
+                            &mut fo[9 * lt..9 * lt + 9],
+                            kx,
+                            &mut kvo[81 * lt..81 * lt + 81],
+                        );
+                        if this.definiteness_fix {
+                            project_nsd::<3>(kx);
+                        }
+                    }
+                });
+            self.tri_gather.gather_vectors_add(&tri_f, f);
+            self.tri_f = tri_f;
+            let mut hinge_f = std::mem::take(&mut self.hinge_f);
+            let this = &*self;
+            hinge_f
+                .par_chunks_mut(12 * CHUNK)
+                .zip(jac.hinge_kx.par_chunks_mut(144 * CHUNK))
+                .zip(jac.hinge_kv.par_chunks_mut(144 * CHUNK))
+                .enumerate()
+                .for_each(|(c, ((fo, kxo), kvo))| {
+                    for lh in 0..fo.len() / 12 {
+                        let h = c * CHUNK + lh;
+                        let el = &this.hinges[h];
+                        let e = bend_element(
+                            &gather_nodes(x, n, el),
+                            &gather_nodes(v, n, el),
+                            m.bend,
+                            m.bend_damping,
+                            this.theta0[h],
+                        )
+                        .unwrap_or_else(ElementOut::zero);
+                        let kx = &mut kxo[144 * lh..144 * lh + 144];
+                        write_element(
+                            &e,
+                            &mut fo[12 * lh..12 * lh + 12],
+                            kx,
+                            &mut kvo[144 * lh..144 * lh + 144],
+                        );
+                        if this.definiteness_fix {
+                            project_nsd::<4>(kx);
+                        }
+                    }
+                });
+            self.hinge_gather.gather_vectors_add(&hinge_f, f);
+            self.hinge_f = hinge_f;
+        }
+        jac.tri.gather_blocks(&jac.tri_kx, dfdx);
+        jac.hinge.gather_blocks_add(&jac.hinge_kx, dfdx);
+        if let Some(d) = dfdv {
+            jac.tri.gather_blocks(&jac.tri_kv, d);
+            jac.hinge.gather_blocks_add(&jac.hinge_kv, d);
+        }
+        self.jac = Some(jac);
+        Ok(())
+    }
+}
+
+/// Projects an element's `K x K` blocks (dense layout, see [`write_element`]) onto the
+/// negative semi-definite matrices: symmetric eigendecomposition of the `3K x 3K` matrix,
+/// positive eigenvalues set to zero.
+fn project_nsd<const K: usize>(blocks: &mut [f64]) {
+    let d = 3 * K;
+    let at = |r: usize, c: usize| 9 * (K * (r / 3) + c / 3) + 3 * (r % 3) + c % 3;
+    let m = nalgebra::DMatrix::from_fn(d, d, |r, c| 0.5 * (blocks[at(r, c)] + blocks[at(c, r)]));
+    let eig = m.symmetric_eigen();
+    if eig.eigenvalues.iter().all(|&l| l <= 0.0) {
+        return;
+    }
+    let clamped = eig.eigenvalues.map(|l| l.min(0.0));
+    let p = &eig.eigenvectors
+        * nalgebra::DMatrix::from_diagonal(&clamped)
+        * eig.eigenvectors.transpose();
+    for r in 0..d {
+        for c in 0..d {
+            blocks[at(r, c)] = p[(r, c)];
+        }
+    }
+}
+
+/// The forces and the K x K blocks of an element into element-major buffers (the
+/// `LocalLayout::dense(K)` order: block (i, j) at `9 (K i + j)`).
+fn write_element<const K: usize>(e: &ElementOut<K>, f: &mut [f64], kx: &mut [f64], kv: &mut [f64]) {
+    for i in 0..K {
+        f[3 * i..3 * i + 3].copy_from_slice(&e.f[i]);
+        for j in 0..K {
+            let b = 9 * (K * i + j);
+            kx[b..b + 9].copy_from_slice(&e.kx[i][j]);
+            kv[b..b + 9].copy_from_slice(&e.kv[i][j]);
+        }
+    }
+}
