@@ -488,12 +488,7 @@ impl Cloth {
     }
 
     fn gravity_force(&self, f: &mut [f64]) {
-        let n = self.n;
-        for c in 0..3 {
-            for (fi, m) in f[c * n..(c + 1) * n].iter_mut().zip(&self.mass) {
-                *fi = m * self.gravity[c];
-            }
-        }
+        crate::integrate::gravity_forces(&self.mass, self.gravity, f);
     }
 }
 
@@ -565,10 +560,7 @@ impl Mechanical for Cloth {
 
     fn potential_energy(&self, _t: f64, x: &[f64]) -> Option<f64> {
         let n = self.n;
-        let g = self.gravity;
-        let gravity: f64 = (0..n)
-            .map(|i| -self.mass[i] * (g[0] * x[i] + g[1] * x[n + i] + g[2] * x[2 * n + i]))
-            .sum();
+        let gravity = crate::integrate::gravity_energy(&self.mass, self.gravity, x);
         let tris: f64 = (0..self.triangles.len())
             .map(|t| {
                 let xs = gather_nodes(x, n, &self.triangles[t]);

@@ -109,6 +109,26 @@ pub fn kinetic_energy(mass: &[f64], v: &[f64]) -> f64 {
         .sum()
 }
 
+/// Writes the uniform-gravity force `f_i = m_i g` (N) of every vertex into `f`.
+pub fn gravity_forces(mass: &[f64], g: [f64; 3], f: &mut [f64]) {
+    let n = mass.len();
+    assert_eq!(f.len(), 3 * n);
+    for (c, gc) in g.iter().enumerate() {
+        for (fi, m) in f[c * n..(c + 1) * n].iter_mut().zip(mass) {
+            *fi = m * gc;
+        }
+    }
+}
+
+/// Gravitational potential energy `-sum m_i g . x_i` (J).
+pub fn gravity_energy(mass: &[f64], g: [f64; 3], x: &[f64]) -> f64 {
+    let n = mass.len();
+    assert_eq!(x.len(), 3 * n);
+    (0..n)
+        .map(|i| -mass[i] * (g[0] * x[i] + g[1] * x[n + i] + g[2] * x[2 * n + i]))
+        .sum()
+}
+
 /// Which linear solver implicit steps use.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum LinearSolverKind {

@@ -593,12 +593,7 @@ impl MassSpring {
     }
 
     fn gravity_force(&self, f: &mut [f64]) {
-        let n = self.n;
-        for c in 0..3 {
-            for (fi, m) in f[c * n..(c + 1) * n].iter_mut().zip(&self.mass) {
-                *fi = m * self.gravity[c];
-            }
-        }
+        crate::integrate::gravity_forces(&self.mass, self.gravity, f);
     }
 }
 
@@ -627,11 +622,7 @@ impl Mechanical for MassSpring {
     }
 
     fn potential_energy(&self, _t: f64, x: &[f64]) -> Option<f64> {
-        let n = self.n;
-        let g = self.gravity;
-        let gravity: f64 = (0..n)
-            .map(|i| -self.mass[i] * (g[0] * x[i] + g[1] * x[n + i] + g[2] * x[2 * n + i]))
-            .sum();
+        let gravity = crate::integrate::gravity_energy(&self.mass, self.gravity, x);
         // The force field is left out: a sampled field need not have a potential.
         let penalty = self.penalty.as_ref().map_or(0.0, |p| p.energy(x));
         Some(gravity + ks::springs_energy(x, self.springs.view()) + penalty)
