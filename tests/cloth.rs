@@ -539,3 +539,54 @@ mod model {
             .contains("vertex 3: y = inf"));
     }
 }
+
+mod scene {
+    use largestep::scene::Scene;
+
+    const SHEET: &str = r#"
+[scene]
+dt = 0.016
+duration = 0.1
+integrator = "linearized-backward-euler"
+gravity = [0.0, -9.81, 0.0]
+
+[cloth]
+pinned = [0, 3]
+
+[cloth.grid]
+nu = 4
+nv = 4
+size = [1.0, 1.0]
+
+[cloth.material]
+density = 0.2
+stretch = 1000.0
+shear = 100.0
+bend = 0.01
+"#;
+
+    #[test]
+    fn cloth_tables_are_validated_with_lines() {
+        assert!(Scene::parse(SHEET, "ok.toml").is_ok());
+        let cases = [
+            (SHEET.replace("nu = 4", "nu = 1"), "nu = 1", "cloth.grid.nu"),
+            (SHEET.replace("pinned = [0, 3]", "pinned = [0, 16]"), "pinned =", "vertex 16 does not exist"),
+            (SHEET.replace("density = 0.2", "density = 0.0"), "density = 0.0", "cloth.material.density"),
+            (SHEET.replace("stretch = 1000.0", "stretch = nan"), "stretch = nan", "cloth.material.stretch"),
+            (SHEET.replace("bend = 0.01", "bend = 0.01\nwrinkle = 1.0"), "wrinkle", "unknown field `wrinkle`"),
+            (
+                format!("{SHEET}\n[mass_spring.chain]\ncount = 2\nspacing = 1.0\nmass = 1.0\nstiffness = 1.0\n"),
+                "[cloth]",
+                "not both",
+            ),
+        ];
+        for (text, needle, words) in cases {
+            let e = Scene::parse(&text, "bad.toml").unwrap_err().to_string();
+            let line = text.lines().position(|l| l.contains(needle)).unwrap() + 1;
+            assert!(
+                e.starts_with(&format!("bad.toml:{line}:")) && e.contains(words),
+                "{e}"
+            );
+        }
+    }
+}

@@ -19,7 +19,12 @@ fn tmp(name: &str) -> PathBuf {
 
 #[test]
 fn shipped_scenes_run_a_few_frames() {
-    for name in ["hanging-chain.toml", "spring-grid.toml"] {
+    for name in [
+        "hanging-chain.toml",
+        "spring-grid.toml",
+        "jello.toml",
+        "cloth-hang.toml",
+    ] {
         let scene = Scene::load(&scene_path(name)).unwrap();
         let out = tmp(name);
         let mut runner = Runner::new(scene, &out).unwrap();

@@ -147,13 +147,7 @@ pub enum ClothError {
 }
 
 /// Positions and velocities of the cloth's vertices.
-#[derive(Clone, Debug, PartialEq)]
-pub struct ClothState {
-    /// Positions (m).
-    pub x: Vec3s,
-    /// Velocities (m/s).
-    pub v: Vec3s,
-}
+pub type ClothState = crate::integrate::MechState;
 
 /// A validated cloth (see the module docs).
 #[derive(Clone, Debug)]
@@ -465,6 +459,14 @@ impl Cloth {
     /// Whether the Jacobian structures were built.
     pub fn has_jacobians(&self) -> bool {
         self.jac.is_some()
+    }
+    /// The material.
+    pub fn material(&self) -> &ClothMaterial {
+        &self.material
+    }
+    /// Gravity (m/s^2).
+    pub fn gravity(&self) -> [f64; 3] {
+        self.gravity
     }
 
     fn stretch_shear(&self, t: usize, x: &[[f64; 3]; 3], v: &[[f64; 3]; 3]) -> ElementOut<3> {

@@ -100,6 +100,15 @@ pub trait Mechanical {
     }
 }
 
+/// Positions and velocities (m, m/s) of a mechanical system's vertices.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MechState {
+    /// Positions (m).
+    pub x: crate::soa::Vec3s,
+    /// Velocities (m/s).
+    pub v: crate::soa::Vec3s,
+}
+
 /// Kinetic energy `1/2 sum m |v|^2` (J).
 pub fn kinetic_energy(mass: &[f64], v: &[f64]) -> f64 {
     let n = mass.len();

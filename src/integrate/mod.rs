@@ -23,8 +23,8 @@ mod ode;
 pub mod problems;
 
 pub use mechanical::{
-    gravity_energy, gravity_forces, kinetic_energy, LinearSolverKind, MechSettings, MechStepper,
-    Mechanical, AUTO_CHOLESKY_MAX_DOFS,
+    gravity_energy, gravity_forces, kinetic_energy, LinearSolverKind, MechSettings, MechState,
+    MechStepper, Mechanical, AUTO_CHOLESKY_MAX_DOFS,
 };
 pub use ode::{OdeStepper, OdeSystem};
 

@@ -136,13 +136,7 @@ pub enum ModelError {
 }
 
 /// Positions and velocities (m, m/s) of the particles.
-#[derive(Clone, Debug, PartialEq)]
-pub struct MassSpringState {
-    /// Positions (m).
-    pub x: Vec3s,
-    /// Velocities (m/s).
-    pub v: Vec3s,
-}
+pub type MassSpringState = crate::integrate::MechState;
 
 /// A validated mass-spring system (immutable constants; see the module docs).
 #[derive(Clone, Debug)]

@@ -2,9 +2,11 @@
 //! that were built and those left out (what `largestep run --explain` prints).
 
 use super::{Scene, System};
+use crate::cloth::Cloth;
+use crate::integrate::MechState;
 use crate::integrate::{kinetic_energy, IntegrateError, MechStepper, Mechanical, Method, StepInfo};
 use crate::io::MeshRef;
-use crate::mass_spring::{MassSpring, MassSpringState};
+use crate::mass_spring::MassSpring;
 
 /// One stage of a simulation: built or left out, and why.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -25,10 +27,31 @@ fn stage(name: &'static str, built: bool, detail: impl Into<String>) -> Stage {
     }
 }
 
+/// The system a simulation steps.
+enum Body {
+    MassSpring(MassSpring),
+    Cloth(Cloth),
+}
+
+impl Body {
+    fn mech(&mut self) -> &mut dyn Mechanical {
+        match self {
+            Body::MassSpring(m) => m,
+            Body::Cloth(c) => c,
+        }
+    }
+    fn mech_ref(&self) -> &dyn Mechanical {
+        match self {
+            Body::MassSpring(m) => m,
+            Body::Cloth(c) => c,
+        }
+    }
+}
+
 /// A running simulation of a scene's system.
 pub struct Simulation {
-    model: MassSpring,
-    state: MassSpringState,
+    body: Body,
+    state: MechState,
     stepper: MechStepper,
     dt: f64,
     t: f64,
@@ -38,52 +61,16 @@ pub struct Simulation {
 impl Simulation {
     /// Builds the stepper (and, for implicit methods only, the Jacobian structures).
     pub fn new(scene: Scene) -> Result<Self, IntegrateError> {
-        let System::MassSpring(mut model, state) = scene.system;
-        let stepper = MechStepper::new(scene.settings, &mut model)?;
+        let (mut body, state) = match scene.system {
+            System::MassSpring(m, s) => (Body::MassSpring(m), s),
+            System::Cloth(c, s) => (Body::Cloth(c), s),
+        };
+        let stepper = MechStepper::new(scene.settings, body.mech())?;
         let method = scene.settings.method;
-        let g = model.gravity();
-        let mut stages = vec![
-            stage(
-                "spring forces",
-                model.spring_count() > 0,
-                if model.spring_count() > 0 {
-                    format!(
-                        "{} particles, {} springs",
-                        model.particle_count(),
-                        model.spring_count()
-                    )
-                } else {
-                    format!("{} particles and no springs", model.particle_count())
-                },
-            ),
-            stage(
-                "spring damping",
-                model.has_damping(),
-                if model.has_damping() {
-                    "damping along springs"
-                } else {
-                    "every damping coefficient is zero"
-                },
-            ),
-            stage(
-                "gravity",
-                g != [0.0; 3],
-                if g != [0.0; 3] {
-                    format!("{g:?} m/s^2")
-                } else {
-                    "gravity is zero".into()
-                },
-            ),
-            stage(
-                "pinned-particle filter",
-                model.pinned_count() > 0,
-                if model.pinned_count() > 0 {
-                    format!("{} pinned particles", model.pinned_count())
-                } else {
-                    "nothing is pinned".into()
-                },
-            ),
-        ];
+        let mut stages = match &body {
+            Body::MassSpring(model) => mass_spring_stages(model),
+            Body::Cloth(cloth) => cloth_stages(cloth),
+        };
         if stepper.has_matrix() {
             stages.push(stage(
                 "Jacobian assembly (Bsr3 pattern, element maps)",
@@ -121,29 +108,16 @@ impl Simulation {
                 format!("{method} is explicit"),
             ));
         }
-        stages.push(match model.collisions() {
-            Some(p) => stage(
-                "penalty collisions",
-                true,
-                format!(
-                    "{} surfaces, k_c = {} N/m, d_c = {} N s/m",
-                    p.surfaces.len(),
-                    p.stiffness,
-                    p.damping
-                ),
-            ),
-            None => stage("collision structures", false, "the scene has no colliders"),
-        });
-        stages.push(match model.force_field() {
-            Some(f) => stage(
-                "force field",
-                true,
-                format!("{:?} nodes, trilinear", f.grid.n),
-            ),
-            None => stage("force field", false, "the scene has none"),
-        });
+        match &body {
+            Body::MassSpring(model) => stages.extend(environment_stages(model)),
+            Body::Cloth(_) => stages.push(stage(
+                "collision structures",
+                false,
+                "the scene has no colliders",
+            )),
+        }
         Ok(Self {
-            model,
+            body,
             state,
             stepper,
             dt: scene.dt,
@@ -155,7 +129,7 @@ impl Simulation {
     /// Advances one time step.
     pub fn step(&mut self) -> Result<StepInfo, IntegrateError> {
         let info = self.stepper.step(
-            &mut self.model,
+            self.body.mech(),
             self.t,
             self.state.x.as_mut_slice(),
             self.state.v.as_mut_slice(),
@@ -178,8 +152,9 @@ impl Simulation {
     /// Kinetic and potential energy (J).
     pub fn energy(&self) -> (f64, f64) {
         (
-            kinetic_energy(self.model.mass(), self.state.v.as_slice()),
-            self.model
+            kinetic_energy(self.body.mech_ref().mass(), self.state.v.as_slice()),
+            self.body
+                .mech_ref()
                 .potential_energy(self.t, self.state.x.as_slice())
                 .unwrap_or(0.0),
         )
@@ -187,7 +162,10 @@ impl Simulation {
 
     /// The deepest penetration into a collision surface (m), 0 without collisions.
     pub fn max_penetration(&self) -> f64 {
-        self.model.max_penetration(self.state.x.as_slice())
+        match &self.body {
+            Body::MassSpring(m) => m.max_penetration(self.state.x.as_slice()),
+            Body::Cloth(_) => 0.0,
+        }
     }
 
     /// The stages built and left out.
@@ -206,26 +184,138 @@ impl Simulation {
     }
 
     /// The current state.
-    pub fn state(&self) -> &MassSpringState {
+    pub fn state(&self) -> &MechState {
         &self.state
-    }
-
-    /// The model.
-    pub fn model(&self) -> &MassSpring {
-        &self.model
     }
 
     /// The current geometry for output: triangles if the model has them, else springs.
     pub fn mesh(&self) -> MeshRef<'_> {
-        let tris = self.model.triangles();
+        let (tris, springs): (&[[u32; 3]], &[[u32; 2]]) = match &self.body {
+            Body::MassSpring(m) => (m.triangles(), m.spring_ends()),
+            Body::Cloth(c) => (c.triangles(), &[]),
+        };
         MeshRef {
             positions: self.state.x.as_slice(),
             triangles: tris,
-            segments: if tris.is_empty() {
-                self.model.spring_ends()
-            } else {
-                &[]
-            },
+            segments: if tris.is_empty() { springs } else { &[] },
         }
     }
+}
+
+fn gravity_stage(g: [f64; 3]) -> Stage {
+    stage(
+        "gravity",
+        g != [0.0; 3],
+        if g != [0.0; 3] {
+            format!("{g:?} m/s^2")
+        } else {
+            "gravity is zero".into()
+        },
+    )
+}
+
+fn pinned_stage(count: usize) -> Stage {
+    stage(
+        "pinned-particle filter",
+        count > 0,
+        if count > 0 {
+            format!("{count} pinned particles")
+        } else {
+            "nothing is pinned".into()
+        },
+    )
+}
+
+fn mass_spring_stages(model: &MassSpring) -> Vec<Stage> {
+    vec![
+        stage(
+            "spring forces",
+            model.spring_count() > 0,
+            if model.spring_count() > 0 {
+                format!(
+                    "{} particles, {} springs",
+                    model.particle_count(),
+                    model.spring_count()
+                )
+            } else {
+                format!("{} particles and no springs", model.particle_count())
+            },
+        ),
+        stage(
+            "spring damping",
+            model.has_damping(),
+            if model.has_damping() {
+                "damping along springs"
+            } else {
+                "every damping coefficient is zero"
+            },
+        ),
+        gravity_stage(model.gravity()),
+        pinned_stage(model.pinned_count()),
+    ]
+}
+
+fn cloth_stages(cloth: &Cloth) -> Vec<Stage> {
+    let m = cloth.material();
+    let bend = !cloth.hinges().is_empty();
+    vec![
+        stage(
+            "cloth stretch and shear elements",
+            true,
+            format!(
+                "{} vertices, {} triangles",
+                cloth.vertex_count(),
+                cloth.triangles().len()
+            ),
+        ),
+        stage(
+            "bend elements (hinges)",
+            bend,
+            if bend {
+                format!("{} hinges", cloth.hinges().len())
+            } else {
+                "bending is off (bend stiffness and damping are zero)".into()
+            },
+        ),
+        stage(
+            "cloth damping",
+            cloth.has_velocity_jacobian(),
+            if cloth.has_velocity_jacobian() {
+                format!(
+                    "stretch {}, shear {}, bend {}",
+                    m.stretch_damping, m.shear_damping, m.bend_damping
+                )
+            } else {
+                "every damping coefficient is zero".into()
+            },
+        ),
+        gravity_stage(cloth.gravity()),
+        pinned_stage(cloth.pinned().len()),
+    ]
+}
+
+fn environment_stages(model: &MassSpring) -> [Stage; 2] {
+    [
+        match model.collisions() {
+            Some(p) => stage(
+                "penalty collisions",
+                true,
+                format!(
+                    "{} surfaces, k_c = {} N/m, d_c = {} N s/m",
+                    p.surfaces.len(),
+                    p.stiffness,
+                    p.damping
+                ),
+            ),
+            None => stage("collision structures", false, "the scene has no colliders"),
+        },
+        match model.force_field() {
+            Some(f) => stage(
+                "force field",
+                true,
+                format!("{:?} nodes, trilinear", f.grid.n),
+            ),
+            None => stage("force field", false, "the scene has none"),
+        },
+    ]
 }

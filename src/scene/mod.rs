@@ -195,6 +195,8 @@ pub struct Scene {
 pub enum System {
     /// A mass-spring system.
     MassSpring(ms::MassSpring, ms::MassSpringState),
+    /// A Baraff-Witkin cloth.
+    Cloth(crate::cloth::Cloth, crate::cloth::ClothState),
 }
 
 impl Scene {
@@ -297,17 +299,34 @@ impl Scene {
         let settings = solver_settings(method, raw.solver.as_ref(), &err)?;
         let output = output_settings(raw.output.as_ref(), dt, gravity, &err)?;
 
-        let Some(table) = &raw.mass_spring else {
-            return Err(err(
-                path(&[&"scene"]),
-                "the scene has no system: add a [mass_spring] table".into(),
-            ));
+        let system = match (&raw.mass_spring, &raw.cloth) {
+            (Some(table), None) => {
+                let (desc, pinned_from_table) = mass_spring_desc(table, gravity, &err)?;
+                let (model, state) = desc.build().map_err(|e| {
+                    let p = model_error_path(&e, table, pinned_from_table);
+                    err(p, e.to_string())
+                })?;
+                System::MassSpring(model, state)
+            }
+            (None, Some(table)) => {
+                let (cloth, state) = cloth_desc(table, gravity, &err)?
+                    .build()
+                    .map_err(|e| err(path(&[&"cloth"]), e.to_string()))?;
+                System::Cloth(cloth, state)
+            }
+            (Some(_), Some(_)) => {
+                return Err(err(
+                    path(&[&"cloth"]),
+                    "a scene holds one system: [mass_spring] or [cloth], not both".into(),
+                ))
+            }
+            (None, None) => {
+                return Err(err(
+                    path(&[&"scene"]),
+                    "the scene has no system: add a [mass_spring] or [cloth] table".into(),
+                ))
+            }
         };
-        let (desc, pinned_from_table) = mass_spring_desc(table, gravity, &err)?;
-        let (model, state) = desc.build().map_err(|e| {
-            let p = model_error_path(&e, table, pinned_from_table);
-            err(p, e.to_string())
-        })?;
         Ok(Scene {
             file: file.to_string(),
             name: s.name.clone().unwrap_or_else(|| {
@@ -318,10 +337,89 @@ impl Scene {
             dt,
             duration,
             settings,
-            system: System::MassSpring(model, state),
+            system,
             output,
         })
     }
+}
+
+/// The cloth of a `[cloth]` table: a grid generator and a material.
+fn cloth_desc(
+    t: &schema::ClothTable,
+    gravity: [f64; 3],
+    err: &ErrFn<'_>,
+) -> Result<crate::cloth::ClothDesc, SceneError> {
+    let at = |f: &[&dyn PathPart]| {
+        let mut p = path(&[&"cloth"]);
+        p.extend(path(f));
+        p
+    };
+    let g = &t.grid;
+    for (name, v) in [("nu", g.nu), ("nv", g.nv)] {
+        if !(2..=4096).contains(&v) {
+            return Err(err(
+                at(&[&"grid", &name]),
+                format!("a cloth grid needs 2..=4096 vertices per side, not {v}"),
+            ));
+        }
+    }
+    for (i, &s) in g.size.iter().enumerate() {
+        finite_positive(s, at(&[&"grid", &"size", &i]), "size", err)?;
+    }
+    let m = &t.material;
+    let material = crate::cloth::ClothMaterial {
+        density: finite_positive(m.density, at(&[&"material", &"density"]), "density", err)?,
+        stretch: finite_nonneg(m.stretch, at(&[&"material", &"stretch"]), "stiffness", err)?,
+        shear: finite_nonneg(m.shear, at(&[&"material", &"shear"]), "stiffness", err)?,
+        bend: finite_nonneg(m.bend, at(&[&"material", &"bend"]), "stiffness", err)?,
+        stretch_damping: finite_nonneg(
+            m.stretch_damping,
+            at(&[&"material", &"stretch_damping"]),
+            "damping",
+            err,
+        )?,
+        shear_damping: finite_nonneg(
+            m.shear_damping,
+            at(&[&"material", &"shear_damping"]),
+            "damping",
+            err,
+        )?,
+        bend_damping: finite_nonneg(
+            m.bend_damping,
+            at(&[&"material", &"bend_damping"]),
+            "damping",
+            err,
+        )?,
+        rest_stretch: [1.0, 1.0],
+    };
+    let mut desc = crate::cloth::cloth_grid(&crate::cloth::ClothGridOptions {
+        nu: g.nu as usize,
+        nv: g.nv as usize,
+        size: g.size,
+        origin: g.origin.unwrap_or([0.0; 3]),
+        u_axis: g.u_axis.unwrap_or([1.0, 0.0, 0.0]),
+        v_axis: g.v_axis.unwrap_or([0.0, 0.0, 1.0]),
+        material,
+    });
+    if !desc.positions.iter().flatten().all(|v| v.is_finite()) {
+        return Err(err(at(&[&"grid"]), "origin and axes must be finite".into()));
+    }
+    let n = desc.positions.len();
+    let mut pinned = Vec::with_capacity(t.pinned.len());
+    for (k, &p) in t.pinned.iter().enumerate() {
+        let i = index(p, at(&[&"pinned", &k]), err)?;
+        if i >= n {
+            return Err(err(
+                at(&[&"pinned", &k]),
+                format!("vertex {i} does not exist: the grid has {n} vertices"),
+            ));
+        }
+        pinned.push(i);
+    }
+    desc.pinned = pinned;
+    desc.gravity = gravity;
+    desc.definiteness_fix = t.definiteness_fix.unwrap_or(true);
+    Ok(desc)
 }
 
 type ErrFn<'a> = dyn Fn(Vec<Key>, String) -> SceneError + 'a;

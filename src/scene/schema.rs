@@ -40,6 +40,16 @@
 //! resolution = 2
 //! forces = [[0.0, -0.02, 0.0], ...]  # r^3 entries, x outermost, z innermost
 //!
+//! [cloth]                     # instead of [mass_spring]: a Baraff-Witkin sheet
+//! pinned = [0, 9]             # grid vertex (i, j) is i + nu j
+//! [cloth.grid]
+//! nu = 10
+//! nv = 10
+//! size = [1.0, 1.0]           # rest (u, v) extent (m); origin, u_axis, v_axis optional
+//! [cloth.material]
+//! density = 0.2               # kg/m^2
+//! stretch = 500.0             # shear, bend, *_damping optional
+//!
 //! [output]
 //! frames = "obj"              # obj | ply | none
 //! every = 33                  # steps per frame (default: about 30 frames per second)
@@ -71,6 +81,9 @@ pub struct File {
     /// `[mass_spring]`
     #[serde(default)]
     pub mass_spring: Option<MassSpringTable>,
+    /// `[cloth]`
+    #[serde(default)]
+    pub cloth: Option<ClothTable>,
     /// `[output]`
     #[serde(default)]
     pub output: Option<OutputTable>,
@@ -200,6 +213,68 @@ pub struct GridTable {
     /// Damping of every spring (N s/m).
     #[serde(default)]
     pub damping: f64,
+}
+
+/// `[cloth]`: a Baraff-Witkin sheet.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ClothTable {
+    /// Pinned vertices (index `i + nu j` of grid vertex (i, j)).
+    #[serde(default)]
+    pub pinned: Vec<i64>,
+    /// Project element stiffness matrices to keep implicit systems definite (default true).
+    #[serde(default)]
+    pub definiteness_fix: Option<bool>,
+    /// `[cloth.grid]`
+    pub grid: ClothGridTable,
+    /// `[cloth.material]`
+    pub material: ClothMaterialTable,
+}
+
+/// `[cloth.grid]`
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ClothGridTable {
+    /// Vertices along u (>= 2).
+    pub nu: i64,
+    /// Vertices along v (>= 2).
+    pub nv: i64,
+    /// Extent along u and v (m); the rest (u, v).
+    pub size: [f64; 2],
+    /// Position of vertex (0, 0) (m).
+    #[serde(default)]
+    pub origin: Option<[f64; 3]>,
+    /// Direction of u (default +x).
+    #[serde(default)]
+    pub u_axis: Option<[f64; 3]>,
+    /// Direction of v (default +z).
+    #[serde(default)]
+    pub v_axis: Option<[f64; 3]>,
+}
+
+/// `[cloth.material]`
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ClothMaterialTable {
+    /// Mass per unit area (kg/m^2).
+    pub density: f64,
+    /// Stretch stiffness (N/m).
+    pub stretch: f64,
+    /// Shear stiffness (N/m).
+    #[serde(default)]
+    pub shear: f64,
+    /// Bend stiffness (N m); 0 leaves bending out.
+    #[serde(default)]
+    pub bend: f64,
+    /// Stretch damping.
+    #[serde(default)]
+    pub stretch_damping: f64,
+    /// Shear damping.
+    #[serde(default)]
+    pub shear_damping: f64,
+    /// Bend damping.
+    #[serde(default)]
+    pub bend_damping: f64,
 }
 
 /// `[mass_spring.lattice]`
