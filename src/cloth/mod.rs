@@ -653,7 +653,7 @@ impl Mechanical for Cloth {
                             &mut kvo[81 * lt..81 * lt + 81],
                         );
                         if this.definiteness_fix {
-                            project_nsd::<3>(kx);
+                            project_nsd3(kx);
                         }
                     }
                 });
@@ -686,7 +686,7 @@ impl Mechanical for Cloth {
                             &mut kvo[144 * lh..144 * lh + 144],
                         );
                         if this.definiteness_fix {
-                            project_nsd::<4>(kx);
+                            project_nsd4(kx);
                         }
                     }
                 });
@@ -706,25 +706,35 @@ impl Mechanical for Cloth {
 
 /// Projects an element's `K x K` blocks (dense layout, see [`write_element`]) onto the
 /// negative semi-definite matrices: symmetric eigendecomposition of the `3K x 3K` matrix,
-/// positive eigenvalues set to zero.
-fn project_nsd<const K: usize>(blocks: &mut [f64]) {
-    let d = 3 * K;
-    let at = |r: usize, c: usize| 9 * (K * (r / 3) + c / 3) + 3 * (r % 3) + c % 3;
-    let m = nalgebra::DMatrix::from_fn(d, d, |r, c| 0.5 * (blocks[at(r, c)] + blocks[at(c, r)]));
-    let eig = m.symmetric_eigen();
-    if eig.eigenvalues.iter().all(|&l| l <= 0.0) {
-        return;
-    }
-    let clamped = eig.eigenvalues.map(|l| l.min(0.0));
-    let p = &eig.eigenvectors
-        * nalgebra::DMatrix::from_diagonal(&clamped)
-        * eig.eigenvectors.transpose();
-    for r in 0..d {
-        for c in 0..d {
-            blocks[at(r, c)] = p[(r, c)];
+/// positive eigenvalues set to zero. Fixed-size (stack) matrices: no allocation per
+/// element and step.
+macro_rules! project_nsd_fn {
+    ($name:ident, $k:expr) => {
+        fn $name(blocks: &mut [f64]) {
+            const K: usize = $k;
+            const D: usize = 3 * K;
+            let at = |r: usize, c: usize| 9 * (K * (r / 3) + c / 3) + 3 * (r % 3) + c % 3;
+            let m = nalgebra::SMatrix::<f64, D, D>::from_fn(|r, c| {
+                0.5 * (blocks[at(r, c)] + blocks[at(c, r)])
+            });
+            let eig = m.symmetric_eigen();
+            if eig.eigenvalues.iter().all(|&l| l <= 0.0) {
+                return;
+            }
+            let clamped = eig.eigenvalues.map(|l| l.min(0.0));
+            let p = eig.eigenvectors
+                * nalgebra::SMatrix::<f64, D, D>::from_diagonal(&clamped)
+                * eig.eigenvectors.transpose();
+            for r in 0..D {
+                for c in 0..D {
+                    blocks[at(r, c)] = p[(r, c)];
+                }
+            }
         }
-    }
+    };
 }
+project_nsd_fn!(project_nsd3, 3);
+project_nsd_fn!(project_nsd4, 4);
 
 /// The forces and the K x K blocks of an element into element-major buffers (the
 /// `LocalLayout::dense(K)` order: block (i, j) at `9 (K i + j)`).
