@@ -642,3 +642,61 @@ fn definiteness_fix_makes_the_assembled_stiffness_negative_semidefinite() {
         eig_max(true)
     );
 }
+
+#[test]
+fn draped_sheet_stays_outside_the_sphere() {
+    use largestep::scene::{Runner, Scene};
+    let text = r#"
+[scene]
+dt = 0.016666666666666666
+duration = 1.5
+integrator = "linearized-backward-euler"
+gravity = [0.0, -9.81, 0.0]
+
+[cloth]
+friction = 0.4
+
+[[cloth.sphere]]
+center = [0.0, 0.0, 0.0]
+radius = 0.5
+
+[cloth.grid]
+nu = 14
+nv = 14
+size = [1.6, 1.6]
+origin = [-0.8, 0.6, -0.8]
+
+[cloth.material]
+density = 0.2
+stretch = 100000.0
+shear = 10000.0
+bend = 0.002
+stretch_damping = 20.0
+shear_damping = 2.0
+"#;
+    let scene = Scene::parse(text, "drape.toml").unwrap();
+    let out = std::env::temp_dir().join(format!("largestep-drape-{}", std::process::id()));
+    let mut runner = Runner::new(scene, &out).unwrap();
+    runner.run(None, &mut |_| {}).unwrap();
+    // Every frame's deepest penetration into the sphere (the CSV's penetration column):
+    // contacts are corrected after each step, so vertices sit on the surface plus the
+    // contact thickness; the bound is a rounding allowance.
+    let worst = runner
+        .records()
+        .iter()
+        .map(|r| r.penetration)
+        .fold(0.0f64, f64::max);
+    assert!(worst < 1e-9, "deepest penetration {worst} m");
+    // It drapes: the sheet's corners fell below the sphere's centre.
+    let y = runner.simulation().state().x.y();
+    assert!(
+        y[0] < 0.0 && y[13] < 0.0,
+        "corners at {} and {}",
+        y[0],
+        y[13]
+    );
+    // And rests on top: the middle vertex is on the sphere's surface.
+    let mid = runner.simulation().state().x.get(7 * 14 + 7);
+    let r = (mid[0] * mid[0] + mid[1] * mid[1] + mid[2] * mid[2]).sqrt();
+    assert!((r - 0.5).abs() < 0.02, "middle vertex at distance {r}");
+}

@@ -64,6 +64,8 @@ pub fn cloth_grid(o: &ClothGridOptions) -> ClothDesc {
         material: o.material,
         gravity: [0.0; 3],
         pinned: Vec::new(),
+        spheres: Vec::new(),
+        friction: 0.0,
         definiteness_fix: true,
     }
 }

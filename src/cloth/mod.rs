@@ -68,6 +68,10 @@ pub struct ClothDesc {
     pub gravity: [f64; 3],
     /// Pinned vertices.
     pub pinned: Vec<usize>,
+    /// Sphere obstacles `(centre, radius)` (m); see [`Cloth::resolve_contacts`].
+    pub spheres: Vec<([f64; 3], f64)>,
+    /// Coulomb-like friction coefficient of contacts, >= 0 (0: frictionless).
+    pub friction: f64,
     /// Project every element's stiffness matrix onto the negative semi-definite ones
     /// (clamp its positive eigenvalues to zero), so implicit systems stay definite when
     /// the cloth compresses or buckles ("projected Newton"); the Jacobian is then exact
@@ -162,6 +166,10 @@ pub struct Cloth {
     hinges: Vec<[u32; 4]>,
     theta0: Vec<f64>,
     definiteness_fix: bool,
+    spheres: Vec<([f64; 3], f64)>,
+    friction: f64,
+    /// Current contacts: vertex and outward unit normal.
+    contacts: Vec<(u32, [f64; 3])>,
     tri_gather: VectorGather,
     hinge_gather: VectorGather,
     tri_f: Vec<f64>,
@@ -298,6 +306,28 @@ impl ClothDesc {
                 "must be finite",
             )?;
         }
+        for (s, (c, r)) in self.spheres.iter().enumerate() {
+            check(
+                "sphere",
+                s,
+                "radius",
+                *r,
+                r.is_finite() && *r > 0.0,
+                "must be finite and > 0",
+            )?;
+            for (k, &x) in c.iter().enumerate() {
+                let field = ["centre.x", "centre.y", "centre.z"][k];
+                check("sphere", s, field, x, x.is_finite(), "must be finite")?;
+            }
+        }
+        check(
+            "material",
+            0,
+            "friction",
+            self.friction,
+            self.friction.is_finite() && self.friction >= 0.0,
+            "must be finite and >= 0",
+        )?;
         let mut rest = Vec::with_capacity(self.triangles.len());
         let mut mass = vec![0.0; n];
         for (t, tri) in self.triangles.iter().enumerate() {
@@ -365,6 +395,9 @@ impl ClothDesc {
             hinges,
             theta0,
             definiteness_fix: self.definiteness_fix,
+            spheres: self.spheres.clone(),
+            friction: self.friction,
+            contacts: Vec::new(),
             jac: None,
         };
         let mut v = if self.velocities.is_empty() {
@@ -494,6 +527,79 @@ impl Cloth {
     }
 }
 
+/// Collision thickness: vertices are kept this far outside obstacles (m).
+pub const CONTACT_THICKNESS: f64 = 2e-3;
+
+impl Cloth {
+    /// Contacts with the sphere obstacles, by Baraff and Witkin's constraint filtering
+    /// (1998, section 5) plus position correction, called after each step with the
+    /// state: every vertex closer than [`CONTACT_THICKNESS`] to a sphere is moved back onto
+    /// the surface plus that thickness, loses the velocity that points into the sphere,
+    /// has its tangential velocity scaled by `max(0, 1 - friction |v_n| / |v_t|)`
+    /// (Coulomb-like), and is constrained to the tangent plane for the next implicit
+    /// solve ([`Mechanical::constraints`]), so it cannot move into the obstacle whatever
+    /// the solver's iteration count. A vertex moving away is released. Returns the number
+    /// of contacts.
+    pub fn resolve_contacts(&mut self, x: &mut [f64], v: &mut [f64]) -> usize {
+        self.contacts.clear();
+        let n = self.n;
+        for i in 0..n {
+            if self.pinned.binary_search(&(i as u32)).is_ok() {
+                continue;
+            }
+            for &(c, r) in &self.spheres {
+                let p = get3(x, n, i);
+                let d = [p[0] - c[0], p[1] - c[1], p[2] - c[2]];
+                let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                if len.is_nan() || len >= r + CONTACT_THICKNESS || len == 0.0 {
+                    continue;
+                }
+                let nrm = d.map(|k| k / len);
+                for k in 0..3 {
+                    x[k * n + i] = c[k] + (r + CONTACT_THICKNESS) * nrm[k];
+                }
+                let vel = get3(v, n, i);
+                let vn = vel[0] * nrm[0] + vel[1] * nrm[1] + vel[2] * nrm[2];
+                if vn > 0.0 {
+                    continue; // moving away: released
+                }
+                let vt: [f64; 3] = std::array::from_fn(|k| vel[k] - vn * nrm[k]);
+                let vt_len = (vt[0] * vt[0] + vt[1] * vt[1] + vt[2] * vt[2]).sqrt();
+                let keep = if vt_len > 0.0 {
+                    (1.0 - self.friction * (-vn) / vt_len).max(0.0)
+                } else {
+                    0.0
+                };
+                for k in 0..3 {
+                    v[k * n + i] = keep * vt[k];
+                }
+                self.contacts.push((i as u32, nrm));
+            }
+        }
+        self.contacts.len()
+    }
+
+    /// The deepest penetration into a sphere obstacle (m, >= 0).
+    pub fn max_penetration(&self, x: &[f64]) -> f64 {
+        let n = self.n;
+        let mut worst = 0.0f64;
+        for i in 0..n {
+            let p = get3(x, n, i);
+            for &(c, r) in &self.spheres {
+                let d =
+                    ((p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2)).sqrt();
+                worst = worst.max(r - d);
+            }
+        }
+        worst
+    }
+
+    /// The sphere obstacles.
+    pub fn spheres(&self) -> &[([f64; 3], f64)] {
+        &self.spheres
+    }
+}
+
 impl Mechanical for Cloth {
     fn vertex_count(&self) -> usize {
         self.n
@@ -504,6 +610,10 @@ impl Mechanical for Cloth {
     }
 
     fn constraints(&self, filter: &mut Filter) {
+        for &(i, n) in &self.contacts {
+            filter.constrain_normal(i as usize, n);
+        }
+        // Pins last: a pinned vertex in contact stays fixed.
         for &p in &self.pinned {
             filter.fix(p as usize);
         }

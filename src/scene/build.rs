@@ -110,11 +110,15 @@ impl Simulation {
         }
         match &body {
             Body::MassSpring(model) => stages.extend(environment_stages(model)),
-            Body::Cloth(_) => stages.push(stage(
-                "collision structures",
-                false,
-                "the scene has no colliders",
-            )),
+            Body::Cloth(c) => stages.push(if c.spheres().is_empty() {
+                stage("collision structures", false, "the scene has no colliders")
+            } else {
+                stage(
+                    "sphere contacts (constraint filter + position correction)",
+                    true,
+                    format!("{} spheres", c.spheres().len()),
+                )
+            }),
         }
         Ok(Self {
             body,
@@ -126,7 +130,9 @@ impl Simulation {
         })
     }
 
-    /// Advances one time step.
+    /// Advances one time step. Cloth contacts are resolved after every step (so frames
+    /// and logs see corrected positions), and the contacts found there constrain the
+    /// next step's solve.
     pub fn step(&mut self) -> Result<StepInfo, IntegrateError> {
         let info = self.stepper.step(
             self.body.mech(),
@@ -135,6 +141,9 @@ impl Simulation {
             self.state.v.as_mut_slice(),
             self.dt,
         )?;
+        if let Body::Cloth(c) = &mut self.body {
+            c.resolve_contacts(self.state.x.as_mut_slice(), self.state.v.as_mut_slice());
+        }
         self.t += self.dt;
         Ok(info)
     }
@@ -164,7 +173,7 @@ impl Simulation {
     pub fn max_penetration(&self) -> f64 {
         match &self.body {
             Body::MassSpring(m) => m.max_penetration(self.state.x.as_slice()),
-            Body::Cloth(_) => 0.0,
+            Body::Cloth(c) => c.max_penetration(self.state.x.as_slice()),
         }
     }
 

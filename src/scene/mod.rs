@@ -417,6 +417,17 @@ fn cloth_desc(
         pinned.push(i);
     }
     desc.pinned = pinned;
+    for (k, s) in t.sphere.iter().enumerate() {
+        finite_positive(s.radius, at(&[&"sphere", &k, &"radius"]), "radius", err)?;
+        if !s.center.iter().all(|c| c.is_finite()) {
+            return Err(err(
+                at(&[&"sphere", &k, &"center"]),
+                "must be finite".into(),
+            ));
+        }
+        desc.spheres.push((s.center, s.radius));
+    }
+    desc.friction = finite_nonneg(t.friction, at(&[&"friction"]), "friction", err)?;
     desc.gravity = gravity;
     desc.definiteness_fix = t.definiteness_fix.unwrap_or(true);
     Ok(desc)

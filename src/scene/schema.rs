@@ -42,6 +42,10 @@
 //!
 //! [cloth]                     # instead of [mass_spring]: a Baraff-Witkin sheet
 //! pinned = [0, 9]             # grid vertex (i, j) is i + nu j
+//! friction = 0.3             # of contacts
+//! [[cloth.sphere]]            # obstacles (any number)
+//! center = [0.0, 0.0, 0.0]
+//! radius = 0.5
 //! [cloth.grid]
 //! nu = 10
 //! nv = 10
@@ -225,10 +229,26 @@ pub struct ClothTable {
     /// Project element stiffness matrices to keep implicit systems definite (default true).
     #[serde(default)]
     pub definiteness_fix: Option<bool>,
+    /// Friction of contacts (default 0).
+    #[serde(default)]
+    pub friction: f64,
+    /// `[[cloth.sphere]]` obstacles.
+    #[serde(default)]
+    pub sphere: Vec<SphereTable>,
     /// `[cloth.grid]`
     pub grid: ClothGridTable,
     /// `[cloth.material]`
     pub material: ClothMaterialTable,
+}
+
+/// `[[cloth.sphere]]`
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SphereTable {
+    /// Centre (m).
+    pub center: [f64; 3],
+    /// Radius (m).
+    pub radius: f64,
 }
 
 /// `[cloth.grid]`
