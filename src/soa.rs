@@ -32,6 +32,11 @@ impl Vec3s {
         Self { data }
     }
 
+    /// The component-major data, by value (for owned meshes and frames).
+    pub fn into_vec(self) -> Vec<f64> {
+        self.data
+    }
+
     /// To array-of-structures form (I/O edge).
     pub fn to_aos(&self) -> Vec<[f64; 3]> {
         (0..self.len()).map(|i| self.get(i)).collect()

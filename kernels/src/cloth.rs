@@ -98,9 +98,8 @@ impl<const N: usize> ElementOut<N> {
         kd: f64,
         v: &[[f64; 3]; N],
     ) {
-        let c_dot: f64 = (0..N).map(|j| dot(g[j], v[j])).sum();
         self.energy += 0.5 * k * c * c;
-        let s = -k * c - kd * c_dot;
+        let s = force_scale(c, g, k, kd, v);
         for i in 0..N {
             for (fa, ga) in self.f[i].iter_mut().zip(g[i]) {
                 *fa += s * ga;
@@ -119,22 +118,111 @@ impl<const N: usize> ElementOut<N> {
     }
 }
 
+/// The force `f_i = s dC/dx_i` of a condition has `s = -k C - k_d dC/dt`.
+#[inline]
+fn force_scale<const N: usize>(
+    c: f64,
+    g: &[[f64; 3]; N],
+    k: f64,
+    kd: f64,
+    v: &[[f64; 3]; N],
+) -> f64 {
+    let c_dot: f64 = (0..N).map(|j| dot(g[j], v[j])).sum();
+    -k * c - kd * c_dot
+}
+
+/// Energy and forces of an element without its Jacobians: what explicit steps and energy
+/// logs need.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ElementForces<const N: usize> {
+    /// Elastic energy (J).
+    pub energy: f64,
+    /// Force on each vertex (N).
+    pub f: [[f64; 3]; N],
+}
+
+impl<const N: usize> ElementForces<N> {
+    /// Zero energy and force.
+    pub fn zero() -> Self {
+        ElementForces {
+            energy: 0.0,
+            f: [[0.0; 3]; N],
+        }
+    }
+
+    /// Adds one scalar condition `c` with gradient `g` (see [`ElementOut::add_condition`]).
+    #[inline]
+    pub fn add_condition(&mut self, c: f64, g: &[[f64; 3]; N], k: f64, kd: f64, v: &[[f64; 3]; N]) {
+        self.energy += 0.5 * k * c * c;
+        let s = force_scale(c, g, k, kd, v);
+        for (fi, gi) in self.f.iter_mut().zip(g) {
+            for (fa, ga) in fi.iter_mut().zip(gi) {
+                *fa += s * ga;
+            }
+        }
+    }
+}
+
+/// Where an element's conditions go: [`ElementOut`] (with Jacobians) or
+/// [`ElementForces`] (the Hessian closure is then never called).
+pub trait ConditionSink<const N: usize> {
+    /// Adds condition `c` with gradient `g`, Hessian blocks `hess`, stiffness `k` and
+    /// damping `kd` at velocities `v`.
+    fn condition(
+        &mut self,
+        c: f64,
+        g: &[[f64; 3]; N],
+        hess: &dyn Fn(usize, usize) -> [f64; 9],
+        k: f64,
+        kd: f64,
+        v: &[[f64; 3]; N],
+    );
+}
+
+impl<const N: usize> ConditionSink<N> for ElementOut<N> {
+    fn condition(
+        &mut self,
+        c: f64,
+        g: &[[f64; 3]; N],
+        hess: &dyn Fn(usize, usize) -> [f64; 9],
+        k: f64,
+        kd: f64,
+        v: &[[f64; 3]; N],
+    ) {
+        self.add_condition(c, g, hess, k, kd, v);
+    }
+}
+
+impl<const N: usize> ConditionSink<N> for ElementForces<N> {
+    fn condition(
+        &mut self,
+        c: f64,
+        g: &[[f64; 3]; N],
+        _hess: &dyn Fn(usize, usize) -> [f64; 9],
+        k: f64,
+        kd: f64,
+        v: &[[f64; 3]; N],
+    ) {
+        self.add_condition(c, g, k, kd, v);
+    }
+}
+
 fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
-/// The stretch element of a triangle: `C = a (|w_u| - b[0], |w_v| - b[1])` with stiffness
-/// `k` and damping `kd`; `b` the rest stretch (1 for no stretch at rest).
-pub fn stretch_element(
+/// Adds the stretch conditions of a triangle, `C = a (|w_u| - b[0], |w_v| - b[1])` with
+/// stiffness `k` and damping `kd` (`b` the rest stretch, 1 for none), to `out`.
+pub fn add_stretch<S: ConditionSink<3>>(
+    out: &mut S,
     r: &TriangleRest,
     x: &[[f64; 3]; 3],
     v: &[[f64; 3]; 3],
     k: f64,
     kd: f64,
     b: [f64; 2],
-) -> ElementOut<3> {
+) {
     let (wu, wv) = r.wuv(x);
-    let mut out = ElementOut::zero();
     for (w, coef, rest) in [(wu, r.du, b[0]), (wv, r.dv, b[1])] {
         let len = dot(w, w).sqrt();
         // No direction (and NaN-safe): no force, no Jacobian.
@@ -145,23 +233,53 @@ pub fn stretch_element(
         let a = r.area;
         let c = a * (len - rest);
         let g: [[f64; 3]; 3] = std::array::from_fn(|i| n.map(|nc| a * coef[i] * nc));
-        let proj: [f64; 9] = std::array::from_fn(|e| {
-            let (p, q) = (e / 3, e % 3);
-            (if p == q { 1.0 } else { 0.0 }) - n[p] * n[q]
-        });
-        out.add_condition(
-            c,
-            &g,
-            |i, j| proj.map(|pe| a * coef[i] * coef[j] * pe / len),
-            k,
-            kd,
-            v,
-        );
+        let hess = |i: usize, j: usize| -> [f64; 9] {
+            std::array::from_fn(|e| {
+                let (p, q) = (e / 3, e % 3);
+                let proj = (if p == q { 1.0 } else { 0.0 }) - n[p] * n[q];
+                a * coef[i] * coef[j] * proj / len
+            })
+        };
+        out.condition(c, &g, &hess, k, kd, v);
     }
+}
+
+/// Adds the shear condition of a triangle, `C = a w_u . w_v`, to `out`.
+pub fn add_shear<S: ConditionSink<3>>(
+    out: &mut S,
+    r: &TriangleRest,
+    x: &[[f64; 3]; 3],
+    v: &[[f64; 3]; 3],
+    k: f64,
+    kd: f64,
+) {
+    let (wu, wv) = r.wuv(x);
+    let a = r.area;
+    let c = a * dot(wu, wv);
+    let g: [[f64; 3]; 3] =
+        std::array::from_fn(|i| std::array::from_fn(|q| a * (r.du[i] * wv[q] + r.dv[i] * wu[q])));
+    let hess = |i: usize, j: usize| -> [f64; 9] {
+        let s = a * (r.du[i] * r.dv[j] + r.dv[i] * r.du[j]);
+        [s, 0.0, 0.0, 0.0, s, 0.0, 0.0, 0.0, s]
+    };
+    out.condition(c, &g, &hess, k, kd, v);
+}
+
+/// The stretch element of a triangle with its Jacobians (see [`add_stretch`]).
+pub fn stretch_element(
+    r: &TriangleRest,
+    x: &[[f64; 3]; 3],
+    v: &[[f64; 3]; 3],
+    k: f64,
+    kd: f64,
+    b: [f64; 2],
+) -> ElementOut<3> {
+    let mut out = ElementOut::zero();
+    add_stretch(&mut out, r, x, v, k, kd, b);
     out
 }
 
-/// The shear element of a triangle: `C = a w_u . w_v` with stiffness `k` and damping `kd`.
+/// The shear element of a triangle with its Jacobians (see [`add_shear`]).
 pub fn shear_element(
     r: &TriangleRest,
     x: &[[f64; 3]; 3],
@@ -169,23 +287,8 @@ pub fn shear_element(
     k: f64,
     kd: f64,
 ) -> ElementOut<3> {
-    let (wu, wv) = r.wuv(x);
-    let a = r.area;
-    let c = a * dot(wu, wv);
-    let g: [[f64; 3]; 3] =
-        std::array::from_fn(|i| std::array::from_fn(|q| a * (r.du[i] * wv[q] + r.dv[i] * wu[q])));
     let mut out = ElementOut::zero();
-    out.add_condition(
-        c,
-        &g,
-        |i, j| {
-            let s = a * (r.du[i] * r.dv[j] + r.dv[i] * r.du[j]);
-            [s, 0.0, 0.0, 0.0, s, 0.0, 0.0, 0.0, s]
-        },
-        k,
-        kd,
-        v,
-    );
+    add_shear(&mut out, r, x, v, k, kd);
     out
 }
 

@@ -22,8 +22,8 @@ use crate::soa::Vec3s;
 use crate::solve::Filter;
 use crate::sparse::{Bsr3, Bsr3Pattern, ElementAssembly, LocalLayout, SparseError, VectorGather};
 use largestep_kernels::cloth::{
-    bend_element, bend_gradient, dihedral_angle, shear_element, stretch_element, ElementOut,
-    TriangleRest,
+    add_shear, add_stretch, bend_element, bend_gradient, dihedral_angle, ConditionSink,
+    ElementForces, ElementOut, TriangleRest,
 };
 use largestep_kernels::get3;
 use rayon::prelude::*;
@@ -502,24 +502,19 @@ impl Cloth {
         self.gravity
     }
 
-    fn stretch_shear(&self, t: usize, x: &[[f64; 3]; 3], v: &[[f64; 3]; 3]) -> ElementOut<3> {
+    /// Adds triangle `t`'s stretch and shear conditions to `out` (with Jacobians into an
+    /// `ElementOut`, forces only into an `ElementForces`).
+    fn triangle_into<S: ConditionSink<3>>(
+        &self,
+        out: &mut S,
+        t: usize,
+        x: &[[f64; 3]; 3],
+        v: &[[f64; 3]; 3],
+    ) {
         let m = &self.material;
         let r = &self.rest[t];
-        let mut out = stretch_element(r, x, v, m.stretch, m.stretch_damping, m.rest_stretch);
-        let sh = shear_element(r, x, v, m.shear, m.shear_damping);
-        out.energy += sh.energy;
-        for i in 0..3 {
-            for c in 0..3 {
-                out.f[i][c] += sh.f[i][c];
-            }
-            for j in 0..3 {
-                for e in 0..9 {
-                    out.kx[i][j][e] += sh.kx[i][j][e];
-                    out.kv[i][j][e] += sh.kv[i][j][e];
-                }
-            }
-        }
-        out
+        add_stretch(out, r, x, v, m.stretch, m.stretch_damping, m.rest_stretch);
+        add_shear(out, r, x, v, m.shear, m.shear_damping);
     }
 
     fn gravity_force(&self, f: &mut [f64]) {
@@ -631,7 +626,8 @@ impl Mechanical for Cloth {
                 for (lt, o) in out.chunks_exact_mut(9).enumerate() {
                     let t = c * CHUNK + lt;
                     let el = &this.triangles[t];
-                    let e = this.stretch_shear(t, &gather_nodes(x, n, el), &gather_nodes(v, n, el));
+                    let mut e = ElementForces::zero();
+                    this.triangle_into(&mut e, t, &gather_nodes(x, n, el), &gather_nodes(v, n, el));
                     o.copy_from_slice(e.f.as_flattened());
                 }
             });
@@ -650,19 +646,17 @@ impl Mechanical for Cloth {
                         let el = &this.hinges[h];
                         let xs = gather_nodes(x, n, el);
                         let vs = gather_nodes(v, n, el);
-                        let fo = match bend_gradient(&xs) {
-                            Some((theta, g)) => {
-                                let c_dot: f64 = (0..4)
-                                    .map(|j| (0..3).map(|a| g[j][a] * vs[j][a]).sum::<f64>())
-                                    .sum();
-                                let s = -m.bend * (theta - this.theta0[h]) - m.bend_damping * c_dot;
-                                g.map(|gi| gi.map(|ga| s * ga))
-                            }
-                            None => [[0.0; 3]; 4],
-                        };
-                        for (i, fi) in fo.iter().enumerate() {
-                            o[3 * i..3 * i + 3].copy_from_slice(fi);
+                        let mut e = ElementForces::zero();
+                        if let Some((theta, g)) = bend_gradient(&xs) {
+                            e.add_condition(
+                                theta - this.theta0[h],
+                                &g,
+                                m.bend,
+                                m.bend_damping,
+                                &vs,
+                            );
                         }
+                        o.copy_from_slice(e.f.as_flattened());
                     }
                 });
             self.hinge_gather.gather_vectors_add(&hinge_f, f);
@@ -676,7 +670,9 @@ impl Mechanical for Cloth {
         let tris: f64 = (0..self.triangles.len())
             .map(|t| {
                 let xs = gather_nodes(x, n, &self.triangles[t]);
-                self.stretch_shear(t, &xs, &[[0.0; 3]; 3]).energy
+                let mut e = ElementForces::zero();
+                self.triangle_into(&mut e, t, &xs, &[[0.0; 3]; 3]);
+                e.energy
             })
             .sum();
         let bends: f64 = self
@@ -753,8 +749,13 @@ impl Mechanical for Cloth {
                     for lt in 0..fo.len() / 9 {
                         let t = c * CHUNK + lt;
                         let el = &this.triangles[t];
-                        let e =
-                            this.stretch_shear(t, &gather_nodes(x, n, el), &gather_nodes(v, n, el));
+                        let mut e = ElementOut::zero();
+                        this.triangle_into(
+                            &mut e,
+                            t,
+                            &gather_nodes(x, n, el),
+                            &gather_nodes(v, n, el),
+                        );
                         let kx = &mut kxo[81 * lt..81 * lt + 81];
                         write_element(
                             &e,

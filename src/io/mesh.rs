@@ -250,14 +250,8 @@ pub fn parse_obj(text: &str, name: &str) -> Result<Mesh, ReadError> {
             ),
         });
     }
-    let mut positions = vec![0.0; 3 * n];
-    for (i, p) in xyz.iter().enumerate() {
-        for k in 0..3 {
-            positions[k * n + i] = p[k];
-        }
-    }
     Ok(Mesh {
-        positions,
+        positions: crate::soa::Vec3s::from_aos(&xyz).into_vec(),
         triangles: triangles.into(),
         segments: segments.into(),
     })

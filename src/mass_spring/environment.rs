@@ -128,21 +128,19 @@ impl Penalty {
         let (k, d) = (self.stiffness, self.damping);
         let diag = dfdx.pattern().clone();
         let diag = diag.diag_slots();
-        self.for_each_contact(x, |i, s, _| {
-            let slot = diag[i] as usize;
-            let kx = dfdx.block_mut(slot);
+        // Adds -coef n n^T to a 3x3 block.
+        let sub_nn = |block: &mut [f64], coef: f64, n: [f64; 3]| {
             for r in 0..3 {
                 for c in 0..3 {
-                    kx[3 * r + c] -= k * s.normal[r] * s.normal[c];
+                    block[3 * r + c] -= coef * n[r] * n[c];
                 }
             }
+        };
+        self.for_each_contact(x, |i, s, _| {
+            let slot = diag[i] as usize;
+            sub_nn(dfdx.block_mut(slot), k, s.normal);
             if let Some(dv) = dfdv.as_deref_mut() {
-                let kv = dv.block_mut(slot);
-                for r in 0..3 {
-                    for c in 0..3 {
-                        kv[3 * r + c] -= d * s.normal[r] * s.normal[c];
-                    }
-                }
+                sub_nn(dv.block_mut(slot), d, s.normal);
             }
         });
     }

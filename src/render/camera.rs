@@ -26,6 +26,14 @@ impl Bounds {
         }
     }
 
+    /// Grows the box to hold every point of component-major positions (3n values).
+    pub fn add_positions(&mut self, positions: &[f64]) {
+        let n = positions.len() / 3;
+        for i in 0..n {
+            self.add(largestep_kernels::get3(positions, n, i));
+        }
+    }
+
     /// Grows the box to hold `other`.
     pub fn union(&mut self, other: &Bounds) {
         if !other.is_empty() {

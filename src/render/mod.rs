@@ -398,10 +398,7 @@ impl Renderer {
         let mut bounds = *scene_bounds;
         if bounds.is_empty() {
             for o in objects {
-                let n = o.mesh.positions.len() / 3;
-                for i in 0..n {
-                    bounds.add(largestep_kernels::get3(o.mesh.positions, n, i));
-                }
+                bounds.add_positions(o.mesh.positions);
             }
         }
         let bounds = bounds.or_unit();

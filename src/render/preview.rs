@@ -121,10 +121,7 @@ pub fn camera_for(
 pub fn bounds_of(frames: &[Mesh]) -> Bounds {
     let mut b = Bounds::EMPTY;
     for m in frames {
-        let n = m.positions.len() / 3;
-        for i in 0..n {
-            b.add(largestep_kernels::get3(&m.positions, n, i));
-        }
+        b.add_positions(&m.positions);
     }
     b
 }

@@ -3,15 +3,8 @@
 use crate::io::Mesh;
 
 fn mesh(points: &[[f64; 3]], triangles: Vec<[u32; 3]>, segments: Vec<[u32; 2]>) -> Mesh {
-    let n = points.len();
-    let mut positions = vec![0.0; 3 * n];
-    for (i, p) in points.iter().enumerate() {
-        for k in 0..3 {
-            positions[k * n + i] = p[k];
-        }
-    }
     Mesh {
-        positions,
+        positions: crate::soa::Vec3s::from_aos(points).into_vec(),
         triangles: triangles.into(),
         segments: segments.into(),
     }

@@ -78,6 +78,13 @@ impl SceneError {
     }
 }
 
+/// A scene's default name: its file name without the extension, or `default`.
+fn stem_name(file: &str, default: &str) -> String {
+    Path::new(file)
+        .file_stem()
+        .map_or(default.into(), |x| x.to_string_lossy().into_owned())
+}
+
 /// Simulated time (s) of a run of a world file, which has no duration of its own.
 pub const WORLD_DURATION: f64 = 5.0;
 
@@ -240,9 +247,7 @@ impl Scene {
             .max(1);
         Ok(Scene {
             file: file.to_string(),
-            name: Path::new(file)
-                .file_stem()
-                .map_or("world".into(), |x| x.to_string_lossy().into_owned()),
+            name: stem_name(file, "world"),
             dt: world.dt,
             duration: WORLD_DURATION,
             settings: MechSettings::new(world.method),
@@ -329,11 +334,7 @@ impl Scene {
         };
         Ok(Scene {
             file: file.to_string(),
-            name: s.name.clone().unwrap_or_else(|| {
-                Path::new(file)
-                    .file_stem()
-                    .map_or("scene".into(), |x| x.to_string_lossy().into_owned())
-            }),
+            name: s.name.clone().unwrap_or_else(|| stem_name(file, "scene")),
             dt,
             duration,
             settings,
