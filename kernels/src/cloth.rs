@@ -63,8 +63,19 @@ impl TriangleRest {
 
 /// What an element gives: energy, forces on its vertices, and Jacobian blocks
 /// `df_i/dx_j` and `df_i/dv_j` (3x3, row-major) at `[i][j]`.
+///
+/// With `project` set, each condition's stiffness `-k (dC dC^T + C d2C)` is made negative
+/// semi-definite by dropping its curvature term `C d2C` where that term could make it
+/// indefinite: always for conditions whose `d2C` is indefinite (shear, bend), and only
+/// under compression (`C < 0`) for those whose `d2C` is positive semi-definite (stretch,
+/// `d2|w|` is). What remains is exact in stretched tension and the Gauss-Newton matrix
+/// elsewhere; implicit systems `M - h^2 df/dx` then stay positive definite whatever the
+/// deformation, at no cost beyond skipping work (the curvature of a bend hinge is then
+/// never computed). Choi and Ko (2002) make the same choice for springs in compression.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ElementOut<const N: usize> {
+    /// Drop indefinite curvature terms (see above).
+    pub project: bool,
     /// Elastic energy (J).
     pub energy: f64,
     /// Force on each vertex (N).
@@ -78,7 +89,13 @@ pub struct ElementOut<const N: usize> {
 impl<const N: usize> ElementOut<N> {
     /// Zero energy, force and Jacobians.
     pub fn zero() -> Self {
+        Self::new(false)
+    }
+
+    /// Zero, with `project` (see the type's docs).
+    pub fn new(project: bool) -> Self {
         ElementOut {
+            project,
             energy: 0.0,
             f: [[0.0; 3]; N],
             kx: [[[0.0; 9]; N]; N],
@@ -88,24 +105,29 @@ impl<const N: usize> ElementOut<N> {
 
     /// Adds one scalar condition `c` with gradient `g` (per vertex) and Hessian blocks
     /// `hess(i, j)` (3x3 row-major), stiffness `k` and damping `kd`, at velocities `v`.
+    /// `convex`: `d2C` is positive semi-definite (see `project` in the type's docs);
+    /// `hess` is not called when the curvature term is dropped.
     #[inline]
+    #[allow(clippy::too_many_arguments)] // the condition's parts, as the paper writes them
     pub fn add_condition(
         &mut self,
         c: f64,
         g: &[[f64; 3]; N],
         hess: impl Fn(usize, usize) -> [f64; 9],
+        convex: bool,
         k: f64,
         kd: f64,
         v: &[[f64; 3]; N],
     ) {
         self.energy += 0.5 * k * c * c;
         let s = force_scale(c, g, k, kd, v);
+        let curvature = !self.project || (convex && c >= 0.0);
         for i in 0..N {
             for (fa, ga) in self.f[i].iter_mut().zip(g[i]) {
                 *fa += s * ga;
             }
             for j in 0..N {
-                let h = hess(i, j);
+                let h = if curvature { hess(i, j) } else { [0.0; 9] };
                 for a in 0..3 {
                     for b in 0..3 {
                         let gg = g[i][a] * g[j][b];
@@ -166,13 +188,15 @@ impl<const N: usize> ElementForces<N> {
 /// Where an element's conditions go: [`ElementOut`] (with Jacobians) or
 /// [`ElementForces`] (the Hessian closure is then never called).
 pub trait ConditionSink<const N: usize> {
-    /// Adds condition `c` with gradient `g`, Hessian blocks `hess`, stiffness `k` and
-    /// damping `kd` at velocities `v`.
+    /// Adds condition `c` with gradient `g`, Hessian blocks `hess` (positive
+    /// semi-definite when `convex`), stiffness `k` and damping `kd` at velocities `v`.
+    #[allow(clippy::too_many_arguments)]
     fn condition(
         &mut self,
         c: f64,
         g: &[[f64; 3]; N],
         hess: &dyn Fn(usize, usize) -> [f64; 9],
+        convex: bool,
         k: f64,
         kd: f64,
         v: &[[f64; 3]; N],
@@ -185,11 +209,12 @@ impl<const N: usize> ConditionSink<N> for ElementOut<N> {
         c: f64,
         g: &[[f64; 3]; N],
         hess: &dyn Fn(usize, usize) -> [f64; 9],
+        convex: bool,
         k: f64,
         kd: f64,
         v: &[[f64; 3]; N],
     ) {
-        self.add_condition(c, g, hess, k, kd, v);
+        self.add_condition(c, g, hess, convex, k, kd, v);
     }
 }
 
@@ -199,6 +224,7 @@ impl<const N: usize> ConditionSink<N> for ElementForces<N> {
         c: f64,
         g: &[[f64; 3]; N],
         _hess: &dyn Fn(usize, usize) -> [f64; 9],
+        _convex: bool,
         k: f64,
         kd: f64,
         v: &[[f64; 3]; N],
@@ -240,7 +266,7 @@ pub fn add_stretch<S: ConditionSink<3>>(
                 a * coef[i] * coef[j] * proj / len
             })
         };
-        out.condition(c, &g, &hess, k, kd, v);
+        out.condition(c, &g, &hess, true, k, kd, v);
     }
 }
 
@@ -262,7 +288,7 @@ pub fn add_shear<S: ConditionSink<3>>(
         let s = a * (r.du[i] * r.dv[j] + r.dv[i] * r.du[j]);
         [s, 0.0, 0.0, 0.0, s, 0.0, 0.0, 0.0, s]
     };
-    out.condition(c, &g, &hess, k, kd, v);
+    out.condition(c, &g, &hess, false, k, kd, v);
 }
 
 /// The stretch element of a triangle with its Jacobians (see [`add_stretch`]).
@@ -416,13 +442,36 @@ pub fn dihedral_angle<T: Scalar>(x: &[[T; 3]; 4]) -> T {
     s.atan2(c)
 }
 
-/// The bend element of a hinge (see [`dihedral_angle`]): `C = theta - theta0`, stiffness
-/// `k` (N m per rad^2), damping `kd`. Gradient and Hessian of theta come from forward-mode
-/// automatic differentiation ([`Dual`], nested for second derivatives): exact to
-/// rounding, at 12 + 78 evaluations of the angle per element. A reference implementation:
-/// a closed form (Tamstorf and Grinspun, "Discrete bending forces and their Jacobians",
-/// 2013) can replace it against the same tests. `None` when a triangle of the hinge is
-/// degenerate (no normal).
+/// Adds the bend condition of a hinge (see [`dihedral_angle`]), `C = theta - theta0`
+/// with stiffness `k` (N m per rad^2) and damping `kd`, to `out`. The gradient is closed
+/// form ([`bend_gradient`]); the Hessian of theta, needed only when `out` keeps curvature
+/// terms, comes from forward-mode automatic differentiation ([`Dual`], nested for second
+/// derivatives), exact to rounding at 78 evaluations of the angle: the reference a closed
+/// form (Tamstorf and Grinspun, "Discrete bending forces and their Jacobians", 2013) could
+/// replace. Returns `false` (and adds nothing) when a triangle of the hinge is degenerate
+/// (no normal).
+pub fn add_bend<S: ConditionSink<4>>(
+    out: &mut S,
+    x: &[[f64; 3]; 4],
+    v: &[[f64; 3]; 4],
+    k: f64,
+    kd: f64,
+    theta0: f64,
+) -> bool {
+    let Some((theta, g)) = bend_gradient(x) else {
+        return false;
+    };
+    let hessian = std::cell::OnceCell::new();
+    let hess = |i: usize, j: usize| -> [f64; 9] {
+        let h = hessian.get_or_init(|| angle_hessian(x));
+        std::array::from_fn(|e| h[3 * i + e / 3][3 * j + e % 3])
+    };
+    out.condition(theta - theta0, &g, &hess, false, k, kd, v);
+    true
+}
+
+/// The bend element of a hinge with its exact Jacobians (see [`add_bend`]); `None` when a
+/// triangle of the hinge is degenerate.
 pub fn bend_element(
     x: &[[f64; 3]; 4],
     v: &[[f64; 3]; 4],
@@ -430,9 +479,13 @@ pub fn bend_element(
     kd: f64,
     theta0: f64,
 ) -> Option<ElementOut<4>> {
-    let (theta, g) = bend_gradient(x)?;
-    // Second derivatives d2 theta / dx_p dx_q by seeding p in the outer and q in the inner
-    // dual; symmetric, so only p <= q are evaluated (and mirrored, hence index loops).
+    let mut out = ElementOut::zero();
+    add_bend(&mut out, x, v, k, kd, theta0).then_some(out)
+}
+
+/// `d2 theta / dx_p dx_q` (12 x 12) by seeding p in the outer and q in the inner dual;
+/// symmetric, so only p <= q are evaluated and mirrored.
+fn angle_hessian(x: &[[f64; 3]; 4]) -> [[f64; 12]; 12] {
     let mut h = [[0.0f64; 12]; 12];
     #[allow(clippy::needless_range_loop)]
     for p in 0..12 {
@@ -457,21 +510,51 @@ pub fn bend_element(
             h[q][p] = hpq;
         }
     }
-    let mut out = ElementOut::zero();
-    out.add_condition(
-        theta - theta0,
-        &g,
-        |i, j| std::array::from_fn(|e| h[3 * i + e / 3][3 * j + e % 3]),
-        k,
-        kd,
-        v,
-    );
-    Some(out)
+    h
 }
 
-/// The dihedral angle of a hinge and its gradient (12 forward-mode evaluations; what the
-/// force alone needs); `None` for a degenerate hinge.
+/// The dihedral angle of a hinge and its gradient, closed form (Bridson, Marino and Fedkiw
+/// 2003, section 4.1, in this hinge's orientation): with the edge `e = x1 - x0`, the
+/// triangles' unit normals `n_a`, `n_b` and heights `h_a`, `h_b` of x2 and x3 over the
+/// edge, and `alpha_a = (x2 - x0) . e / |e|^2` (likewise `alpha_b`),
+///
+/// ```text
+/// dtheta/dx2 = -n_a / h_a,   dtheta/dx3 = -n_b / h_b,
+/// dtheta/dx0 = -(1 - alpha_a) dtheta/dx2 - (1 - alpha_b) dtheta/dx3,
+/// dtheta/dx1 = -alpha_a dtheta/dx2 - alpha_b dtheta/dx3
+/// ```
+///
+/// (moving an opposite vertex along its normal by `delta` turns that face by
+/// `delta / h`; the edge vertices' terms make the gradient translation and rotation
+/// invariant). Tested against automatic differentiation. `None` for a degenerate hinge.
 pub fn bend_gradient(x: &[[f64; 3]; 4]) -> Option<(f64, [[f64; 3]; 4])> {
+    let theta = dihedral_angle(x);
+    if !theta.is_finite() {
+        return None;
+    }
+    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+    let e = sub(x[1], x[0]);
+    let ee = dot(e, e);
+    let na = cross(e, sub(x[2], x[0]));
+    let nb = cross(sub(x[3], x[0]), e);
+    // |n| = 2 area = h |e|, so n_unit / h = n |e| / |n|^2.
+    let (la, lb) = (dot(na, na), dot(nb, nb));
+    if !(la > 0.0 && lb > 0.0 && ee > 0.0) {
+        return None;
+    }
+    let el = ee.sqrt();
+    let g2 = na.map(|c| -c * el / la);
+    let g3 = nb.map(|c| -c * el / lb);
+    let aa = dot(sub(x[2], x[0]), e) / ee;
+    let ab = dot(sub(x[3], x[0]), e) / ee;
+    let g0 = std::array::from_fn(|c| -(1.0 - aa) * g2[c] - (1.0 - ab) * g3[c]);
+    let g1 = std::array::from_fn(|c| -aa * g2[c] - ab * g3[c]);
+    Some((theta, [g0, g1, g2, g3]))
+}
+
+/// The gradient of the dihedral angle by forward-mode automatic differentiation (12
+/// evaluations of the angle): the reference [`bend_gradient`] is tested against.
+pub fn bend_gradient_ad(x: &[[f64; 3]; 4]) -> Option<(f64, [[f64; 3]; 4])> {
     let theta = dihedral_angle(x);
     if !theta.is_finite() {
         return None;
@@ -487,4 +570,12 @@ pub fn bend_gradient(x: &[[f64; 3]; 4]) -> Option<(f64, [[f64; 3]; 4])> {
         g[var / 3][var % 3] = dihedral_angle(&xs).d;
     }
     Some((theta, g))
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
 }

@@ -22,30 +22,38 @@ use crate::soa::Vec3s;
 use crate::solve::Filter;
 use crate::sparse::{Bsr3, Bsr3Pattern, ElementAssembly, LocalLayout, SparseError, VectorGather};
 use largestep_kernels::cloth::{
-    add_shear, add_stretch, bend_element, bend_gradient, dihedral_angle, ConditionSink,
-    ElementForces, ElementOut, TriangleRest,
+    add_bend, add_shear, add_stretch, dihedral_angle, ConditionSink, ElementForces, ElementOut,
+    TriangleRest,
 };
 use largestep_kernels::get3;
 use rayon::prelude::*;
 use std::collections::HashMap;
 use std::sync::Arc;
 
-/// Material constants (per unit (u, v) area for stretch and shear).
+/// Material constants. Stretch and shear are per unit (u, v) area: a triangle of rest
+/// area `a` gets the element stiffness `k / a` on the paper's condition `C = a (|w_u| -
+/// b_u, ...)`, so its energy is `k a / 2 (|w_u| - b_u)^2`, the integral of the energy
+/// density `k / 2 strain^2` over the triangle. With the paper's `k` used directly the
+/// energy carries `a^2` and a refined mesh gets softer (a 100 x 100 sheet would be 6x
+/// softer than a 40 x 40 one of the same size); per unit area it behaves the same at any
+/// resolution. Bend stiffness is per hinge (a regular mesh's bending energy per unit
+/// area is then independent of resolution, as hinges per area grow like 1/edge^2 while
+/// the angle of a given curvature shrinks like the edge).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ClothMaterial {
     /// Mass per unit (u, v) area (kg/m^2), > 0.
     pub density: f64,
-    /// Stretch stiffness (N/m), >= 0.
+    /// Stretch stiffness per unit area (N/m = J/m^2 per unit strain squared), >= 0.
     pub stretch: f64,
-    /// Shear stiffness (N/m), >= 0.
+    /// Shear stiffness per unit area (N/m), >= 0.
     pub shear: f64,
-    /// Bend stiffness (N m), >= 0; 0 leaves the bend elements out.
+    /// Bend stiffness per hinge (N m per rad^2), >= 0; 0 leaves the bend elements out.
     pub bend: f64,
-    /// Stretch damping (N s/m), >= 0.
+    /// Stretch damping per unit area (N s/m), >= 0.
     pub stretch_damping: f64,
-    /// Shear damping (N s/m), >= 0.
+    /// Shear damping per unit area (N s/m), >= 0.
     pub shear_damping: f64,
-    /// Bend damping (N m s), >= 0.
+    /// Bend damping per hinge (N m s per rad^2), >= 0.
     pub bend_damping: f64,
     /// Rest stretch along u and v (1: unstretched at the given (u, v)), > 0.
     pub rest_stretch: [f64; 2],
@@ -72,10 +80,11 @@ pub struct ClothDesc {
     pub spheres: Vec<([f64; 3], f64)>,
     /// Coulomb-like friction coefficient of contacts, >= 0 (0: frictionless).
     pub friction: f64,
-    /// Project every element's stiffness matrix onto the negative semi-definite ones
-    /// (clamp its positive eigenvalues to zero), so implicit systems stay definite when
-    /// the cloth compresses or buckles ("projected Newton"); the Jacobian is then exact
-    /// only where no clamping happens. Default on in [`cloth_grid`].
+    /// Drop each element condition's curvature term where it could make the stiffness
+    /// indefinite (`kernels::cloth::ElementOut::project`: shear and bend always, stretch
+    /// in compression), so implicit systems stay definite when the cloth compresses or
+    /// buckles; the Jacobian is then exact only in stretched tension. Default on in
+    /// [`cloth_grid`] and scenes.
     pub definiteness_fix: bool,
 }
 
@@ -513,8 +522,18 @@ impl Cloth {
     ) {
         let m = &self.material;
         let r = &self.rest[t];
-        add_stretch(out, r, x, v, m.stretch, m.stretch_damping, m.rest_stretch);
-        add_shear(out, r, x, v, m.shear, m.shear_damping);
+        // Per-area material constants to element constants (see `ClothMaterial`).
+        let inv_a = 1.0 / r.area;
+        add_stretch(
+            out,
+            r,
+            x,
+            v,
+            m.stretch * inv_a,
+            m.stretch_damping * inv_a,
+            m.rest_stretch,
+        );
+        add_shear(out, r, x, v, m.shear * inv_a, m.shear_damping * inv_a);
     }
 
     fn gravity_force(&self, f: &mut [f64]) {
@@ -589,6 +608,11 @@ impl Cloth {
         worst
     }
 
+    /// Vertices in contact since the last [`Cloth::resolve_contacts`].
+    pub fn contact_count(&self) -> usize {
+        self.contacts.len()
+    }
+
     /// The sphere obstacles.
     pub fn spheres(&self) -> &[([f64; 3], f64)] {
         &self.spheres
@@ -647,15 +671,7 @@ impl Mechanical for Cloth {
                         let xs = gather_nodes(x, n, el);
                         let vs = gather_nodes(v, n, el);
                         let mut e = ElementForces::zero();
-                        if let Some((theta, g)) = bend_gradient(&xs) {
-                            e.add_condition(
-                                theta - this.theta0[h],
-                                &g,
-                                m.bend,
-                                m.bend_damping,
-                                &vs,
-                            );
-                        }
+                        add_bend(&mut e, &xs, &vs, m.bend, m.bend_damping, this.theta0[h]);
                         o.copy_from_slice(e.f.as_flattened());
                     }
                 });
@@ -749,7 +765,7 @@ impl Mechanical for Cloth {
                     for lt in 0..fo.len() / 9 {
                         let t = c * CHUNK + lt;
                         let el = &this.triangles[t];
-                        let mut e = ElementOut::zero();
+                        let mut e = ElementOut::new(this.definiteness_fix);
                         this.triangle_into(
                             &mut e,
                             t,
@@ -763,9 +779,6 @@ impl Mechanical for Cloth {
                             kx,
                             &mut kvo[81 * lt..81 * lt + 81],
                         );
-                        if this.definiteness_fix {
-                            project_nsd3(kx);
-                        }
                     }
                 });
             self.tri_gather.gather_vectors_add(&tri_f, f);
@@ -781,14 +794,15 @@ impl Mechanical for Cloth {
                     for lh in 0..fo.len() / 12 {
                         let h = c * CHUNK + lh;
                         let el = &this.hinges[h];
-                        let e = bend_element(
+                        let mut e = ElementOut::new(this.definiteness_fix);
+                        add_bend(
+                            &mut e,
                             &gather_nodes(x, n, el),
                             &gather_nodes(v, n, el),
                             m.bend,
                             m.bend_damping,
                             this.theta0[h],
-                        )
-                        .unwrap_or_else(ElementOut::zero);
+                        );
                         let kx = &mut kxo[144 * lh..144 * lh + 144];
                         write_element(
                             &e,
@@ -796,9 +810,6 @@ impl Mechanical for Cloth {
                             kx,
                             &mut kvo[144 * lh..144 * lh + 144],
                         );
-                        if this.definiteness_fix {
-                            project_nsd4(kx);
-                        }
                     }
                 });
             self.hinge_gather.gather_vectors_add(&hinge_f, f);
@@ -814,38 +825,6 @@ impl Mechanical for Cloth {
         Ok(())
     }
 }
-
-/// Projects an element's `K x K` blocks (dense layout, see [`write_element`]) onto the
-/// negative semi-definite matrices: symmetric eigendecomposition of the `3K x 3K` matrix,
-/// positive eigenvalues set to zero. Fixed-size (stack) matrices: no allocation per
-/// element and step.
-macro_rules! project_nsd_fn {
-    ($name:ident, $k:expr) => {
-        fn $name(blocks: &mut [f64]) {
-            const K: usize = $k;
-            const D: usize = 3 * K;
-            let at = |r: usize, c: usize| 9 * (K * (r / 3) + c / 3) + 3 * (r % 3) + c % 3;
-            let m = nalgebra::SMatrix::<f64, D, D>::from_fn(|r, c| {
-                0.5 * (blocks[at(r, c)] + blocks[at(c, r)])
-            });
-            let eig = m.symmetric_eigen();
-            if eig.eigenvalues.iter().all(|&l| l <= 0.0) {
-                return;
-            }
-            let clamped = eig.eigenvalues.map(|l| l.min(0.0));
-            let p = eig.eigenvectors
-                * nalgebra::SMatrix::<f64, D, D>::from_diagonal(&clamped)
-                * eig.eigenvectors.transpose();
-            for r in 0..D {
-                for c in 0..D {
-                    blocks[at(r, c)] = p[(r, c)];
-                }
-            }
-        }
-    };
-}
-project_nsd_fn!(project_nsd3, 3);
-project_nsd_fn!(project_nsd4, 4);
 
 /// The forces and the K x K blocks of an element into element-major buffers (the
 /// `LocalLayout::dense(K)` order: block (i, j) at `9 (K i + j)`).

@@ -146,6 +146,9 @@ pub struct StepInfo {
     pub linear_iterations: usize,
     /// Final relative residual of the last linear solve (0 when none).
     pub residual: f64,
+    /// Wall time of the linear solves (s), including Cholesky factorizations: the rest
+    /// of an implicit step is mostly force and Jacobian assembly.
+    pub solve_seconds: f64,
 }
 
 /// Integration failures.

@@ -1,0 +1,188 @@
+//! Baraff-Witkin cloth benchmarks: one implicit step of an n x n sheet (1 m square, two
+//! opposite corners pinned, falling onto a sphere of radius 0.25 m under it) at dt = 1/60 and
+//! 1/30 s, n = 32, 100 (about 10k vertices, 20k triangles: the size of Vega FEM's cloth
+//! example) and 200.
+//!
+//! - `cloth/step/<n>/<dt>`: the whole linearised backward Euler step of the paper (forces,
+//!   Jacobians, system matrix, filtered PCG to a relative residual of 1e-3, position
+//!   update, contact resolution), from a draped state (the sheet has fallen for 0.5 s and
+//!   lies on the sphere with contacts).
+//! - The summary splits each step into assembly (`force_jacobians`: every element's
+//!   forces and 3x3 Jacobian blocks and their gather into the block matrices) and solve
+//!   (the PCG iterations), and gives each its fraction of this machine's limit measured
+//!   in the same run: assembly against the triad bandwidth (the element buffers written
+//!   and read once, and the matrices written, as streaming traffic), the solve against
+//!   the triad bandwidth too (per iteration one block-sparse matrix-vector product, 36 B
+//!   per stored block plus five vectors of 24 B per vertex; PCG is bandwidth bound).
+//!
+//! Run with `cargo bench --bench cloth`; the summary is printed at the end and written to
+//! `target/criterion/cloth-summary.md`.
+
+use criterion::Criterion;
+use largestep::cloth::{cloth_grid, Cloth, ClothGridOptions, ClothMaterial, ClothState};
+use largestep::integrate::{
+    LinearSolverKind, MechSettings, MechStepper, Mechanical, Method, StepInfo,
+};
+use largestep::machine::triad_bandwidth;
+use largestep::solve::{PcgParams, Preconditioner};
+use largestep::sparse::Bsr3;
+use std::time::{Duration, Instant};
+
+/// The benchmark material (per unit area stretch and shear, per hinge bend).
+pub const MATERIAL: ClothMaterial = ClothMaterial {
+    density: 0.2,
+    stretch: 1000.0,
+    shear: 100.0,
+    bend: 1e-4,
+    stretch_damping: 0.1,
+    shear_damping: 0.01,
+    bend_damping: 0.0,
+    rest_stretch: [1.0, 1.0],
+};
+
+fn sheet(n: usize) -> (Cloth, ClothState) {
+    let mut d = cloth_grid(&ClothGridOptions {
+        nu: n,
+        nv: n,
+        size: [1.0, 1.0],
+        origin: [-0.5, 0.3, -0.5],
+        u_axis: [1.0, 0.0, 0.0],
+        v_axis: [0.0, 0.0, 1.0],
+        material: MATERIAL,
+    });
+    d.gravity = [0.0, -9.81, 0.0];
+    d.pinned = vec![0, n * n - 1];
+    d.spheres = vec![([0.0, 0.0, 0.0], 0.25)];
+    d.friction = 0.3;
+    d.build().unwrap()
+}
+
+fn settings() -> MechSettings {
+    let mut s = MechSettings::new(Method::LinearizedBackwardEuler);
+    s.linear = LinearSolverKind::Pcg(PcgParams {
+        tolerance: std::env::var("TOL")
+            .map(|t| t.parse().unwrap())
+            .unwrap_or(1e-3),
+        max_iterations: 2000,
+        preconditioner: Preconditioner::BlockJacobi,
+    });
+    s
+}
+
+struct Sim {
+    cloth: Cloth,
+    st: ClothState,
+    stepper: MechStepper,
+    t: f64,
+}
+
+impl Sim {
+    fn new(n: usize) -> Sim {
+        let (mut cloth, st) = sheet(n);
+        let stepper = MechStepper::new(settings(), &mut cloth).unwrap();
+        Sim {
+            cloth,
+            st,
+            stepper,
+            t: 0.0,
+        }
+    }
+
+    fn step(&mut self, dt: f64) -> StepInfo {
+        let info = self
+            .stepper
+            .step(
+                &mut self.cloth,
+                self.t,
+                self.st.x.as_mut_slice(),
+                self.st.v.as_mut_slice(),
+                dt,
+            )
+            .unwrap();
+        self.cloth
+            .resolve_contacts(self.st.x.as_mut_slice(), self.st.v.as_mut_slice());
+        self.t += dt;
+        info
+    }
+}
+
+fn main() {
+    let mut c = Criterion::default()
+        .configure_from_args()
+        .measurement_time(Duration::from_secs(3))
+        .sample_size(10);
+    let filter = std::env::args().skip(1).find(|a| !a.starts_with('-'));
+    let wanted = |id: &str| filter.as_deref().is_none_or(|f| id.contains(f));
+    let triad = triad_bandwidth(largestep::machine::DEFAULT_TRIAD_MIB * (1 << 20) / 8, 3);
+    let mut md = format!(
+        "threads: {}, triad bandwidth {:.1} GB/s\n\n| case | steps/s | step | assembly | of triad | solve | PCG its/step | of triad | contacts |\n|---|---|---|---|---|---|---|---|---|\n",
+        rayon::current_num_threads(),
+        triad
+    );
+    for n in [32usize, 100, 200] {
+        for (dt_name, dt) in [("1/60", 1.0 / 60.0), ("1/30", 1.0 / 30.0)] {
+            let id = format!("cloth/step/{n}x{n}/{dt_name}");
+            if !wanted(&id) {
+                continue;
+            }
+            let mut sim = Sim::new(n);
+            // Drape for 0.5 s so the timed steps have contacts and a deformed sheet.
+            while sim.t < 0.5 {
+                sim.step(dt);
+            }
+            let mut infos = Vec::new();
+            c.bench_function(&id, |b| b.iter(|| infos.push(sim.step(dt))));
+            // Timed by hand: the split and the best step.
+            let reps = 10;
+            let mut best = f64::INFINITY;
+            let (mut solve, mut its) = (0.0, 0);
+            for _ in 0..reps {
+                let t0 = Instant::now();
+                let info = sim.step(dt);
+                best = best.min(t0.elapsed().as_secs_f64());
+                solve += info.solve_seconds;
+                its += info.linear_iterations;
+            }
+            let (solve, its) = (solve / reps as f64, its as f64 / reps as f64);
+            // Assembly alone, at the current state.
+            let nv = sim.cloth.vertex_count();
+            let pattern = sim.cloth.prepare_jacobians().unwrap().unwrap();
+            let mut kx = Bsr3::zeros(pattern.clone());
+            let mut kv = Bsr3::zeros(pattern.clone());
+            let mut f = vec![0.0; 3 * nv];
+            let (x, v) = (sim.st.x.as_slice().to_vec(), sim.st.v.as_slice().to_vec());
+            let assembly = (0..reps)
+                .map(|_| {
+                    let t0 = Instant::now();
+                    sim.cloth
+                        .force_jacobians(0.0, &x, &v, &mut f, &mut kx, Some(&mut kv))
+                        .unwrap();
+                    t0.elapsed().as_secs_f64()
+                })
+                .fold(f64::INFINITY, f64::min);
+            let (nt, nh) = (sim.cloth.triangles().len(), sim.cloth.hinges().len());
+            let blocks = pattern.nnz_blocks() as f64;
+            // Element buffers (forces and both Jacobians) written and read, the two
+            // matrices written, positions and velocities read.
+            let asm_bytes = 2.0 * 8.0 * ((9 + 2 * 81) * nt + (12 + 2 * 144) * nh) as f64
+                + 2.0 * 72.0 * blocks
+                + 48.0 * nv as f64;
+            let pcg_bytes = its * (36.0 * 2.0 * blocks + 5.0 * 24.0 * nv as f64);
+            md.push_str(&format!(
+                "| {id} | {:.1} | {:.2} ms | {:.2} ms | {:.0}% | {:.2} ms | {:.0} | {:.0}% | {} |\n",
+                1.0 / best,
+                1e3 * best,
+                1e3 * assembly,
+                100.0 * asm_bytes / assembly / 1e9 / triad,
+                1e3 * solve,
+                its,
+                100.0 * pcg_bytes / solve.max(1e-12) / 1e9 / triad,
+                sim.cloth.contact_count(),
+            ));
+        }
+    }
+    println!("\n{md}");
+    let dir = std::path::Path::new("target/criterion");
+    let _ = std::fs::create_dir_all(dir);
+    let _ = std::fs::write(dir.join("cloth-summary.md"), md);
+}
