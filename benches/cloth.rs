@@ -19,7 +19,7 @@
 //! `target/criterion/cloth-summary.md`.
 
 use criterion::Criterion;
-use largestep::cloth::{cloth_grid, Cloth, ClothGridOptions, ClothMaterial, ClothState};
+use largestep::cloth::{cloth_grid, Cloth, ClothGridOptions, ClothMaterial, ClothState, Obstacle};
 use largestep::integrate::{
     LinearSolverKind, MechSettings, MechStepper, Mechanical, Method, StepInfo,
 };
@@ -52,7 +52,10 @@ fn sheet(n: usize) -> (Cloth, ClothState) {
     });
     d.gravity = [0.0, -9.81, 0.0];
     d.pinned = vec![0, n * n - 1];
-    d.spheres = vec![([0.0, 0.0, 0.0], 0.25)];
+    d.obstacles = vec![Obstacle::Sphere {
+        center: [0.0; 3],
+        radius: 0.25,
+    }];
     d.friction = 0.3;
     d.build().unwrap()
 }

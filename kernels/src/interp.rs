@@ -51,6 +51,14 @@ impl Grid3 {
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
+    /// Whether `p` lies in the grid's box (false for NaN).
+    pub fn contains(&self, p: [f64; 3]) -> bool {
+        (0..3).all(|a| {
+            let t = (p[a] - self.origin[a]) / self.spacing[a];
+            t >= 0.0 && t <= (self.n[a] - 1) as f64
+        })
+    }
+
     /// A grid of `n` nodes spanning the box `[lo, hi]` (corners are nodes).
     pub fn spanning(n: [usize; 3], lo: [f64; 3], hi: [f64; 3]) -> Self {
         Self {
@@ -153,6 +161,26 @@ pub fn sample3(field: &[f64], g: Grid3, p: [f64; 3]) -> f64 {
     check3(&g, field.len());
     let (c, [u, v, w]) = cell3(&g, p);
     trilinear(&c.map(|i| field[i]), u, v, w)
+}
+
+/// Samples a scalar field on a 3-D grid at `p` with the gradient of the trilinear
+/// interpolant (exact within the cell; one-sided at cell faces): what a signed-distance
+/// grid gives for a distance and a normal. Outside the grid the point is clamped to it,
+/// so callers that care test [`Grid3::contains`] first.
+pub fn sample3_grad(field: &[f64], g: Grid3, p: [f64; 3]) -> (f64, [f64; 3]) {
+    check3(&g, field.len());
+    let (c, [u, v, w]) = cell3(&g, p);
+    let f = c.map(|i| field[i]);
+    let value = trilinear(&f, u, v, w);
+    // d/du of the trilinear form: differences along x of the four x-edges, blended in
+    // (v, w); likewise for v and w. Divided by the spacing for world units.
+    let du = bilinear(f[1] - f[0], f[3] - f[2], f[5] - f[4], f[7] - f[6], v, w);
+    let dv = bilinear(f[2] - f[0], f[3] - f[1], f[6] - f[4], f[7] - f[5], u, w);
+    let dw = bilinear(f[4] - f[0], f[5] - f[1], f[6] - f[2], f[7] - f[3], u, v);
+    (
+        value,
+        [du / g.spacing[0], dv / g.spacing[1], dw / g.spacing[2]],
+    )
 }
 
 /// Samples a 3-D vector field (one array per component) at `p` (trilinear).

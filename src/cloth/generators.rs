@@ -64,7 +64,10 @@ pub fn cloth_grid(o: &ClothGridOptions) -> ClothDesc {
         material: o.material,
         gravity: [0.0; 3],
         pinned: Vec::new(),
-        spheres: Vec::new(),
+        obstacles: Vec::new(),
+        wind: None,
+        paths: Vec::new(),
+        step_control: Default::default(),
         friction: 0.0,
         definiteness_fix: true,
     }

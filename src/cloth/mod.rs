@@ -14,8 +14,10 @@
 //! default); rest angles are the dihedral angles of the initial positions.
 
 mod generators;
+mod obstacles;
 
 pub use generators::{cloth_grid, ClothGridOptions};
+pub use obstacles::{Obstacle, SdfGrid};
 
 use crate::integrate::{IntegrateError, Mechanical};
 use crate::soa::Vec3s;
@@ -59,6 +61,82 @@ pub struct ClothMaterial {
     pub rest_stretch: [f64; 2],
 }
 
+/// Wind: a drag force on every triangle towards the air's velocity relative to it, along
+/// the triangle's normal, `f = drag A ((w - v) . n) n` (A the current area, v the mean of
+/// its vertices' velocities), split equally among its vertices. The air velocity can
+/// gust: `w(t, x) = velocity (1 + gust sin(2 pi (frequency t - x . d / wavelength)))`
+/// with `d` the wind's direction and `wavelength = |velocity| / frequency` (gusts travel
+/// with the wind). An external load: no potential, no Jacobian (like the jello's force
+/// field), so the implicit step treats it explicitly.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Wind {
+    /// Mean air velocity (m/s).
+    pub velocity: [f64; 3],
+    /// Drag coefficient (N s/m^3 = kg/(m^2 s)), >= 0.
+    pub drag: f64,
+    /// Relative gust amplitude, >= 0 (0: steady).
+    pub gust: f64,
+    /// Gust frequency (Hz), >= 0.
+    pub frequency: f64,
+}
+
+/// Vertices moved along a prescribed path: each listed vertex sits at its initial
+/// position plus an offset interpolated linearly between keyframes (held before the first
+/// and after the last). Path vertices are fixed in the implicit solve and placed on the
+/// path after every step with the path's velocity.
+#[derive(Clone, Debug, PartialEq)]
+pub struct VertexPath {
+    /// The vertices moved.
+    pub vertices: Vec<usize>,
+    /// Keyframe times (s), increasing.
+    pub times: Vec<f64>,
+    /// Offsets from the initial positions at those times (m).
+    pub offsets: Vec<[f64; 3]>,
+}
+
+impl VertexPath {
+    /// Offset and velocity at time `t` (the velocity of the segment `t` lies in, taking
+    /// the later one at a keyframe).
+    pub fn at(&self, t: f64) -> ([f64; 3], [f64; 3]) {
+        let k = self.times.partition_point(|&tk| tk <= t);
+        if k == 0 {
+            return (self.offsets[0], [0.0; 3]);
+        }
+        if k == self.times.len() {
+            return (self.offsets[k - 1], [0.0; 3]);
+        }
+        let (t0, t1) = (self.times[k - 1], self.times[k]);
+        let (a, b) = (self.offsets[k - 1], self.offsets[k]);
+        let s = (t - t0) / (t1 - t0);
+        (
+            std::array::from_fn(|c| a[c] + s * (b[c] - a[c])),
+            std::array::from_fn(|c| (b[c] - a[c]) / (t1 - t0)),
+        )
+    }
+}
+
+/// Step-size control of Baraff and Witkin (1998, section 5.3), applied by
+/// `scene::Simulation`: a step that fails (the solve does not converge, the state is not
+/// finite) or leaves a triangle stretched or compressed by more than `max_strain`
+/// ([`Cloth::max_strain`]) is undone and retried as two half steps, up to `max_halvings`
+/// times; after two good steps the step doubles back towards the scene's dt.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepControl {
+    /// Largest strain a step may leave (0.25: 25%), > 0.
+    pub max_strain: f64,
+    /// Halvings allowed before the run fails.
+    pub max_halvings: u32,
+}
+
+impl Default for StepControl {
+    fn default() -> Self {
+        StepControl {
+            max_strain: 0.25,
+            max_halvings: 6,
+        }
+    }
+}
+
 /// An editable cloth description.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ClothDesc {
@@ -76,10 +154,16 @@ pub struct ClothDesc {
     pub gravity: [f64; 3],
     /// Pinned vertices.
     pub pinned: Vec<usize>,
-    /// Sphere obstacles `(centre, radius)` (m); see [`Cloth::resolve_contacts`].
-    pub spheres: Vec<([f64; 3], f64)>,
+    /// Collision obstacles; see [`Cloth::resolve_contacts`].
+    pub obstacles: Vec<Obstacle>,
     /// Coulomb-like friction coefficient of contacts, >= 0 (0: frictionless).
     pub friction: f64,
+    /// Wind, if any.
+    pub wind: Option<Wind>,
+    /// Vertices on prescribed paths.
+    pub paths: Vec<VertexPath>,
+    /// Step-size control.
+    pub step_control: StepControl,
     /// Drop each element condition's curvature term where it could make the stiffness
     /// indefinite (`kernels::cloth::ElementOut::project`: shear and bend always, stretch
     /// in compression), so implicit systems stay definite when the cloth compresses or
@@ -175,9 +259,14 @@ pub struct Cloth {
     hinges: Vec<[u32; 4]>,
     theta0: Vec<f64>,
     definiteness_fix: bool,
-    spheres: Vec<([f64; 3], f64)>,
+    obstacles: Vec<Obstacle>,
     friction: f64,
-    /// Current contacts: vertex and outward unit normal.
+    wind: Option<Wind>,
+    paths: Vec<VertexPath>,
+    step_control: StepControl,
+    /// Initial positions of path vertices, per path.
+    path_rest: Vec<Vec<[f64; 3]>>,
+    /// Current contacts: vertex and outward unit normal, in vertex order.
     contacts: Vec<(u32, [f64; 3])>,
     tri_gather: VectorGather,
     hinge_gather: VectorGather,
@@ -315,18 +404,64 @@ impl ClothDesc {
                 "must be finite",
             )?;
         }
-        for (s, (c, r)) in self.spheres.iter().enumerate() {
-            check(
-                "sphere",
-                s,
-                "radius",
-                *r,
-                r.is_finite() && *r > 0.0,
-                "must be finite and > 0",
-            )?;
-            for (k, &x) in c.iter().enumerate() {
-                let field = ["centre.x", "centre.y", "centre.z"][k];
-                check("sphere", s, field, x, x.is_finite(), "must be finite")?;
+        for (k, o) in self.obstacles.iter().enumerate() {
+            o.validate(k)?;
+        }
+        if let Some(w) = &self.wind {
+            for (c, &x) in w.velocity.iter().enumerate() {
+                check(
+                    "wind",
+                    0,
+                    ["velocity.x", "velocity.y", "velocity.z"][c],
+                    x,
+                    x.is_finite(),
+                    "must be finite",
+                )?;
+            }
+            for (field, x) in [
+                ("drag", w.drag),
+                ("gust", w.gust),
+                ("frequency", w.frequency),
+            ] {
+                check(
+                    "wind",
+                    0,
+                    field,
+                    x,
+                    x.is_finite() && x >= 0.0,
+                    "must be finite and >= 0",
+                )?;
+            }
+        }
+        for (k, p) in self.paths.iter().enumerate() {
+            if p.times.is_empty() || p.times.len() != p.offsets.len() {
+                return Err(ClothError::Value {
+                    item: "path",
+                    index: k,
+                    field: "offsets",
+                    value: p.offsets.len() as f64,
+                    why: "needs one offset per keyframe time, and at least one",
+                });
+            }
+            for (j, w) in p.times.windows(2).enumerate() {
+                check("path", k, "times", w[1], w[1] > w[0], "must increase")?;
+                let _ = j;
+            }
+            for &t in &p.times {
+                check("path", k, "times", t, t.is_finite(), "must be finite")?;
+            }
+            for &x in p.offsets.iter().flatten() {
+                check("path", k, "offsets", x, x.is_finite(), "must be finite")?;
+            }
+            for &v in &p.vertices {
+                check(
+                    "path",
+                    k,
+                    "vertices",
+                    v as f64,
+                    v < n,
+                    "names a vertex that does not exist",
+                )?;
             }
         }
         check(
@@ -371,6 +506,12 @@ impl ClothDesc {
             }
             pinned.push(p as u32);
         }
+        // Path vertices are fixed in the solve like pins.
+        pinned.extend(
+            self.paths
+                .iter()
+                .flat_map(|p| p.vertices.iter().map(|&v| v as u32)),
+        );
         pinned.sort_unstable();
         pinned.dedup();
         for (i, &mi) in mass.iter().enumerate() {
@@ -404,7 +545,15 @@ impl ClothDesc {
             hinges,
             theta0,
             definiteness_fix: self.definiteness_fix,
-            spheres: self.spheres.clone(),
+            obstacles: self.obstacles.clone(),
+            wind: self.wind,
+            paths: self.paths.clone(),
+            step_control: self.step_control,
+            path_rest: self
+                .paths
+                .iter()
+                .map(|p| p.vertices.iter().map(|&v| self.positions[v]).collect())
+                .collect(),
             friction: self.friction,
             contacts: Vec::new(),
             jac: None,
@@ -416,6 +565,12 @@ impl ClothDesc {
         };
         for &p in &cloth.pinned {
             v.set(p as usize, [0.0; 3]);
+        }
+        for path in &cloth.paths {
+            let vel = path.at(0.0).1;
+            for &i in &path.vertices {
+                v.set(i, vel);
+            }
         }
         Ok((
             cloth,
@@ -536,8 +691,51 @@ impl Cloth {
         add_shear(out, r, x, v, m.shear * inv_a, m.shear_damping * inv_a);
     }
 
-    fn gravity_force(&self, f: &mut [f64]) {
+    /// Gravity and wind (external loads) into `f`, overwriting it.
+    fn external_forces(&self, t: f64, x: &[f64], v: &[f64], f: &mut [f64]) {
         crate::integrate::gravity_forces(&self.mass, self.gravity, f);
+        let Some(w) = self.wind else { return };
+        let n = self.n;
+        let speed = (w.velocity[0].powi(2) + w.velocity[1].powi(2) + w.velocity[2].powi(2)).sqrt();
+        for tri in &self.triangles {
+            let xs = gather_nodes(x, n, tri);
+            let e1: [f64; 3] = std::array::from_fn(|c| xs[1][c] - xs[0][c]);
+            let e2: [f64; 3] = std::array::from_fn(|c| xs[2][c] - xs[0][c]);
+            // N = e1 x e2 = 2 A n.
+            let nn = [
+                e1[1] * e2[2] - e1[2] * e2[1],
+                e1[2] * e2[0] - e1[0] * e2[2],
+                e1[0] * e2[1] - e1[1] * e2[0],
+            ];
+            let len2 = nn[0] * nn[0] + nn[1] * nn[1] + nn[2] * nn[2];
+            if len2.is_nan() || len2 <= 0.0 {
+                continue;
+            }
+            let mut air = w.velocity;
+            if w.gust > 0.0 && w.frequency > 0.0 && speed > 0.0 {
+                let centre: [f64; 3] =
+                    std::array::from_fn(|c| (xs[0][c] + xs[1][c] + xs[2][c]) / 3.0);
+                let along = (centre[0] * w.velocity[0]
+                    + centre[1] * w.velocity[1]
+                    + centre[2] * w.velocity[2])
+                    / speed;
+                let phase = std::f64::consts::TAU * (w.frequency * t - along * w.frequency / speed);
+                let s = 1.0 + w.gust * phase.sin();
+                air = air.map(|c| c * s);
+            }
+            let vs = gather_nodes(v, n, tri);
+            let rel: [f64; 3] =
+                std::array::from_fn(|c| air[c] - (vs[0][c] + vs[1][c] + vs[2][c]) / 3.0);
+            // drag A (rel . n) n = drag (rel . N) N / (2 |N|), a third to each vertex.
+            let s = w.drag * (rel[0] * nn[0] + rel[1] * nn[1] + rel[2] * nn[2])
+                / (2.0 * len2.sqrt())
+                / 3.0;
+            for &i in tri {
+                for c in 0..3 {
+                    f[c * n + i as usize] += s * nn[c];
+                }
+            }
+        }
     }
 }
 
@@ -545,32 +743,36 @@ impl Cloth {
 pub const CONTACT_THICKNESS: f64 = 2e-3;
 
 impl Cloth {
-    /// Contacts with the sphere obstacles, by Baraff and Witkin's constraint filtering
-    /// (1998, section 5) plus position correction, called after each step with the
-    /// state: every vertex closer than [`CONTACT_THICKNESS`] to a sphere is moved back onto
-    /// the surface plus that thickness, loses the velocity that points into the sphere,
-    /// has its tangential velocity scaled by `max(0, 1 - friction |v_n| / |v_t|)`
-    /// (Coulomb-like), and is constrained to the tangent plane for the next implicit
-    /// solve ([`Mechanical::constraints`]), so it cannot move into the obstacle whatever
-    /// the solver's iteration count. A vertex moving away is released. Returns the number
-    /// of contacts.
+    /// Contacts with the obstacles, by Baraff and Witkin's constraint filtering (1998,
+    /// section 5) plus position correction, called after each step with the state: every
+    /// free vertex closer than [`CONTACT_THICKNESS`] to an obstacle (signed distance) is
+    /// moved out along the obstacle's normal to that thickness, loses the velocity that
+    /// points into it, has its tangential velocity scaled by
+    /// `max(0, 1 - friction |v_n| / |v_t|)` (Coulomb-like), and is constrained to the
+    /// tangent plane for the next implicit solve ([`Mechanical::constraints`]), so it
+    /// cannot move into the obstacle whatever the solver's iteration count. A vertex
+    /// moving away is released. Obstacles are visited in order; a vertex touching two
+    /// gets both constraints (`S = I - p p^T - q q^T`). Returns the number of contacts.
     pub fn resolve_contacts(&mut self, x: &mut [f64], v: &mut [f64]) -> usize {
         self.contacts.clear();
+        if self.obstacles.is_empty() {
+            return 0;
+        }
         let n = self.n;
         for i in 0..n {
             if self.pinned.binary_search(&(i as u32)).is_ok() {
                 continue;
             }
-            for &(c, r) in &self.spheres {
+            for o in &self.obstacles {
                 let p = get3(x, n, i);
-                let d = [p[0] - c[0], p[1] - c[1], p[2] - c[2]];
-                let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-                if len.is_nan() || len >= r + CONTACT_THICKNESS || len == 0.0 {
+                let Some((d, nrm)) = o.distance(p) else {
+                    continue;
+                };
+                if d.is_nan() || d >= CONTACT_THICKNESS {
                     continue;
                 }
-                let nrm = d.map(|k| k / len);
                 for k in 0..3 {
-                    x[k * n + i] = c[k] + (r + CONTACT_THICKNESS) * nrm[k];
+                    x[k * n + i] = p[k] + (CONTACT_THICKNESS - d) * nrm[k];
                 }
                 let vel = get3(v, n, i);
                 let vn = vel[0] * nrm[0] + vel[1] * nrm[1] + vel[2] * nrm[2];
@@ -593,16 +795,53 @@ impl Cloth {
         self.contacts.len()
     }
 
-    /// The deepest penetration into a sphere obstacle (m, >= 0).
+    /// What follows every step, with `t` the time at its end: path vertices are placed on
+    /// their paths (position and velocity), then contacts are resolved
+    /// ([`Cloth::resolve_contacts`]). Returns the number of contacts.
+    pub fn after_step(&mut self, t: f64, x: &mut [f64], v: &mut [f64]) -> usize {
+        let n = self.n;
+        for (path, rest) in self.paths.iter().zip(&self.path_rest) {
+            let (off, vel) = path.at(t);
+            for (&i, p0) in path.vertices.iter().zip(rest) {
+                for c in 0..3 {
+                    x[c * n + i] = p0[c] + off[c];
+                    v[c * n + i] = vel[c];
+                }
+            }
+        }
+        self.resolve_contacts(x, v)
+    }
+
+    /// The largest stretch strain of any triangle, `max | |w_u| - b_u |` over both
+    /// directions (0 at rest; 0.1 is 10% stretched or compressed): what step-size
+    /// control watches (Baraff and Witkin 1998, section 5.3).
+    pub fn max_strain(&self, x: &[f64]) -> f64 {
+        let n = self.n;
+        let b = self.material.rest_stretch;
+        let mut worst = 0.0f64;
+        for (tri, r) in self.triangles.iter().zip(&self.rest) {
+            let (wu, wv) = r.wuv(&gather_nodes(x, n, tri));
+            let lu = (wu[0] * wu[0] + wu[1] * wu[1] + wu[2] * wu[2]).sqrt();
+            let lv = (wv[0] * wv[0] + wv[1] * wv[1] + wv[2] * wv[2]).sqrt();
+            let s = (lu - b[0]).abs().max((lv - b[1]).abs());
+            if s.is_nan() {
+                return f64::NAN;
+            }
+            worst = worst.max(s);
+        }
+        worst
+    }
+
+    /// The deepest penetration into an obstacle (m, >= 0).
     pub fn max_penetration(&self, x: &[f64]) -> f64 {
         let n = self.n;
         let mut worst = 0.0f64;
         for i in 0..n {
             let p = get3(x, n, i);
-            for &(c, r) in &self.spheres {
-                let d =
-                    ((p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2)).sqrt();
-                worst = worst.max(r - d);
+            for o in &self.obstacles {
+                if let Some((d, _)) = o.distance(p) {
+                    worst = worst.max(-d);
+                }
             }
         }
         worst
@@ -613,9 +852,24 @@ impl Cloth {
         self.contacts.len()
     }
 
-    /// The sphere obstacles.
-    pub fn spheres(&self) -> &[([f64; 3], f64)] {
-        &self.spheres
+    /// The obstacles.
+    pub fn obstacles(&self) -> &[Obstacle] {
+        &self.obstacles
+    }
+
+    /// The step-size control settings.
+    pub fn step_control(&self) -> StepControl {
+        self.step_control
+    }
+
+    /// The wind, if any.
+    pub fn wind(&self) -> Option<Wind> {
+        self.wind
+    }
+
+    /// The vertices on prescribed paths.
+    pub fn paths(&self) -> &[VertexPath] {
+        &self.paths
     }
 }
 
@@ -629,8 +883,38 @@ impl Mechanical for Cloth {
     }
 
     fn constraints(&self, filter: &mut Filter) {
-        for &(i, n) in &self.contacts {
-            filter.constrain_normal(i as usize, n);
+        // Contacts are in vertex order: one normal constrains to the tangent plane, two
+        // independent ones to their common line, three or more fix the vertex.
+        for group in self.contacts.chunk_by(|a, b| a.0 == b.0) {
+            let i = group[0].0 as usize;
+            let p = group[0].1;
+            let mut line: Option<[f64; 3]> = None;
+            let mut fixed = false;
+            for &(_, q) in &group[1..] {
+                let c = [
+                    p[1] * q[2] - p[2] * q[1],
+                    p[2] * q[0] - p[0] * q[2],
+                    p[0] * q[1] - p[1] * q[0],
+                ];
+                if c[0] * c[0] + c[1] * c[1] + c[2] * c[2] < 1e-12 {
+                    continue; // (anti)parallel: the same plane
+                }
+                match line {
+                    None => line = Some(c),
+                    Some(l) => {
+                        let along = (l[0] * q[0] + l[1] * q[1] + l[2] * q[2]).abs();
+                        let ll = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
+                        if along > 1e-6 * ll {
+                            fixed = true;
+                        }
+                    }
+                }
+            }
+            match (fixed, line) {
+                (true, _) => filter.fix(i),
+                (false, Some(l)) => filter.constrain_line(i, l),
+                (false, None) => filter.constrain_normal(i, p),
+            }
         }
         // Pins last: a pinned vertex in contact stays fixed.
         for &p in &self.pinned {
@@ -638,8 +922,8 @@ impl Mechanical for Cloth {
         }
     }
 
-    fn force(&mut self, _t: f64, x: &[f64], v: &[f64], f: &mut [f64]) {
-        self.gravity_force(f);
+    fn force(&mut self, t: f64, x: &[f64], v: &[f64], f: &mut [f64]) {
+        self.external_forces(t, x, v, f);
         let n = self.n;
         let mut tri_f = std::mem::take(&mut self.tri_f);
         let this = &*self;
@@ -741,7 +1025,7 @@ impl Mechanical for Cloth {
 
     fn force_jacobians(
         &mut self,
-        _t: f64,
+        t: f64,
         x: &[f64],
         v: &[f64],
         f: &mut [f64],
@@ -749,7 +1033,7 @@ impl Mechanical for Cloth {
         dfdv: Option<&mut Bsr3>,
     ) -> Result<(), IntegrateError> {
         self.prepare_jacobians().map_err(IntegrateError::Sparse)?;
-        self.gravity_force(f);
+        self.external_forces(t, x, v, f);
         let n = self.n;
         let mut jac = self.jac.take().expect("prepared above");
         let m = self.material;

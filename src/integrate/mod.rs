@@ -177,6 +177,19 @@ pub enum IntegrateError {
         /// What to try (may be empty).
         hint: &'static str,
     },
+    /// Step-size control gave up: the step still failed at the smallest size allowed.
+    #[error("step {step}: still failing after halving the time step {halvings} times (last try dt = {dt:e} s): {why}")]
+    StepControl {
+        /// Steps taken so far (sub-steps included).
+        step: u64,
+        /// Halvings allowed (all used).
+        halvings: u32,
+        /// The last step size tried (s).
+        dt: f64,
+        /// Why the last try failed (the solver's error, with its iterations and residual,
+        /// or the strain).
+        why: String,
+    },
     /// Building the Jacobian structures failed.
     #[error("Jacobian structure: {0}")]
     Sparse(crate::sparse::SparseError),

@@ -148,7 +148,37 @@ pub fn read_obj(path: &std::path::Path) -> Result<Mesh, ReadError> {
 
 /// [`read_obj`] on text; `name` is used in errors.
 pub fn parse_obj(text: &str, name: &str) -> Result<Mesh, ReadError> {
+    parse_obj_impl(text, name, false).map(|(m, _)| m)
+}
+
+/// Reads an OBJ triangle mesh with texture coordinates, one `(u, v)` per vertex (what
+/// cloth takes as rest coordinates): every face corner must name one (`i/t` or `i/t/n`),
+/// and a vertex named with two different ones (a texture seam) is an error naming the
+/// line; the mesh must be split at the seam. Otherwise as [`read_obj`].
+pub fn read_obj_uv(path: &std::path::Path) -> Result<(Mesh, Vec<[f64; 2]>), ReadError> {
+    let text = std::fs::read_to_string(path).map_err(|e| ReadError {
+        path: path.display().to_string(),
+        line: 0,
+        message: e.to_string(),
+    })?;
+    parse_obj_uv(&text, &path.display().to_string())
+}
+
+/// [`read_obj_uv`] on text; `name` is used in errors.
+pub fn parse_obj_uv(text: &str, name: &str) -> Result<(Mesh, Vec<[f64; 2]>), ReadError> {
+    parse_obj_impl(text, name, true).map(|(m, uv)| (m, uv.unwrap_or_default()))
+}
+
+/// A mesh and, when asked for, one texture coordinate per vertex.
+type MeshAndUv = (Mesh, Option<Vec<[f64; 2]>>);
+
+fn parse_obj_impl(text: &str, name: &str, want_uv: bool) -> Result<MeshAndUv, ReadError> {
     let mut xyz: Vec<[f64; 3]> = Vec::new();
+    // Texture coordinates as read, and for each vertex the one its faces name (with the
+    // line that first named it).
+    let mut vts: Vec<[f64; 2]> = Vec::new();
+    let mut vt_of: Vec<(u32, usize)> = Vec::new();
+    let mut vt_used: Option<(usize, usize)> = None;
     let mut triangles = Vec::new();
     let mut segments = Vec::new();
     // Faces may name vertices defined later, so indices are checked at the end against
@@ -181,10 +211,28 @@ pub fn parse_obj(text: &str, name: &str) -> Result<Mesh, ReadError> {
                 }
                 xyz.push(p);
             }
+            "vt" if want_uv => {
+                let vals: Vec<&str> = it.collect();
+                if !(2..=3).contains(&vals.len()) {
+                    return Err(err(format!(
+                        "`vt` needs 2 coordinates, found {}",
+                        vals.len()
+                    )));
+                }
+                let mut t = [0.0; 2];
+                for (k, s) in vals[..2].iter().enumerate() {
+                    t[k] = s
+                        .parse()
+                        .map_err(|_| err(format!("`{s}` is not a number (texture coordinate)")))?;
+                }
+                vts.push(t);
+            }
             "f" | "l" => {
                 let mut idx = Vec::new();
                 for tok in it {
-                    let first = tok.split('/').next().unwrap_or("");
+                    let mut parts = tok.split('/');
+                    let first = parts.next().unwrap_or("");
+                    let tex = parts.next().unwrap_or("");
                     let i: i64 = first.parse().map_err(|_| {
                         err(format!(
                             "`{tok}` is not a vertex index (expected i, i/t, i//n or i/t/n)"
@@ -207,6 +255,36 @@ pub fn parse_obj(text: &str, name: &str) -> Result<Mesh, ReadError> {
                         return Err(err(format!("vertex index {i} is too large")));
                     }
                     idx.push(abs as u32);
+                    if want_uv && key == "f" {
+                        let t: i64 = tex.parse().map_err(|_| {
+                            err(format!(
+                                "`{tok}` has no texture coordinate: cloth meshes need i/t or i/t/n on every face"
+                            ))
+                        })?;
+                        let ta = if t > 0 { t - 1 } else { vts.len() as i64 + t };
+                        if t == 0 || ta < 0 || ta > u32::MAX as i64 {
+                            return Err(err(format!("texture index {t} is out of range")));
+                        }
+                        if vt_used.is_none_or(|(k, _)| ta as usize > k) {
+                            vt_used = Some((ta as usize, line));
+                        }
+                        let a = abs as usize;
+                        if vt_of.len() <= a {
+                            vt_of.resize(a + 1, (u32::MAX, 0));
+                        }
+                        match vt_of[a] {
+                            (u32::MAX, _) => vt_of[a] = (ta as u32, line),
+                            (prev, _) if prev == ta as u32 => {}
+                            (prev, first) => {
+                                return Err(err(format!(
+                                    "vertex {} has texture coordinate {} here but {} on line {first} (a texture seam): split the mesh at the seam",
+                                    a + 1,
+                                    ta + 1,
+                                    prev + 1
+                                )))
+                            }
+                        }
+                    }
                     if largest.is_none_or(|(k, _)| abs as usize > k) {
                         largest = Some((abs as usize, line));
                     }
@@ -250,9 +328,36 @@ pub fn parse_obj(text: &str, name: &str) -> Result<Mesh, ReadError> {
             ),
         });
     }
-    Ok(Mesh {
-        positions: crate::soa::Vec3s::from_aos(&xyz).into_vec(),
-        triangles: triangles.into(),
-        segments: segments.into(),
-    })
+    let uv = if want_uv {
+        if let Some((k, line)) = vt_used.filter(|&(k, _)| k >= vts.len()) {
+            return Err(ReadError {
+                path: name.to_string(),
+                line,
+                message: format!(
+                    "texture coordinate {} does not exist: the file defines {}",
+                    k + 1,
+                    vts.len()
+                ),
+            });
+        }
+        let mut uv = Vec::with_capacity(n);
+        for i in 0..n {
+            match vt_of.get(i) {
+                Some(&(t, _)) if t != u32::MAX => uv.push(vts[t as usize]),
+                // A vertex in no face: no (u, v) needed; it gets no mass (the cloth pins it).
+                _ => uv.push([0.0, 0.0]),
+            }
+        }
+        Some(uv)
+    } else {
+        None
+    };
+    Ok((
+        Mesh {
+            positions: crate::soa::Vec3s::from_aos(&xyz).into_vec(),
+            triangles: triangles.into(),
+            segments: segments.into(),
+        },
+        uv,
+    ))
 }

@@ -5,7 +5,9 @@
 
 mod mesh;
 
-pub use mesh::{parse_obj, read_obj, write_obj, write_ply, Mesh, MeshRef, ReadError};
+pub use mesh::{
+    parse_obj, parse_obj_uv, read_obj, read_obj_uv, write_obj, write_ply, Mesh, MeshRef, ReadError,
+};
 mod image;
 pub use image::{read_png, write_gif, write_png};
 

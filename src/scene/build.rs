@@ -28,6 +28,7 @@ fn stage(name: &'static str, built: bool, detail: impl Into<String>) -> Stage {
 }
 
 /// The system a simulation steps.
+#[allow(clippy::large_enum_variant)] // one per simulation
 enum Body {
     MassSpring(MassSpring),
     Cloth(Cloth),
@@ -54,6 +55,11 @@ pub struct Simulation {
     state: MechState,
     stepper: MechStepper,
     dt: f64,
+    /// Cloth step-size control: the current sub-step, good sub-steps in a row, and the
+    /// state saved before each attempt.
+    sub_dt: f64,
+    good_steps: u32,
+    saved: Option<(Vec<f64>, Vec<f64>)>,
     t: f64,
     stages: Vec<Stage>,
 }
@@ -110,42 +116,148 @@ impl Simulation {
         }
         match &body {
             Body::MassSpring(model) => stages.extend(environment_stages(model)),
-            Body::Cloth(c) => stages.push(if c.spheres().is_empty() {
-                stage("collision structures", false, "the scene has no colliders")
-            } else {
-                stage(
-                    "sphere contacts (constraint filter + position correction)",
+            Body::Cloth(c) => {
+                stages.push(if c.obstacles().is_empty() {
+                    stage("collision structures", false, "the scene has no colliders")
+                } else {
+                    let kinds: Vec<&str> = c.obstacles().iter().map(|o| o.kind()).collect();
+                    stage(
+                        "obstacle contacts (constraint filter + position correction)",
+                        true,
+                        kinds.join(", "),
+                    )
+                });
+                stages.push(match c.wind() {
+                    Some(w) => stage(
+                        "wind",
+                        true,
+                        format!("air {:?} m/s, drag {}", w.velocity, w.drag),
+                    ),
+                    None => stage("wind", false, "no [cloth.wind]"),
+                });
+                stages.push(if c.paths().is_empty() {
+                    stage("prescribed paths", false, "no [[cloth.path]]")
+                } else {
+                    stage(
+                        "prescribed paths",
+                        true,
+                        format!("{} paths", c.paths().len()),
+                    )
+                });
+                let sc = c.step_control();
+                stages.push(stage(
+                    "step-size control",
                     true,
-                    format!("{} spheres", c.spheres().len()),
-                )
-            }),
+                    format!(
+                        "halve dt when a step fails or strain exceeds {} (at most {} times)",
+                        sc.max_strain, sc.max_halvings
+                    ),
+                ));
+            }
         }
+        let saved = match &body {
+            Body::Cloth(_) => Some((state.x.as_slice().to_vec(), state.v.as_slice().to_vec())),
+            Body::MassSpring(_) => None,
+        };
         Ok(Self {
             body,
             state,
             stepper,
             dt: scene.dt,
+            sub_dt: scene.dt,
+            good_steps: 0,
+            saved,
             t: 0.0,
             stages,
         })
     }
 
-    /// Advances one time step. Cloth contacts are resolved after every step (so frames
-    /// and logs see corrected positions), and the contacts found there constrain the
-    /// next step's solve.
+    /// Advances one time step of the scene's dt. Cloth steps go through step-size control
+    /// ([`crate::cloth::StepControl`]: a failed or over-stretched sub-step is undone and
+    /// retried at half the size; sizes grow back after two good sub-steps), and after
+    /// every sub-step path vertices are placed and contacts resolved (so frames and logs
+    /// see corrected positions; the contacts found constrain the next solve). The
+    /// returned counts sum over the sub-steps.
     pub fn step(&mut self) -> Result<StepInfo, IntegrateError> {
-        let info = self.stepper.step(
-            self.body.mech(),
-            self.t,
-            self.state.x.as_mut_slice(),
-            self.state.v.as_mut_slice(),
-            self.dt,
-        )?;
-        if let Body::Cloth(c) = &mut self.body {
-            c.resolve_contacts(self.state.x.as_mut_slice(), self.state.v.as_mut_slice());
+        let Body::Cloth(_) = &self.body else {
+            let info = self.stepper.step(
+                self.body.mech(),
+                self.t,
+                self.state.x.as_mut_slice(),
+                self.state.v.as_mut_slice(),
+                self.dt,
+            )?;
+            self.t += self.dt;
+            return Ok(info);
+        };
+        let end = self.t + self.dt;
+        let mut total = StepInfo::default();
+        let mut halvings = 0u32;
+        while self.t < end - 1e-12 * self.dt {
+            let h = self.sub_dt.min(end - self.t);
+            let Body::Cloth(c) = &mut self.body else {
+                unreachable!()
+            };
+            let control = c.step_control();
+            let (xs, vs) = self.saved.as_mut().expect("cloth keeps a saved state");
+            xs.copy_from_slice(self.state.x.as_slice());
+            vs.copy_from_slice(self.state.v.as_slice());
+            let result = self.stepper.step(
+                c,
+                self.t,
+                self.state.x.as_mut_slice(),
+                self.state.v.as_mut_slice(),
+                h,
+            );
+            let why = match result {
+                Ok(info) => {
+                    let strain = c.max_strain(self.state.x.as_slice());
+                    if strain <= control.max_strain {
+                        total.newton_iterations += info.newton_iterations;
+                        total.linear_iterations += info.linear_iterations;
+                        total.residual = info.residual;
+                        total.solve_seconds += info.solve_seconds;
+                        self.t += h;
+                        let (x, v) = (self.state.x.as_mut_slice(), self.state.v.as_mut_slice());
+                        c.after_step(self.t, x, v);
+                        self.good_steps += 1;
+                        if self.good_steps >= 2 && self.sub_dt < self.dt {
+                            self.sub_dt = (2.0 * self.sub_dt).min(self.dt);
+                            self.good_steps = 0;
+                        }
+                        continue;
+                    }
+                    format!(
+                        "a triangle is strained by {strain:.3}, above max_strain = {}",
+                        control.max_strain
+                    )
+                }
+                Err(e) => e.to_string(),
+            };
+            // Undo and halve.
+            let (xs, vs) = self.saved.as_ref().expect("cloth keeps a saved state");
+            self.state.x.as_mut_slice().copy_from_slice(xs);
+            self.state.v.as_mut_slice().copy_from_slice(vs);
+            self.good_steps = 0;
+            halvings += 1;
+            if halvings > control.max_halvings {
+                return Err(IntegrateError::StepControl {
+                    step: self.stepper.steps(),
+                    halvings: control.max_halvings,
+                    dt: h,
+                    why,
+                });
+            }
+            self.sub_dt = h / 2.0;
         }
-        self.t += self.dt;
-        Ok(info)
+        self.t = end;
+        Ok(total)
+    }
+
+    /// The current sub-step of cloth step-size control (s): the scene's dt unless steps
+    /// were halved recently.
+    pub fn sub_step(&self) -> f64 {
+        self.sub_dt
     }
 
     /// Simulated time (s).

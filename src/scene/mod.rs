@@ -199,6 +199,7 @@ pub struct Scene {
 
 /// The systems a scene can hold.
 #[derive(Debug)]
+#[allow(clippy::large_enum_variant)] // one per scene
 pub enum System {
     /// A mass-spring system.
     MassSpring(ms::MassSpring, ms::MassSpringState),
@@ -314,7 +315,8 @@ impl Scene {
                 System::MassSpring(model, state)
             }
             (None, Some(table)) => {
-                let (cloth, state) = cloth_desc(table, gravity, &err)?
+                let base = Path::new(file).parent().unwrap_or(Path::new(""));
+                let (cloth, state) = cloth_desc(table, gravity, base, &err)?
                     .build()
                     .map_err(|e| err(path(&[&"cloth"]), e.to_string()))?;
                 System::Cloth(cloth, state)
@@ -344,29 +346,21 @@ impl Scene {
     }
 }
 
-/// The cloth of a `[cloth]` table: a grid generator and a material.
+/// The cloth of a `[cloth]` table: a grid generator or an OBJ mesh, a material,
+/// obstacles, wind, paths and step control. Files are relative to `base` (the scene's
+/// folder).
 fn cloth_desc(
     t: &schema::ClothTable,
     gravity: [f64; 3],
+    base: &Path,
     err: &ErrFn<'_>,
 ) -> Result<crate::cloth::ClothDesc, SceneError> {
+    use crate::cloth::{Obstacle, SdfGrid, StepControl, VertexPath, Wind};
     let at = |f: &[&dyn PathPart]| {
         let mut p = path(&[&"cloth"]);
         p.extend(path(f));
         p
     };
-    let g = &t.grid;
-    for (name, v) in [("nu", g.nu), ("nv", g.nv)] {
-        if !(2..=4096).contains(&v) {
-            return Err(err(
-                at(&[&"grid", &name]),
-                format!("a cloth grid needs 2..=4096 vertices per side, not {v}"),
-            ));
-        }
-    }
-    for (i, &s) in g.size.iter().enumerate() {
-        finite_positive(s, at(&[&"grid", &"size", &i]), "size", err)?;
-    }
     let m = &t.material;
     let material = crate::cloth::ClothMaterial {
         density: finite_positive(m.density, at(&[&"material", &"density"]), "density", err)?,
@@ -393,40 +387,216 @@ fn cloth_desc(
         )?,
         rest_stretch: [1.0, 1.0],
     };
-    let mut desc = crate::cloth::cloth_grid(&crate::cloth::ClothGridOptions {
-        nu: g.nu as usize,
-        nv: g.nv as usize,
-        size: g.size,
-        origin: g.origin.unwrap_or([0.0; 3]),
-        u_axis: g.u_axis.unwrap_or([1.0, 0.0, 0.0]),
-        v_axis: g.v_axis.unwrap_or([0.0, 0.0, 1.0]),
-        material,
-    });
-    if !desc.positions.iter().flatten().all(|v| v.is_finite()) {
-        return Err(err(at(&[&"grid"]), "origin and axes must be finite".into()));
-    }
+    let mut desc = match (&t.grid, &t.mesh) {
+        (Some(g), None) => {
+            for (name, v) in [("nu", g.nu), ("nv", g.nv)] {
+                if !(2..=4096).contains(&v) {
+                    return Err(err(
+                        at(&[&"grid", &name]),
+                        format!("a cloth grid needs 2..=4096 vertices per side, not {v}"),
+                    ));
+                }
+            }
+            for (i, &s) in g.size.iter().enumerate() {
+                finite_positive(s, at(&[&"grid", &"size", &i]), "size", err)?;
+            }
+            let desc = crate::cloth::cloth_grid(&crate::cloth::ClothGridOptions {
+                nu: g.nu as usize,
+                nv: g.nv as usize,
+                size: g.size,
+                origin: g.origin.unwrap_or([0.0; 3]),
+                u_axis: g.u_axis.unwrap_or([1.0, 0.0, 0.0]),
+                v_axis: g.v_axis.unwrap_or([0.0, 0.0, 1.0]),
+                material,
+            });
+            if !desc.positions.iter().flatten().all(|v| v.is_finite()) {
+                return Err(err(at(&[&"grid"]), "origin and axes must be finite".into()));
+            }
+            desc
+        }
+        (None, Some(mt)) => {
+            let file = base.join(&mt.file);
+            let (mesh, uv) = crate::io::read_obj_uv(&file)
+                .map_err(|e| err(at(&[&"mesh", &"file"]), e.to_string()))?;
+            let uv_scale = finite_positive(
+                mt.uv_scale.unwrap_or(1.0),
+                at(&[&"mesh", &"uv_scale"]),
+                "uv_scale",
+                err,
+            )?;
+            let scale = finite_positive(
+                mt.scale.unwrap_or(1.0),
+                at(&[&"mesh", &"scale"]),
+                "scale",
+                err,
+            )?;
+            let offset = mt.offset.unwrap_or([0.0; 3]);
+            if !offset.iter().all(|c| c.is_finite()) {
+                return Err(err(at(&[&"mesh", &"offset"]), "must be finite".into()));
+            }
+            let nv = mesh.positions.len() / 3;
+            let positions = (0..nv)
+                .map(|i| {
+                    let p = largestep_kernels::get3(&mesh.positions, nv, i);
+                    std::array::from_fn(|c| scale * p[c] + offset[c])
+                })
+                .collect();
+            let mut desc = crate::cloth::cloth_grid(&crate::cloth::ClothGridOptions {
+                nu: 2,
+                nv: 2,
+                size: [1.0, 1.0],
+                origin: [0.0; 3],
+                u_axis: [1.0, 0.0, 0.0],
+                v_axis: [0.0, 0.0, 1.0],
+                material,
+            });
+            desc.positions = positions;
+            desc.uv = uv
+                .iter()
+                .map(|t| [uv_scale * t[0], uv_scale * t[1]])
+                .collect();
+            desc.triangles = mesh.triangles.to_vec();
+            desc.velocities = Vec::new();
+            desc
+        }
+        _ => {
+            return Err(err(
+                at(&[]),
+                "give exactly one of [cloth.grid] or [cloth.mesh]".into(),
+            ))
+        }
+    };
     let n = desc.positions.len();
-    let mut pinned = Vec::with_capacity(t.pinned.len());
-    for (k, &p) in t.pinned.iter().enumerate() {
-        let i = index(p, at(&[&"pinned", &k]), err)?;
+    let vertex = |v: i64, p: Vec<Key>| -> Result<usize, SceneError> {
+        let i = index(v, p.clone(), err)?;
         if i >= n {
             return Err(err(
-                at(&[&"pinned", &k]),
-                format!("vertex {i} does not exist: the grid has {n} vertices"),
+                p,
+                format!("vertex {i} does not exist: the cloth has {n} vertices"),
             ));
         }
-        pinned.push(i);
+        Ok(i)
+    };
+    let mut pinned = Vec::with_capacity(t.pinned.len());
+    for (k, &p) in t.pinned.iter().enumerate() {
+        pinned.push(vertex(p, at(&[&"pinned", &k]))?);
     }
     desc.pinned = pinned;
+    // Obstacles, each validated where it is written.
+    let mut obstacles: Vec<(Vec<Key>, Obstacle)> = Vec::new();
     for (k, s) in t.sphere.iter().enumerate() {
-        finite_positive(s.radius, at(&[&"sphere", &k, &"radius"]), "radius", err)?;
-        if !s.center.iter().all(|c| c.is_finite()) {
+        obstacles.push((
+            at(&[&"sphere", &k]),
+            Obstacle::Sphere {
+                center: s.center,
+                radius: s.radius,
+            },
+        ));
+    }
+    for (k, s) in t.plane.iter().enumerate() {
+        obstacles.push((
+            at(&[&"plane", &k]),
+            Obstacle::Plane {
+                point: s.point,
+                normal: s.normal,
+            },
+        ));
+    }
+    for (k, s) in t.boxes.iter().enumerate() {
+        obstacles.push((
+            at(&[&"box", &k]),
+            Obstacle::Box {
+                min: s.min,
+                max: s.max,
+            },
+        ));
+    }
+    for (k, s) in t.capsule.iter().enumerate() {
+        obstacles.push((
+            at(&[&"capsule", &k]),
+            Obstacle::Capsule {
+                a: s.a,
+                b: s.b,
+                radius: s.radius,
+            },
+        ));
+    }
+    for (k, s) in t.sdf.iter().enumerate() {
+        let grid = SdfGrid::read(&base.join(&s.file))
+            .map_err(|e| err(at(&[&"sdf", &k, &"file"]), e.to_string()))?;
+        obstacles.push((at(&[&"sdf", &k]), Obstacle::Sdf(std::sync::Arc::new(grid))));
+    }
+    for (k, (p, o)) in obstacles.iter().enumerate() {
+        o.validate(k).map_err(|e| err(p.clone(), e.to_string()))?;
+    }
+    desc.obstacles = obstacles.into_iter().map(|(_, o)| o).collect();
+    if let Some(w) = &t.wind {
+        if !w.velocity.iter().all(|c| c.is_finite()) {
+            return Err(err(at(&[&"wind", &"velocity"]), "must be finite".into()));
+        }
+        desc.wind = Some(Wind {
+            velocity: w.velocity,
+            drag: finite_nonneg(w.drag, at(&[&"wind", &"drag"]), "drag", err)?,
+            gust: finite_nonneg(w.gust, at(&[&"wind", &"gust"]), "gust", err)?,
+            frequency: finite_nonneg(w.frequency, at(&[&"wind", &"frequency"]), "frequency", err)?,
+        });
+    }
+    for (k, pt) in t.path.iter().enumerate() {
+        let mut vertices = Vec::with_capacity(pt.vertices.len());
+        for (j, &v) in pt.vertices.iter().enumerate() {
+            vertices.push(vertex(v, at(&[&"path", &k, &"vertices", &j]))?);
+        }
+        if pt.times.is_empty() || pt.times.len() != pt.offsets.len() {
             return Err(err(
-                at(&[&"sphere", &k, &"center"]),
-                "must be finite".into(),
+                at(&[&"path", &k, &"offsets"]),
+                format!(
+                    "needs one offset per time ({} times, {} offsets), and at least one",
+                    pt.times.len(),
+                    pt.offsets.len()
+                ),
             ));
         }
-        desc.spheres.push((s.center, s.radius));
+        for (j, &tk) in pt.times.iter().enumerate() {
+            if !tk.is_finite() || (j > 0 && tk <= pt.times[j - 1]) {
+                return Err(err(
+                    at(&[&"path", &k, &"times", &j]),
+                    format!("times must be finite and increasing, not {tk}"),
+                ));
+            }
+        }
+        for (j, o) in pt.offsets.iter().enumerate() {
+            if !o.iter().all(|c| c.is_finite()) {
+                return Err(err(
+                    at(&[&"path", &k, &"offsets", &j]),
+                    "must be finite".into(),
+                ));
+            }
+        }
+        desc.paths.push(VertexPath {
+            vertices,
+            times: pt.times.clone(),
+            offsets: pt.offsets.clone(),
+        });
+    }
+    if let Some(sc) = &t.step_control {
+        let d = StepControl::default();
+        let max_strain = finite_positive(
+            sc.max_strain.unwrap_or(d.max_strain),
+            at(&[&"step_control", &"max_strain"]),
+            "max_strain",
+            err,
+        )?;
+        let halvings = sc.max_halvings.unwrap_or(d.max_halvings as i64);
+        if !(0..=30).contains(&halvings) {
+            return Err(err(
+                at(&[&"step_control", &"max_halvings"]),
+                format!("must lie in 0..=30, not {halvings}"),
+            ));
+        }
+        desc.step_control = StepControl {
+            max_strain,
+            max_halvings: halvings as u32,
+        };
     }
     desc.friction = finite_nonneg(t.friction, at(&[&"friction"]), "friction", err)?;
     desc.gravity = gravity;

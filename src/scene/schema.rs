@@ -43,10 +43,15 @@
 //! [cloth]                     # instead of [mass_spring]: a Baraff-Witkin sheet
 //! pinned = [0, 9]             # grid vertex (i, j) is i + nu j
 //! friction = 0.3             # of contacts
-//! [[cloth.sphere]]            # obstacles (any number)
+//! [[cloth.sphere]]            # obstacles (any number of each)
 //! center = [0.0, 0.0, 0.0]
 //! radius = 0.5
-//! [cloth.grid]
+//! # [[cloth.plane]] point, normal; [[cloth.box]] min, max; [[cloth.capsule]] a, b, radius
+//! # [[cloth.sdf]] file = "shape.sdf"   (SDFGen text: ni nj nk / origin / dx / values)
+//! # [cloth.wind] velocity = [3.0, 0.0, 0.0], drag = 0.5, gust = 0.5, frequency = 1.5
+//! # [[cloth.path]] vertices = [0], times = [0.0, 1.0], offsets = [[0,0,0], [0.3,0,0]]
+//! # [cloth.step_control] max_strain = 0.25, max_halvings = 6   (these are the defaults)
+//! [cloth.grid]                # or [cloth.mesh] file = "sheet.obj" (with vt), uv_scale
 //! nu = 10
 //! nv = 10
 //! size = [1.0, 1.0]           # rest (u, v) extent (m); origin, u_axis, v_axis optional
@@ -235,8 +240,33 @@ pub struct ClothTable {
     /// `[[cloth.sphere]]` obstacles.
     #[serde(default)]
     pub sphere: Vec<SphereTable>,
-    /// `[cloth.grid]`
-    pub grid: ClothGridTable,
+    /// `[[cloth.plane]]` obstacles.
+    #[serde(default)]
+    pub plane: Vec<PlaneTable>,
+    /// `[[cloth.box]]` obstacles.
+    #[serde(default, rename = "box")]
+    pub boxes: Vec<BoxTable>,
+    /// `[[cloth.capsule]]` obstacles.
+    #[serde(default)]
+    pub capsule: Vec<CapsuleTable>,
+    /// `[[cloth.sdf]]` obstacles (signed-distance grid files).
+    #[serde(default)]
+    pub sdf: Vec<SdfTable>,
+    /// `[cloth.wind]`
+    #[serde(default)]
+    pub wind: Option<WindTable>,
+    /// `[[cloth.path]]` vertices moved along prescribed paths.
+    #[serde(default)]
+    pub path: Vec<PathTable>,
+    /// `[cloth.step_control]` (defaults apply when absent).
+    #[serde(default)]
+    pub step_control: Option<StepControlTable>,
+    /// `[cloth.grid]` (or `[cloth.mesh]`).
+    #[serde(default)]
+    pub grid: Option<ClothGridTable>,
+    /// `[cloth.mesh]`: an OBJ triangle mesh with texture coordinates.
+    #[serde(default)]
+    pub mesh: Option<ClothMeshTable>,
     /// `[cloth.material]`
     pub material: ClothMaterialTable,
 }
@@ -249,6 +279,103 @@ pub struct SphereTable {
     pub center: [f64; 3],
     /// Radius (m).
     pub radius: f64,
+}
+
+/// `[[cloth.plane]]`: the half-space behind a plane.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlaneTable {
+    /// A point on the plane (m).
+    pub point: [f64; 3],
+    /// Outward normal.
+    pub normal: [f64; 3],
+}
+
+/// `[[cloth.box]]`: a solid axis-aligned box.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BoxTable {
+    /// Lower corner (m).
+    pub min: [f64; 3],
+    /// Upper corner (m).
+    pub max: [f64; 3],
+}
+
+/// `[[cloth.capsule]]`
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CapsuleTable {
+    /// Segment start (m).
+    pub a: [f64; 3],
+    /// Segment end (m).
+    pub b: [f64; 3],
+    /// Radius (m).
+    pub radius: f64,
+}
+
+/// `[[cloth.sdf]]`
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SdfTable {
+    /// An SDFGen text file (relative to the scene file).
+    pub file: String,
+}
+
+/// `[cloth.wind]`
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WindTable {
+    /// Air velocity (m/s).
+    pub velocity: [f64; 3],
+    /// Drag coefficient (N s/m^3).
+    pub drag: f64,
+    /// Relative gust amplitude (default 0).
+    #[serde(default)]
+    pub gust: f64,
+    /// Gust frequency (Hz, default 0).
+    #[serde(default)]
+    pub frequency: f64,
+}
+
+/// `[[cloth.path]]`
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PathTable {
+    /// Vertices moved.
+    pub vertices: Vec<i64>,
+    /// Keyframe times (s).
+    pub times: Vec<f64>,
+    /// Offsets from the initial positions (m), one per time.
+    pub offsets: Vec<[f64; 3]>,
+}
+
+/// `[cloth.step_control]`
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StepControlTable {
+    /// Largest stretch strain a step may leave before it is retried at half the step.
+    #[serde(default)]
+    pub max_strain: Option<f64>,
+    /// How many times a step may be halved before the run fails.
+    #[serde(default)]
+    pub max_halvings: Option<i64>,
+}
+
+/// `[cloth.mesh]`
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ClothMeshTable {
+    /// OBJ file with texture coordinates (relative to the scene file).
+    pub file: String,
+    /// Metres per texture unit: rest (u, v) = scale * (vt) (default 1).
+    #[serde(default)]
+    pub uv_scale: Option<f64>,
+    /// Multiplies the positions (default 1).
+    #[serde(default)]
+    pub scale: Option<f64>,
+    /// Added to the positions after scaling (m, default 0).
+    #[serde(default)]
+    pub offset: Option<[f64; 3]>,
 }
 
 /// `[cloth.grid]`
