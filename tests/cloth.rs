@@ -612,6 +612,46 @@ bend = 0.01
             (SHEET.replace("stretch = 1000.0", "stretch = nan"), "stretch = nan", "cloth.material.stretch"),
             (SHEET.replace("bend = 0.01", "bend = 0.01\nwrinkle = 1.0"), "wrinkle", "unknown field `wrinkle`"),
             (
+                SHEET.replace("[cloth.grid]", "[[cloth.capsule]]\na = [0.0, 0.0, 0.0]\nb = [1.0, 0.0, 0.0]\nradius = -0.1\n[cloth.grid]"),
+                "radius = -0.1",
+                "radius = -0.1 is invalid",
+            ),
+            (
+                SHEET.replace("[cloth.grid]", "[[cloth.box]]\nmin = [0.0, 0.0, 0.0]\nmax = [1.0, 0.0, 1.0]\n[cloth.grid]"),
+                "max = [1.0, 0.0, 1.0]",
+                "must be above min",
+            ),
+            (
+                SHEET.replace("[cloth.grid]", "[[cloth.plane]]\npoint = [0.0, 0.0, 0.0]\nnormal = [0.0, 0.0, 0.0]\n[cloth.grid]"),
+                "normal = [0.0, 0.0, 0.0]",
+                "must not be zero",
+            ),
+            (
+                SHEET.replace("[cloth.grid]", "[[cloth.sdf]]\nfile = \"no-such.sdf\"\n[cloth.grid]"),
+                "no-such.sdf",
+                "no-such.sdf",
+            ),
+            (
+                SHEET.replace("[cloth.grid]", "[cloth.wind]\nvelocity = [1.0, 0.0, 0.0]\ndrag = -1.0\n[cloth.grid]"),
+                "drag = -1.0",
+                "cloth.wind.drag",
+            ),
+            (
+                SHEET.replace("[cloth.grid]", "[[cloth.path]]\nvertices = [1]\ntimes = [0.0, 0.0]\noffsets = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]\n[cloth.grid]"),
+                "times = [0.0, 0.0]",
+                "increasing",
+            ),
+            (
+                SHEET.replace("[cloth.grid]", "[[cloth.path]]\nvertices = [99]\ntimes = [0.0]\noffsets = [[0.0, 0.0, 0.0]]\n[cloth.grid]"),
+                "vertices = [99]",
+                "vertex 99 does not exist",
+            ),
+            (
+                SHEET.replace("[cloth.grid]", "[cloth.step_control]\nmax_strain = 0.0\n[cloth.grid]"),
+                "max_strain = 0.0",
+                "max_strain must be",
+            ),
+            (
                 format!("{SHEET}\n[mass_spring.chain]\ncount = 2\nspacing = 1.0\nmass = 1.0\nstiffness = 1.0\n"),
                 "[cloth]",
                 "not both",
@@ -736,4 +776,408 @@ shear_damping = 2.0
     let mid = runner.simulation().state().x.get(7 * 14 + 7);
     let r = (mid[0] * mid[0] + mid[1] * mid[1] + mid[2] * mid[2]).sqrt();
     assert!((r - 0.5).abs() < 0.02, "middle vertex at distance {r}");
+}
+
+mod obstacles {
+    use largestep::cloth::{Obstacle, SdfGrid};
+    use largestep::kernels::interp::Grid3;
+    use std::sync::Arc;
+
+    fn shapes() -> Vec<Obstacle> {
+        vec![
+            Obstacle::Plane {
+                point: [0.0, 0.1, 0.0],
+                normal: [0.0, 2.0, 0.0],
+            },
+            Obstacle::Sphere {
+                center: [0.1, 0.0, -0.1],
+                radius: 0.4,
+            },
+            Obstacle::Box {
+                min: [-0.3, -0.2, -0.4],
+                max: [0.3, 0.25, 0.2],
+            },
+            Obstacle::Capsule {
+                a: [-0.3, 0.0, 0.0],
+                b: [0.3, 0.1, 0.0],
+                radius: 0.2,
+            },
+        ]
+    }
+
+    fn points() -> Vec<[f64; 3]> {
+        (0..200)
+            .map(|i| {
+                let f = |k: usize| ((i * k) % 97) as f64 / 97.0 - 0.5;
+                [1.4 * f(13), 1.4 * f(31), 1.4 * f(57)]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn analytic_distances_have_unit_gradients_equal_to_their_normals() {
+        for o in shapes() {
+            for p in points() {
+                let Some((d, n)) = o.distance(p) else {
+                    continue;
+                };
+                // The normal is the distance's gradient (central differences), away from
+                // the box's medial planes where it jumps.
+                let h = 1e-6;
+                let g: [f64; 3] = std::array::from_fn(|c| {
+                    let (mut a, mut b) = (p, p);
+                    a[c] += h;
+                    b[c] -= h;
+                    (o.distance(a).unwrap().0 - o.distance(b).unwrap().0) / (2.0 * h)
+                });
+                let err = (0..3).map(|c| (g[c] - n[c]).abs()).fold(0.0, f64::max);
+                let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+                assert!(
+                    (len - 1.0).abs() < 1e-12,
+                    "{} normal length {len}",
+                    o.kind()
+                );
+                let medial = matches!(o, Obstacle::Box { .. }) && d < 0.0;
+                assert!(
+                    medial || err < 1e-6,
+                    "{} at {p:?}: gradient {g:?} normal {n:?}",
+                    o.kind()
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn a_sampled_sphere_grid_approximates_the_sphere() {
+        let sphere = Obstacle::Sphere {
+            center: [0.0; 3],
+            radius: 0.5,
+        };
+        let grid = Grid3::spanning([41; 3], [-1.0; 3], [1.0; 3]); // h = 0.05
+        let sdf = Obstacle::Sdf(Arc::new(SdfGrid::sample(grid, |p| {
+            (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt() - 0.5
+        })));
+        let mut worst_d = 0.0f64;
+        let mut worst_n = 0.0f64;
+        for p in points() {
+            let (Some((d0, n0)), Some((d1, n1))) = (sphere.distance(p), sdf.distance(p)) else {
+                continue;
+            };
+            if d0.abs() > 0.3 {
+                continue; // near the surface is what contacts use
+            }
+            worst_d = worst_d.max((d0 - d1).abs());
+            worst_n = worst_n.max((0..3).map(|c| (n0[c] - n1[c]).abs()).fold(0.0, f64::max));
+        }
+        // Trilinear interpolation of a smooth distance: error O(h^2 / r) = 5e-3 m; the
+        // gradient is first order in h.
+        assert!(worst_d < 5e-3, "distance error {worst_d}");
+        assert!(worst_n < 0.1, "normal error {worst_n}");
+        // Outside the grid: no contact.
+        assert!(sdf.distance([2.0, 0.0, 0.0]).is_none());
+    }
+
+    #[test]
+    fn sdfgen_files_are_read_and_errors_name_the_line() {
+        let text = "2 2 2\n0 0 0\n0.5\n-1 -1 -1 -1\n1 1 1 1\n";
+        let s = SdfGrid::parse(text, "t.sdf").unwrap();
+        assert_eq!(s.grid.n, [2, 2, 2]);
+        assert_eq!(s.phi[4], 1.0);
+        let (d, n) = Obstacle::Sdf(Arc::new(s))
+            .distance([0.25, 0.25, 0.25])
+            .unwrap();
+        assert!(d.abs() < 1e-12 && (n[2] - 1.0).abs() < 1e-12, "{d} {n:?}");
+        for (bad, line, what) in [
+            ("2 2 x\n0 0 0\n0.5\n", 1, "expected a number"),
+            ("2 2 2\n0 0 0\n-0.5\n", 3, "spacing"),
+            ("2 2 2\n0 0 0\n0.5\n1 1 1\n1 1\n", 5, "ends early"),
+            (
+                "2 2 2\n0 0 0\n0.5\n1 1 1 1\n1 1 1 nan\n",
+                5,
+                "must be finite",
+            ),
+            ("2 2 2\n0 0 0\n0.5\n1 1 1 1\n1 1 1 1\n7\n", 6, "unexpected"),
+            ("1 2 2\n0 0 0\n0.5\n", 1, "grid size"),
+        ] {
+            let e = SdfGrid::parse(bad, "t.sdf").unwrap_err();
+            assert_eq!(e.line, line, "{bad:?}: {e}");
+            assert!(e.to_string().contains(what), "{bad:?}: {e}");
+        }
+    }
+}
+
+mod scenes {
+    use largestep::scene::{Runner, Scene};
+
+    const MATERIAL: &str = r#"
+[cloth.material]
+density = 0.2
+stretch = 2000.0
+shear = 200.0
+bend = 0.0002
+stretch_damping = 0.2
+shear_damping = 0.02
+"#;
+
+    fn run(text: &str, name: &str) -> Runner {
+        let scene = Scene::parse(text, name).unwrap();
+        let out = std::env::temp_dir().join(format!(
+            "largestep-cloth-{}-{}",
+            name.replace('.', "-"),
+            std::process::id()
+        ));
+        let mut runner = Runner::new(scene, &out).unwrap();
+        runner.run(None, &mut |_| {}).unwrap();
+        runner
+    }
+
+    fn sheet(extra: &str, duration: f64) -> String {
+        format!(
+            r#"
+[scene]
+dt = 0.016666666666666666
+duration = {duration}
+integrator = "linearized-backward-euler"
+gravity = [0.0, -9.81, 0.0]
+[output]
+frames = "none"
+every = 1
+[cloth]
+friction = 0.3
+{extra}
+[cloth.grid]
+nu = 12
+nv = 12
+size = [1.0, 1.0]
+origin = [-0.5, 0.5, -0.5]
+{MATERIAL}"#
+        )
+    }
+
+    #[test]
+    fn no_vertex_ends_inside_any_obstacle() {
+        // Every obstacle kind under a falling sheet. Analytic shapes: contacts put
+        // vertices on the surface plus the contact thickness, so the bound is rounding.
+        // The distance grid (h = 0.05 m) is held to its interpolation error instead.
+        let sdf_file =
+            std::env::temp_dir().join(format!("largestep-ball-{}.sdf", std::process::id()));
+        let mut text = String::from("41 41 41\n-1 -1 -1\n0.05\n");
+        for k in 0..41 {
+            for j in 0..41 {
+                for i in 0..41 {
+                    let p = [i, j, k].map(|a| -1.0 + 0.05 * a as f64);
+                    let d = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt() - 0.3;
+                    text.push_str(&format!("{d} "));
+                }
+            }
+            text.push('\n');
+        }
+        std::fs::write(&sdf_file, text).unwrap();
+        let cases = [
+            (
+                "plane",
+                "[[cloth.plane]]\npoint = [0.0, 0.2, 0.0]\nnormal = [0.0, 1.0, 0.1]",
+                1e-9,
+            ),
+            (
+                "sphere",
+                "[[cloth.sphere]]\ncenter = [0.0, 0.0, 0.0]\nradius = 0.3",
+                1e-9,
+            ),
+            (
+                "box",
+                "[[cloth.box]]\nmin = [-0.25, -1.0, -0.25]\nmax = [0.25, 0.2, 0.25]",
+                1e-9,
+            ),
+            (
+                "capsule",
+                "[[cloth.capsule]]\na = [-0.3, 0.1, 0.0]\nb = [0.3, 0.1, 0.0]\nradius = 0.15",
+                1e-9,
+            ),
+            (
+                "sdf",
+                &format!("[[cloth.sdf]]\nfile = {:?}", sdf_file.display().to_string()),
+                // Contacts push to the interpolated surface: the true ball may be off by
+                // the interpolation error, O(h^2 / r) ~ 4e-3 m.
+                5e-3,
+            ),
+        ];
+        for (name, table, bound) in cases {
+            let r = run(&sheet(table, 1.0), &format!("{name}.toml"));
+            let worst = r
+                .records()
+                .iter()
+                .map(|r| r.penetration)
+                .fold(0.0f64, f64::max);
+            let true_worst = if name == "sdf" {
+                let x = &r.simulation().state().x;
+                (0..x.len())
+                    .map(|i| {
+                        let p = x.get(i);
+                        0.3 - (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt()
+                    })
+                    .fold(0.0f64, f64::max)
+            } else {
+                worst
+            };
+            assert!(
+                worst <= bound && true_worst <= bound,
+                "{name}: penetration {worst} (true {true_worst})"
+            );
+            // And the sheet did touch it: something rests on the obstacle.
+            let y_mid = r.simulation().state().x.get(6 * 12 + 6)[1];
+            assert!(
+                y_mid < 0.5 - 0.05,
+                "{name}: the sheet did not fall ({y_mid})"
+            );
+        }
+        let _ = std::fs::remove_file(sdf_file);
+    }
+
+    #[test]
+    fn path_vertices_follow_their_path_exactly() {
+        let path = "[[cloth.path]]\nvertices = [0, 11]\ntimes = [0.0, 0.5]\noffsets = [[0.0, 0.0, 0.0], [0.0, 0.3, 0.2]]";
+        let scene = Scene::parse(&sheet(path, 0.7), "path.toml").unwrap();
+        let out = std::env::temp_dir().join(format!("largestep-path-{}", std::process::id()));
+        let mut r = Runner::new(scene, &out).unwrap();
+        let p0 = [
+            r.simulation().state().x.get(0),
+            r.simulation().state().x.get(11),
+        ];
+        let mut checked = 0;
+        r.run(None, &mut |_| {}).unwrap();
+        // At the end (t = 0.7 > 0.5) they hold the last offset.
+        for (k, &i) in [0usize, 11].iter().enumerate() {
+            let p = r.simulation().state().x.get(i);
+            let want = [p0[k][0], p0[k][1] + 0.3, p0[k][2] + 0.2];
+            for c in 0..3 {
+                assert!(
+                    (p[c] - want[c]).abs() < 1e-12,
+                    "vertex {i}: {p:?} vs {want:?}"
+                );
+            }
+            checked += 1;
+        }
+        assert_eq!(checked, 2);
+        // Mid-path, step by step.
+        let scene = Scene::parse(&sheet(path, 0.7), "path.toml").unwrap();
+        let mut sim = largestep::scene::Simulation::new(scene).unwrap();
+        for _ in 0..15 {
+            sim.step().unwrap();
+            let s = (sim.time() / 0.5).min(1.0);
+            let p = sim.state().x.get(11);
+            assert!(
+                (p[1] - (p0[1][1] + 0.3 * s)).abs() < 1e-12,
+                "t = {}: {p:?}",
+                sim.time()
+            );
+        }
+    }
+
+    #[test]
+    fn wind_blows_the_sheet_downwind() {
+        let hang = "pinned = [132, 143]";
+        let base = sheet(hang, 1.0).replace("friction = 0.3\n", "");
+        let windy = base.replace(
+            "pinned = [132, 143]",
+            "pinned = [132, 143]\n[cloth.wind]\nvelocity = [0.0, 0.0, 4.0]\ndrag = 1.0",
+        );
+        let still = run(&base, "still.toml");
+        let blown = run(&windy, "windy.toml");
+        let mean_z = |r: &Runner| {
+            let x = &r.simulation().state().x;
+            x.z().iter().sum::<f64>() / x.len() as f64
+        };
+        assert!(
+            mean_z(&blown) > mean_z(&still) + 0.05,
+            "wind {} vs still {}",
+            mean_z(&blown),
+            mean_z(&still)
+        );
+    }
+
+    #[test]
+    fn step_control_halves_failing_steps_and_reports_when_it_gives_up() {
+        // A stiff sheet at a huge step with a PCG cap too small to converge: every try
+        // fails until the step is small enough for warm-started PCG to converge.
+        let solver = "[solver]\nlinear = \"pcg\"\ntolerance = 1e-3\nmax_iterations = 60\n";
+        let text = sheet("pinned = [132, 143]", 0.5)
+            .replace("dt = 0.016666666666666666", "dt = 0.25")
+            .replace("[output]", &format!("{solver}[output]"));
+        let scene = Scene::parse(&text, "halve.toml").unwrap();
+        let mut sim = largestep::scene::Simulation::new(scene).unwrap();
+        sim.step().unwrap();
+        assert!(sim.sub_step() < 0.25, "no halving happened");
+        assert!(sim.steps() > 1, "{} sub-steps", sim.steps());
+        assert!((sim.time() - 0.25).abs() < 1e-12);
+        // That step was retried for its strain (3.1 at dt = 0.25). With no halving
+        // allowed and a solver that cannot converge, the step fails, naming the step,
+        // the iterations and the residual.
+        let text = text
+            .replace("max_iterations = 60", "max_iterations = 5")
+            .replace(
+                "[cloth.grid]",
+                "[cloth.step_control]\nmax_halvings = 0\nmax_strain = 1e9\n[cloth.grid]",
+            );
+        let scene = Scene::parse(&text, "halve.toml").unwrap();
+        let mut sim = largestep::scene::Simulation::new(scene).unwrap();
+        let e = sim.step().unwrap_err().to_string();
+        assert!(
+            e.contains("step 1") && e.contains("5 iterations") && e.contains("residual"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn obj_meshes_with_texture_coordinates_are_cloth() {
+        let dir = std::env::temp_dir().join(format!("largestep-obj-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        // A 3 x 3 vertex square, two triangles per cell, texture coordinates in [0, 1].
+        let mut obj = String::new();
+        for j in 0..3 {
+            for i in 0..3 {
+                obj.push_str(&format!(
+                    "v {} 0.5 {}\nvt {} {}\n",
+                    i as f64 * 0.4,
+                    j as f64 * 0.4,
+                    i as f64 * 0.5,
+                    j as f64 * 0.5
+                ));
+            }
+        }
+        for j in 0..2 {
+            for i in 0..2 {
+                let a = 1 + i + 3 * j;
+                let (b, c, d) = (a + 1, a + 3, a + 4);
+                obj.push_str(&format!(
+                    "f {a}/{a} {b}/{b} {d}/{d}\nf {a}/{a} {d}/{d} {c}/{c}\n"
+                ));
+            }
+        }
+        std::fs::write(dir.join("sheet.obj"), &obj).unwrap();
+        let text = format!(
+            "[scene]\ndt = 0.01\nduration = 0.1\nintegrator = \"linearized-backward-euler\"\ngravity = [0.0, -9.81, 0.0]\n[cloth]\npinned = [0]\n[cloth.mesh]\nfile = \"sheet.obj\"\nuv_scale = 0.8\n{MATERIAL}"
+        );
+        let scene_path = dir.join("mesh.toml");
+        std::fs::write(&scene_path, &text).unwrap();
+        let scene = Scene::load(&scene_path).unwrap();
+        let mut sim = largestep::scene::Simulation::new(scene).unwrap();
+        // Rest (u, v) = 0.8 * vt equals the positions' spacing: the sheet starts at rest.
+        let c = sim.cloth().expect("a cloth scene");
+        assert!(c.max_strain(sim.state().x.as_slice()) < 1e-12);
+        sim.step().unwrap();
+        // A seam and a missing texture coordinate are errors naming the line.
+        let seam = obj.replace("f 1/1 2/2 5/5", "f 1/3 2/2 5/5");
+        std::fs::write(dir.join("sheet.obj"), seam).unwrap();
+        let e = Scene::load(&scene_path).unwrap_err().to_string();
+        assert!(
+            e.contains("sheet.obj:") && e.contains("texture seam"),
+            "{e}"
+        );
+        let plain = obj.replace("f 1/1 2/2 5/5", "f 1 2 5");
+        std::fs::write(dir.join("sheet.obj"), plain).unwrap();
+        let e = Scene::load(&scene_path).unwrap_err().to_string();
+        assert!(e.contains("no texture coordinate"), "{e}");
+        let _ = std::fs::remove_dir_all(dir);
+    }
 }

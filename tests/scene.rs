@@ -24,6 +24,9 @@ fn shipped_scenes_run_a_few_frames() {
         "spring-grid.toml",
         "jello.toml",
         "cloth-hang.toml",
+        "cloth-drape.toml",
+        "flag.toml",
+        "tablecloth.toml",
     ] {
         let scene = Scene::load(&scene_path(name)).unwrap();
         let out = tmp(name);

@@ -192,7 +192,6 @@ impl Simulation {
         };
         let end = self.t + self.dt;
         let mut total = StepInfo::default();
-        let mut halvings = 0u32;
         while self.t < end - 1e-12 * self.dt {
             let h = self.sub_dt.min(end - self.t);
             let Body::Cloth(c) = &mut self.body else {
@@ -239,8 +238,9 @@ impl Simulation {
             self.state.x.as_mut_slice().copy_from_slice(xs);
             self.state.v.as_mut_slice().copy_from_slice(vs);
             self.good_steps = 0;
-            halvings += 1;
-            if halvings > control.max_halvings {
+            // Give up when the step that failed was already the smallest allowed.
+            let smallest = self.dt / 2f64.powi(control.max_halvings as i32);
+            if h <= smallest * (1.0 + 1e-9) {
                 return Err(IntegrateError::StepControl {
                     step: self.stepper.steps(),
                     halvings: control.max_halvings,
@@ -302,6 +302,14 @@ impl Simulation {
     /// The linear solver of implicit steps.
     pub fn linear_solver(&self) -> Option<&'static str> {
         self.stepper.linear_solver_name()
+    }
+
+    /// The cloth, when the scene's system is one.
+    pub fn cloth(&self) -> Option<&Cloth> {
+        match &self.body {
+            Body::Cloth(c) => Some(c),
+            Body::MassSpring(_) => None,
+        }
     }
 
     /// The current state.

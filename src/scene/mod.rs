@@ -527,7 +527,20 @@ fn cloth_desc(
         obstacles.push((at(&[&"sdf", &k]), Obstacle::Sdf(std::sync::Arc::new(grid))));
     }
     for (k, (p, o)) in obstacles.iter().enumerate() {
-        o.validate(k).map_err(|e| err(p.clone(), e.to_string()))?;
+        o.validate(k).map_err(|e| {
+            // Point at the offending key where the table has it.
+            let mut p = p.clone();
+            if let crate::cloth::ClothError::Value { field, .. } = &e {
+                if [
+                    "point", "normal", "center", "radius", "min", "max", "a", "b",
+                ]
+                .contains(field)
+                {
+                    p.extend(path(&[field]));
+                }
+            }
+            err(p, e.to_string())
+        })?;
     }
     desc.obstacles = obstacles.into_iter().map(|(_, o)| o).collect();
     if let Some(w) = &t.wind {

@@ -22,8 +22,7 @@ const SIZE: Real = 1.0;
 const HEIGHT: Real = 0.3;
 const AREAL_DENSITY: Real = 0.2;
 const SPHERE_RADIUS: Real = 0.25;
-fn spring_k() -> Real { std::env::var("K").ok().and_then(|v| v.parse().ok()).unwrap_or(1000.0) }
-const _SPRING_K: Real = 1000.0; // N/m per neighbour spring
+const SPRING_K: Real = 1000.0; // N/m per neighbour spring
 const DAMPING_RATIO: Real = 1.0; // of one spring between two free vertices
 const SETTLE_TIME: f64 = 0.5;
 const TIMED_STEPS: usize = 20;
@@ -114,7 +113,7 @@ fn sphere_collider() -> ColliderBuilder {
 
 fn build_joints(n: usize, dt: Real) -> Scene {
     let mut world = base_world(dt);
-    if std::env::var_os("NOSPHERE").is_none() { world.insert(RigidBodyBuilder::fixed(), sphere_collider()); }
+    world.insert(RigidBodyBuilder::fixed(), sphere_collider());
 
     let h = SIZE / (n - 1) as Real;
     let m = vertex_mass(n);
@@ -138,11 +137,11 @@ fn build_joints(n: usize, dt: Real) -> Scene {
     }
 
     // Critical damping of one spring between two free vertices: c = 2 zeta sqrt(k m/2).
-    let damping = 2.0 * DAMPING_RATIO * (spring_k() * 0.5 * m).sqrt();
+    let damping = 2.0 * DAMPING_RATIO * (SPRING_K * 0.5 * m).sqrt();
     let edges = grid_edges(n);
     for &[a, b] in &edges {
         let rest = (world.bodies[bodies[a]].translation() - world.bodies[bodies[b]].translation()).length();
-        let mut joint = SpringJointBuilder::new(rest, spring_k(), damping).contacts_enabled(false); if std::env::var_os("ACC").is_some() { joint = SpringJointBuilder::new(rest, spring_k()/(0.5*m), damping/(0.5*m)).spring_model(MotorModel::AccelerationBased).contacts_enabled(false); }
+        let joint = SpringJointBuilder::new(rest, SPRING_K, damping).contacts_enabled(false);
         world.insert_impulse_joint(bodies[a], bodies[b], joint);
     }
     let n_joints = edges.len();
@@ -167,7 +166,7 @@ fn build_softbody(n: usize, dt: Real) -> Scene {
     // du = h z and dv = h x that is b + n a, i.e. our i + n j with i along x, j along z.
     let origin = rest_position(n, 0, 0);
     // Natural frequency of a k = 1000 N/m spring between two vertices of mass m (reduced mass m/2).
-    let freq = (spring_k() / (0.5 * m)).sqrt() / (2.0 * std::f64::consts::PI as Real);
+    let freq = (SPRING_K / (0.5 * m)).sqrt() / (2.0 * std::f64::consts::PI as Real);
     let builder = SoftBodyBuilder::cloth(origin, Vector::new(0.0, 0.0, h), Vector::new(h, 0.0, 0.0), n, n)
         .particle_mass(m)
         .pinned_particles([0u32, (n * n - 1) as u32])
@@ -315,7 +314,7 @@ fn main() {
     if let Some(k) = substeps_override() {
         println!("OVERRIDE: num_solver_iterations = {k} (RAPIER_CLOTH_SUBSTEPS)");
     }
-    println!("settle {SETTLE_TIME} s, then {TIMED_STEPS} timed steps; k = {} N/m, damping ratio {DAMPING_RATIO}\n", spring_k());
+    println!("settle {SETTLE_TIME} s, then {TIMED_STEPS} timed steps; k = {SPRING_K} N/m, damping ratio {DAMPING_RATIO}\n");
     println!(
         "{:<8} {:>4} {:>5} {:>7} {:>7} {:>7} {:>8} {:>9} {:>9} {:>10} {:>9} {:>6} {:>7} {:>7} {:>21}",
         "model", "n", "dt", "bodies", "joints", "constr", "build s", "best ms", "median ms", "steps/s", "settle s", "finite", "min y", "min |x|", "strain p50/p99/max"
