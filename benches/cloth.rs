@@ -102,8 +102,12 @@ impl Sim {
                 dt,
             )
             .unwrap();
-        self.cloth
-            .resolve_contacts(self.st.x.as_mut_slice(), self.st.v.as_mut_slice());
+        self.cloth.after_step(
+            self.t + dt,
+            dt,
+            self.st.x.as_mut_slice(),
+            self.st.v.as_mut_slice(),
+        );
         self.t += dt;
         info
     }

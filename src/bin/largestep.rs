@@ -62,7 +62,7 @@ enum Command {
     },
     /// Run a study: error against run time, orders, stability.
     Study {
-        /// Which study (integrators, jello-stability, jello-accuracy).
+        /// Which study (integrators, jello-stability, jello-accuracy, cloth-accuracy, cloth-stability).
         name: String,
         /// Output folder for the report (default: docs/studies).
         #[arg(long, default_value = "docs/studies")]

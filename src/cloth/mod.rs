@@ -268,6 +268,12 @@ pub struct Cloth {
     path_rest: Vec<Vec<[f64; 3]>>,
     /// Current contacts: vertex and outward unit normal, in vertex order.
     contacts: Vec<(u32, [f64; 3])>,
+    /// For each contact, the normal component of the force on its vertex at the last
+    /// force evaluation (N): positive means the cloth pulls it off the surface.
+    contact_pull: Vec<f64>,
+    /// Scratch: the previous step's contacts and pulls while resolving new ones.
+    prev_contacts: Vec<(u32, [f64; 3])>,
+    prev_pull: Vec<f64>,
     tri_gather: VectorGather,
     hinge_gather: VectorGather,
     tri_f: Vec<f64>,
@@ -556,6 +562,9 @@ impl ClothDesc {
                 .collect(),
             friction: self.friction,
             contacts: Vec::new(),
+            contact_pull: Vec::new(),
+            prev_contacts: Vec::new(),
+            prev_pull: Vec::new(),
             jac: None,
         };
         let mut v = if self.velocities.is_empty() {
@@ -744,31 +753,54 @@ pub const CONTACT_THICKNESS: f64 = 2e-3;
 
 impl Cloth {
     /// Contacts with the obstacles, by Baraff and Witkin's constraint filtering (1998,
-    /// section 5) plus position correction, called after each step with the state: every
-    /// free vertex closer than [`CONTACT_THICKNESS`] to an obstacle (signed distance) is
-    /// moved out along the obstacle's normal to that thickness, loses the velocity that
-    /// points into it, has its tangential velocity scaled by
-    /// `max(0, 1 - friction |v_n| / |v_t|)` (Coulomb-like), and is constrained to the
-    /// tangent plane for the next implicit solve ([`Mechanical::constraints`]), so it
-    /// cannot move into the obstacle whatever the solver's iteration count. A vertex
-    /// moving away is released. Obstacles are visited in order; a vertex touching two
-    /// gets both constraints (`S = I - p p^T - q q^T`). Returns the number of contacts.
-    pub fn resolve_contacts(&mut self, x: &mut [f64], v: &mut [f64]) -> usize {
+    /// section 5) plus position correction, called after each step of size `h` with the
+    /// state: every free vertex closer than [`CONTACT_THICKNESS`] to an obstacle (signed
+    /// distance) is moved out along the obstacle's normal to that thickness, loses the
+    /// velocity that points into it, has its tangential velocity scaled by
+    /// `max(0, 1 - friction dv_n / |v_t|)` (Coulomb: `dv_n` is the normal velocity removed
+    /// at impact plus `h |f_n| / m` from the force pressing a resting vertex onto the
+    /// surface), and is constrained to the tangent plane for the next implicit solve
+    /// ([`Mechanical::constraints`]), so it cannot move into the obstacle whatever the
+    /// solver's iteration count. A vertex is released when it moves away or when the
+    /// force on it at the last evaluation pulled it off the surface (the filter keeps a
+    /// constrained vertex's normal velocity at zero, so velocity alone would never
+    /// release it). Obstacles are visited in order; a vertex touching two gets both
+    /// constraints (`S = I - p p^T - q q^T`). Returns the number of contacts.
+    pub fn resolve_contacts(&mut self, x: &mut [f64], v: &mut [f64], h: f64) -> usize {
+        std::mem::swap(&mut self.contacts, &mut self.prev_contacts);
+        std::mem::swap(&mut self.contact_pull, &mut self.prev_pull);
         self.contacts.clear();
+        self.contact_pull.clear();
         if self.obstacles.is_empty() {
             return 0;
         }
         let n = self.n;
+        let mut prev = 0; // walks the previous contacts (vertex order) alongside i
         for i in 0..n {
             if self.pinned.binary_search(&(i as u32)).is_ok() {
                 continue;
+            }
+            // Was it held by a contact the cloth is pulling it away from? The filter kept
+            // its normal velocity at zero, so velocity alone would never release it
+            // (Baraff and Witkin release a constraint when its force pulls the particle
+            // off the surface).
+            let mut pulled = false;
+            // Normal force pressing it onto the surface during the step (N, >= 0).
+            let mut press = 0.0f64;
+            while prev < self.prev_contacts.len() && self.prev_contacts[prev].0 as usize <= i {
+                if self.prev_contacts[prev].0 as usize == i {
+                    let pull = self.prev_pull[prev];
+                    pulled |= pull > 0.0;
+                    press = press.max(-pull);
+                }
+                prev += 1;
             }
             for o in &self.obstacles {
                 let p = get3(x, n, i);
                 let Some((d, nrm)) = o.distance(p) else {
                     continue;
                 };
-                if d.is_nan() || d >= CONTACT_THICKNESS {
+                if d.is_nan() || d >= CONTACT_THICKNESS || (pulled && d >= 0.0) {
                     continue;
                 }
                 for k in 0..3 {
@@ -781,8 +813,12 @@ impl Cloth {
                 }
                 let vt: [f64; 3] = std::array::from_fn(|k| vel[k] - vn * nrm[k]);
                 let vt_len = (vt[0] * vt[0] + vt[1] * vt[1] + vt[2] * vt[2]).sqrt();
+                // Coulomb: the tangential velocity change is at most friction times the
+                // normal one, which is the impact (-vn) plus what the pressing force
+                // delivered over the step (resting contact, where vn is zero).
+                let dvn = -vn + press * h / self.mass[i];
                 let keep = if vt_len > 0.0 {
-                    (1.0 - self.friction * (-vn) / vt_len).max(0.0)
+                    (1.0 - self.friction * dvn / vt_len).max(0.0)
                 } else {
                     0.0
                 };
@@ -790,15 +826,26 @@ impl Cloth {
                     v[k * n + i] = keep * vt[k];
                 }
                 self.contacts.push((i as u32, nrm));
+                self.contact_pull.push(0.0);
             }
         }
         self.contacts.len()
     }
 
-    /// What follows every step, with `t` the time at its end: path vertices are placed on
+    /// Records, for every contact, the normal component of the force `f` on its vertex
+    /// (see `contact_pull`).
+    fn record_contact_pull(&mut self, f: &[f64]) {
+        let n = self.n;
+        for ((i, nrm), pull) in self.contacts.iter().zip(&mut self.contact_pull) {
+            let fi = get3(f, n, *i as usize);
+            *pull = fi[0] * nrm[0] + fi[1] * nrm[1] + fi[2] * nrm[2];
+        }
+    }
+
+    /// What follows every step, with `t` the time at its end and `h` its size: path vertices are placed on
     /// their paths (position and velocity), then contacts are resolved
     /// ([`Cloth::resolve_contacts`]). Returns the number of contacts.
-    pub fn after_step(&mut self, t: f64, x: &mut [f64], v: &mut [f64]) -> usize {
+    pub fn after_step(&mut self, t: f64, h: f64, x: &mut [f64], v: &mut [f64]) -> usize {
         let n = self.n;
         for (path, rest) in self.paths.iter().zip(&self.path_rest) {
             let (off, vel) = path.at(t);
@@ -809,7 +856,7 @@ impl Cloth {
                 }
             }
         }
-        self.resolve_contacts(x, v)
+        self.resolve_contacts(x, v, h)
     }
 
     /// The largest stretch strain of any triangle, `max | |w_u| - b_u |` over both
@@ -962,6 +1009,7 @@ impl Mechanical for Cloth {
             self.hinge_gather.gather_vectors_add(&hinge_f, f);
             self.hinge_f = hinge_f;
         }
+        self.record_contact_pull(f);
     }
 
     fn potential_energy(&self, _t: f64, x: &[f64]) -> Option<f64> {
@@ -1106,6 +1154,7 @@ impl Mechanical for Cloth {
             jac.hinge.gather_blocks_add(&jac.hinge_kv, d);
         }
         self.jac = Some(jac);
+        self.record_contact_pull(f);
         Ok(())
     }
 }

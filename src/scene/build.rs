@@ -218,7 +218,7 @@ impl Simulation {
                         total.solve_seconds += info.solve_seconds;
                         self.t += h;
                         let (x, v) = (self.state.x.as_mut_slice(), self.state.v.as_mut_slice());
-                        c.after_step(self.t, x, v);
+                        c.after_step(self.t, h, x, v);
                         self.good_steps += 1;
                         if self.good_steps >= 2 && self.sub_dt < self.dt {
                             self.sub_dt = (2.0 * self.sub_dt).min(self.dt);

@@ -23,7 +23,7 @@
 //! hits a wall at 25 m/s, is too chaotic for this: after 1 s runs differing by rounding
 //! end metres apart.) Run time: wall time of the whole run on this machine.
 
-use super::{write_file, StudyError};
+use super::{log_slope, max_distance, write_file, StudyError};
 use crate::integrate::{MechSettings, MechStepper, Mechanical, Method};
 use crate::mass_spring::{lattice, CollisionDesc, LatticeOptions, MassSpringDesc};
 use crate::plot::{write_panels, Curve, Panel, Scale};
@@ -464,18 +464,6 @@ fn run_world(
     (ok.then(|| x.to_vec()), secs)
 }
 
-fn max_distance(a: &[f64], b: &[f64]) -> f64 {
-    let n = a.len() / 3;
-    (0..n)
-        .map(|i| {
-            (0..3)
-                .map(|c| (a[c * n + i] - b[c * n + i]).powi(2))
-                .sum::<f64>()
-                .sqrt()
-        })
-        .fold(0.0, f64::max)
-}
-
 pub(super) fn accuracy(out: &Path, quick: bool) -> Result<String, StudyError> {
     let world = accuracy_scene();
     let t_end = 1.0;
@@ -507,23 +495,13 @@ pub(super) fn accuracy(out: &Path, quick: bool) -> Result<String, StudyError> {
                 }
             })
             .collect();
-        // Least-squares slope of log error against log dt over the finite points.
-        let fit: Vec<(f64, f64)> = points
-            .iter()
-            .filter_map(|p| {
-                p.error
-                    .filter(|e| *e > 0.0 && *e < 0.5)
-                    .map(|e| (p.dt.ln(), e.ln()))
-            })
-            .collect();
-        let observed_order = (fit.len() >= 3).then(|| {
-            let nf = fit.len() as f64;
-            let (sx, sy) = fit.iter().fold((0.0, 0.0), |(a, b), p| (a + p.0, b + p.1));
-            let (mx, my) = (sx / nf, sy / nf);
-            let num: f64 = fit.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
-            let den: f64 = fit.iter().map(|p| (p.0 - mx).powi(2)).sum();
-            num / den
-        });
+        // Observed order over the finite points.
+        let observed_order = log_slope(
+            &points
+                .iter()
+                .filter_map(|p| p.error.filter(|e| *e > 0.0 && *e < 0.5).map(|e| (p.dt, e)))
+                .collect::<Vec<_>>(),
+        );
         series.push(AccuracySeries {
             method: method.name(),
             observed_order,

@@ -5,15 +5,20 @@
 //! (index i + n*j) pinned, gravity -9.81 in y, a fixed sphere of radius 0.25 at the origin.
 //! Simulate 0.5 s, then time 20 single steps.
 //!
-//! Two rapier models of that cloth (see README.md):
-//! * `joints`: one dynamic rigid body (ball collider, radius 0.4 h) per vertex, connected by
-//!   `SpringJointBuilder` springs (k = 1000 N/m, critically damped) on structural and shear
-//!   edges; the pinned vertices are fixed bodies.
+//! Rapier models of that cloth (see README.md):
+//! * `joints`: one dynamic rigid body (ball collider, radius 0.4 h, rotations locked) per
+//!   vertex, connected by `SpringJointBuilder` springs (k = 1000 N/m, critically damped) on
+//!   structural and shear edges; the pinned vertices are fixed bodies.
 //! * `softbody`: rapier's own `SoftBodyBuilder::cloth` (particle soft body with structural,
-//!   shear and bending distance constraints; surface collides with the sphere), edge softness
-//!   chosen to match a 1000 N/m spring between two vertices.
+//!   shear and bending distance constraints; its surface collides with the sphere), edge
+//!   softness chosen to match a 1000 N/m spring between two vertices; default
+//!   `SoftBodySolver::Constraints` (Gauss-Seidel).
+//! * `sb-fem` (only with `--features fem`): the same soft body with `SoftBodySolver::Fem`
+//!   (implicit Euler, conjugate gradient).
 //!
-//! Usage: `rapier-cloth-peer [joints|softbody|all] [n ...]` (default: all, n = 32 100 200).
+//! Usage: `rapier-cloth-peer [joints|softbody|sb-fem|all] [n ...]` (default: all, n = 32 100 200).
+//! Off the recorded table: `RAPIER_CLOTH_SUBSTEPS=k` overrides `num_solver_iterations`,
+//! `RAPIER_CLOTH_TRACE=1` prints edge-strain statistics after every settling step (stderr).
 
 use rapier3d::prelude::*;
 use std::time::Instant;
@@ -26,13 +31,16 @@ const SPRING_K: Real = 1000.0; // N/m per neighbour spring
 const DAMPING_RATIO: Real = 1.0; // of one spring between two free vertices
 const SETTLE_TIME: f64 = 0.5;
 const TIMED_STEPS: usize = 20;
-/// Skip the remaining (larger) sizes of a model once one configuration took longer than this.
+/// Wall-clock budget of one configuration (build + settle + timed steps): past it the
+/// configuration is abandoned and the model's remaining configurations are skipped.
 const BUDGET_S: f64 = 120.0;
 
 #[derive(Copy, Clone, PartialEq, Eq)]
 enum Model {
     Joints,
     SoftBody,
+    /// rapier's soft body with the implicit-Euler FEM solver (cargo feature `fem`).
+    SoftBodyFem,
 }
 
 impl Model {
@@ -40,6 +48,7 @@ impl Model {
         match self {
             Model::Joints => "joints",
             Model::SoftBody => "softbody",
+            Model::SoftBodyFem => "sb-fem",
         }
     }
 }
@@ -156,7 +165,7 @@ fn build_joints(n: usize, dt: Real) -> Scene {
     }
 }
 
-fn build_softbody(n: usize, dt: Real) -> Scene {
+fn build_softbody(n: usize, dt: Real, fem: bool) -> Scene {
     let mut world = base_world(dt);
     world.insert(RigidBodyBuilder::fixed(), sphere_collider());
 
@@ -175,6 +184,10 @@ fn build_softbody(n: usize, dt: Real) -> Scene {
             ..Default::default()
         })
         .can_sleep(false);
+    #[cfg(feature = "fem")]
+    let builder = builder.solver(if fem { SoftBodySolver::Fem } else { SoftBodySolver::Constraints });
+    #[cfg(not(feature = "fem"))]
+    assert!(!fem, "the sb-fem model needs `--features fem`");
     let n_constraints = builder.edges.len() + builder.bend_edges.len();
     let handle = world.insert_soft_body(builder);
     {
@@ -221,12 +234,14 @@ struct Row {
     strain: (Real, Real, Real),
 }
 
-fn run(model: Model, n: usize, dt_inv: u32) -> Row {
+/// One configuration; `Err(steps done)` when it ran past `BUDGET_S` before finishing.
+fn run(model: Model, n: usize, dt_inv: u32) -> Result<Row, usize> {
     let dt = 1.0 / dt_inv as Real;
     let t0 = Instant::now();
     let mut scene = match model {
         Model::Joints => build_joints(n, dt),
-        Model::SoftBody => build_softbody(n, dt),
+        Model::SoftBody => build_softbody(n, dt, false),
+        Model::SoftBodyFem => build_softbody(n, dt, true),
     };
     let build_s = t0.elapsed().as_secs_f64();
 
@@ -236,6 +251,9 @@ fn run(model: Model, n: usize, dt_inv: u32) -> Row {
     let mut quarantined = false;
     let trace = std::env::var_os("RAPIER_CLOTH_TRACE").is_some();
     for k in 0..settle_steps {
+        if t0.elapsed().as_secs_f64() > BUDGET_S {
+            return Err(k);
+        }
         scene.world.step();
         quarantined |= !scene.world.quarantine().is_empty();
         if trace {
@@ -246,7 +264,10 @@ fn run(model: Model, n: usize, dt_inv: u32) -> Row {
     let settle_s = t1.elapsed().as_secs_f64();
 
     let mut times = Vec::with_capacity(TIMED_STEPS);
-    for _ in 0..TIMED_STEPS {
+    for k in 0..TIMED_STEPS {
+        if t0.elapsed().as_secs_f64() > BUDGET_S {
+            return Err(settle_steps + k);
+        }
         let t = Instant::now();
         scene.world.step();
         times.push(t.elapsed().as_secs_f64() * 1e3);
@@ -260,7 +281,7 @@ fn run(model: Model, n: usize, dt_inv: u32) -> Row {
     let min_center_dist = pos.iter().map(|p| p.length()).fold(Real::MAX, Real::min);
     let strain = strain_stats(n, &scene.edges, &pos);
 
-    Row {
+    Ok(Row {
         model,
         n,
         dt_inv,
@@ -275,7 +296,7 @@ fn run(model: Model, n: usize, dt_inv: u32) -> Row {
         min_y,
         min_center_dist,
         strain,
-    }
+    })
 }
 
 /// Median, 99th percentile and maximum of the engineering strain of the structural/shear edges.
@@ -297,6 +318,8 @@ fn main() {
     let models: Vec<Model> = match args.first().map(String::as_str) {
         Some("joints") => vec![Model::Joints],
         Some("softbody") => vec![Model::SoftBody],
+        Some("sb-fem") => vec![Model::SoftBodyFem],
+        _ if cfg!(feature = "fem") => vec![Model::Joints, Model::SoftBody, Model::SoftBodyFem],
         _ => vec![Model::Joints, Model::SoftBody],
     };
     let mut sizes: Vec<usize> = args.iter().filter_map(|a| a.parse().ok()).collect();
@@ -305,8 +328,9 @@ fn main() {
     }
 
     let p = IntegrationParameters::default();
-    println!("rapier3d 0.36.1, default features (dim3, f32, std); parallel (rayon): {}",
-        if cfg!(feature = "parallel") { "ON (feature `parallel`)" } else { "off" });
+    println!("rapier3d 0.36.1, default features (dim3, f32, std); parallel (rayon): {}; fem: {}",
+        if cfg!(feature = "parallel") { "ON (feature `parallel`)" } else { "off" },
+        if cfg!(feature = "fem") { "ON (feature `fem`)" } else { "off" });
     println!(
         "IntegrationParameters defaults: num_solver_iterations (substeps) = {}, num_internal_pgs_iterations = {}, num_internal_stabilization_iterations = {}",
         p.num_solver_iterations, p.num_internal_pgs_iterations, p.num_internal_stabilization_iterations
@@ -324,11 +348,22 @@ fn main() {
         for &n in &sizes {
             for dt_inv in [60u32, 30] {
                 if skip_rest {
-                    println!("{:<8} {:>4} {:>5} skipped: a previous size exceeded the {BUDGET_S} s budget", model.name(), n, format!("1/{dt_inv}"));
+                    println!("{:<8} {:>4} {:>5} skipped: an earlier configuration of this model ran over the {BUDGET_S} s budget", model.name(), n, format!("1/{dt_inv}"));
                     continue;
                 }
                 let t = Instant::now();
-                let r = run(model, n, dt_inv);
+                let r = match run(model, n, dt_inv) {
+                    Ok(r) => r,
+                    Err(done) => {
+                        println!(
+                            "{:<8} {:>4} {:>5} skipped: over the {BUDGET_S} s budget after {done} of {} steps",
+                            model.name(), n, format!("1/{dt_inv}"),
+                            (SETTLE_TIME * dt_inv as f64).round() as usize + TIMED_STEPS
+                        );
+                        skip_rest = true;
+                        continue;
+                    }
+                };
                 println!(
                     "{:<8} {:>4} {:>5} {:>7} {:>7} {:>7} {:>8.2} {:>9.3} {:>9.3} {:>10.1} {:>9.2} {:>6} {:>7.3} {:>7.3} {:>6.3}/{:>6.3}/{:>7.3}",
                     r.model.name(), r.n, format!("1/{}", r.dt_inv), r.bodies, r.joints, r.constraints, r.build_s,
