@@ -1060,7 +1060,11 @@ impl Mechanical for Cloth {
                 tri_kx: vec![0.0; 81 * nt],
                 tri_kv: vec![0.0; 81 * nt],
                 hinge_kx: vec![0.0; 144 * nh],
-                hinge_kv: vec![0.0; 144 * nh],
+                hinge_kv: if self.material.bend_damping > 0.0 {
+                    vec![0.0; 144 * nh]
+                } else {
+                    Vec::new()
+                },
             });
         }
         Ok(self.jac.as_ref().map(|j| j.tri.pattern().clone()))
@@ -1109,7 +1113,7 @@ impl Mechanical for Cloth {
                             &e,
                             &mut fo[9 * lt..9 * lt + 9],
                             kx,
-                            &mut kvo[81 * lt..81 * lt + 81],
+                            Some(&mut kvo[81 * lt..81 * lt + 81]),
                         );
                     }
                 });
@@ -1117,33 +1121,52 @@ impl Mechanical for Cloth {
             self.tri_f = tri_f;
             let mut hinge_f = std::mem::take(&mut self.hinge_f);
             let this = &*self;
-            hinge_f
+            // One hinge into its force and Jacobian slots (`kv` only with bend damping:
+            // without it the hinges' df/dv is zero and is neither written nor gathered).
+            let hinge = |h: usize, fo: &mut [f64], kx: &mut [f64], kv: Option<&mut [f64]>| {
+                let el = &this.hinges[h];
+                let mut e = ElementOut::new(this.definiteness_fix);
+                add_bend(
+                    &mut e,
+                    &gather_nodes(x, n, el),
+                    &gather_nodes(v, n, el),
+                    m.bend,
+                    m.bend_damping,
+                    this.theta0[h],
+                );
+                write_element(&e, fo, kx, kv);
+            };
+            let chunks = hinge_f
                 .par_chunks_mut(12 * CHUNK)
-                .zip(jac.hinge_kx.par_chunks_mut(144 * CHUNK))
-                .zip(jac.hinge_kv.par_chunks_mut(144 * CHUNK))
-                .enumerate()
-                .for_each(|(c, ((fo, kxo), kvo))| {
+                .zip(jac.hinge_kx.par_chunks_mut(144 * CHUNK));
+            if jac.hinge_kv.is_empty() {
+                chunks.enumerate().for_each(|(c, (fo, kxo))| {
                     for lh in 0..fo.len() / 12 {
-                        let h = c * CHUNK + lh;
-                        let el = &this.hinges[h];
-                        let mut e = ElementOut::new(this.definiteness_fix);
-                        add_bend(
-                            &mut e,
-                            &gather_nodes(x, n, el),
-                            &gather_nodes(v, n, el),
-                            m.bend,
-                            m.bend_damping,
-                            this.theta0[h],
-                        );
-                        let kx = &mut kxo[144 * lh..144 * lh + 144];
-                        write_element(
-                            &e,
-                            &mut fo[12 * lh..12 * lh + 12],
-                            kx,
-                            &mut kvo[144 * lh..144 * lh + 144],
+                        let (f, k) = (12 * lh, 144 * lh);
+                        hinge(
+                            c * CHUNK + lh,
+                            &mut fo[f..f + 12],
+                            &mut kxo[k..k + 144],
+                            None,
                         );
                     }
                 });
+            } else {
+                chunks
+                    .zip(jac.hinge_kv.par_chunks_mut(144 * CHUNK))
+                    .enumerate()
+                    .for_each(|(c, ((fo, kxo), kvo))| {
+                        for lh in 0..fo.len() / 12 {
+                            let (f, k) = (12 * lh, 144 * lh);
+                            hinge(
+                                c * CHUNK + lh,
+                                &mut fo[f..f + 12],
+                                &mut kxo[k..k + 144],
+                                Some(&mut kvo[k..k + 144]),
+                            );
+                        }
+                    });
+            }
             self.hinge_gather.gather_vectors_add(&hinge_f, f);
             self.hinge_f = hinge_f;
         }
@@ -1151,7 +1174,9 @@ impl Mechanical for Cloth {
         jac.hinge.gather_blocks_add(&jac.hinge_kx, dfdx);
         if let Some(d) = dfdv {
             jac.tri.gather_blocks(&jac.tri_kv, d);
-            jac.hinge.gather_blocks_add(&jac.hinge_kv, d);
+            if !jac.hinge_kv.is_empty() {
+                jac.hinge.gather_blocks_add(&jac.hinge_kv, d);
+            }
         }
         self.jac = Some(jac);
         self.record_contact_pull(f);
@@ -1161,13 +1186,20 @@ impl Mechanical for Cloth {
 
 /// The forces and the K x K blocks of an element into element-major buffers (the
 /// `LocalLayout::dense(K)` order: block (i, j) at `9 (K i + j)`).
-fn write_element<const K: usize>(e: &ElementOut<K>, f: &mut [f64], kx: &mut [f64], kv: &mut [f64]) {
+fn write_element<const K: usize>(
+    e: &ElementOut<K>,
+    f: &mut [f64],
+    kx: &mut [f64],
+    mut kv: Option<&mut [f64]>,
+) {
     for i in 0..K {
         f[3 * i..3 * i + 3].copy_from_slice(&e.f[i]);
         for j in 0..K {
             let b = 9 * (K * i + j);
             kx[b..b + 9].copy_from_slice(&e.kx[i][j]);
-            kv[b..b + 9].copy_from_slice(&e.kv[i][j]);
+            if let Some(kv) = kv.as_deref_mut() {
+                kv[b..b + 9].copy_from_slice(&e.kv[i][j]);
+            }
         }
     }
 }
