@@ -177,6 +177,52 @@ proptest! {
     }
 }
 
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+
+    #[test]
+    fn closed_form_triangle_jacobians_equal_the_condition_by_condition_ones(
+        vals in prop::collection::vec(-1f64..1.0, 24..25),
+        project in any::<bool>(),
+    ) {
+        use largestep::kernels::cloth::{add_shear, add_stretch, triangle_jacobians, TriangleParams};
+        let Some((r, x, v)) = triangle(&vals) else { return Ok(()) };
+        let p = TriangleParams {
+            stretch: 3.0,
+            stretch_damping: 0.4,
+            shear: 1.5,
+            shear_damping: 0.2,
+            rest_stretch: [1.0, 0.9],
+            project,
+        };
+        let mut e = ElementOut::new(project);
+        add_stretch(&mut e, &r, &x, &v, p.stretch, p.stretch_damping, p.rest_stretch);
+        add_shear(&mut e, &r, &x, &v, p.shear, p.shear_damping);
+        let (mut f, mut kx, mut kv) = ([0.0; 9], [0.0; 54], [0.0; 54]);
+        let energy = triangle_jacobians(&r, &x, &v, &p, &mut f, &mut kx, Some(&mut kv));
+        let scale = e.kx.iter().flatten().flatten().chain(e.kv.iter().flatten().flatten())
+            .fold(1e-300f64, |m, v| m.max(v.abs()));
+        let tol = 1e-12 * scale;
+        prop_assert!((energy - e.energy).abs() <= 1e-12 * e.energy.abs().max(1e-300));
+        let fscale = e.f.iter().flatten().fold(1e-300f64, |m, v| m.max(v.abs()));
+        for i in 0..3 {
+            for c in 0..3 {
+                prop_assert!((f[3 * i + c] - e.f[i][c]).abs() <= 1e-12 * fscale);
+            }
+        }
+        let mut slot = 0;
+        for i in 0..3 {
+            for j in i..3 {
+                for k in 0..9 {
+                    prop_assert!((kx[9 * slot + k] - e.kx[i][j][k]).abs() <= tol, "kx {i} {j}");
+                    prop_assert!((kv[9 * slot + k] - e.kv[i][j][k]).abs() <= tol, "kv {i} {j}");
+                }
+                slot += 1;
+            }
+        }
+    }
+}
+
 #[test]
 fn degenerate_rest_triangles_are_rejected() {
     assert!(TriangleRest::new([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]]).is_none());
@@ -647,9 +693,9 @@ bend = 0.01
                 "vertex 99 does not exist",
             ),
             (
-                SHEET.replace("[cloth.grid]", "[cloth.step_control]\nmax_strain = 0.0\n[cloth.grid]"),
-                "max_strain = 0.0",
-                "max_strain must be",
+                SHEET.replace("[cloth.grid]", "[cloth.step_control]\nmax_strain_change = 0.0\n[cloth.grid]"),
+                "max_strain_change = 0.0",
+                "max_strain_change must be",
             ),
             (
                 format!("{SHEET}\n[mass_spring.chain]\ncount = 2\nspacing = 1.0\nmass = 1.0\nstiffness = 1.0\n"),
@@ -1110,14 +1156,14 @@ origin = [-0.5, 0.5, -0.5]
         assert!(sim.sub_step() < 0.25, "no halving happened");
         assert!(sim.steps() > 1, "{} sub-steps", sim.steps());
         assert!((sim.time() - 0.25).abs() < 1e-12);
-        // That step was retried for its strain (3.1 at dt = 0.25). With no halving
+        // That step was retried for its strain change (from 0 to 3.1 at dt = 0.25). With no halving
         // allowed and a solver that cannot converge, the step fails, naming the step,
         // the iterations and the residual.
         let text = text
             .replace("max_iterations = 60", "max_iterations = 5")
             .replace(
                 "[cloth.grid]",
-                "[cloth.step_control]\nmax_halvings = 0\nmax_strain = 1e9\n[cloth.grid]",
+                "[cloth.step_control]\nmax_halvings = 0\nmax_strain_change = 1e9\n[cloth.grid]",
             );
         let scene = Scene::parse(&text, "halve.toml").unwrap();
         let mut sim = largestep::scene::Simulation::new(scene).unwrap();

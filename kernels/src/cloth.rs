@@ -579,3 +579,146 @@ fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
         a[0] * b[1] - a[1] * b[0],
     ]
 }
+
+/// Stretch and shear constants of a triangle for [`triangle_jacobians`]: element
+/// stiffnesses and dampings (as given to [`add_stretch`] and [`add_shear`]) and the rest
+/// stretch.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TriangleParams {
+    /// Stretch stiffness.
+    pub stretch: f64,
+    /// Stretch damping.
+    pub stretch_damping: f64,
+    /// Shear stiffness.
+    pub shear: f64,
+    /// Shear damping.
+    pub shear_damping: f64,
+    /// Rest stretch `(b_u, b_v)`.
+    pub rest_stretch: [f64; 2],
+    /// Drop indefinite curvature terms ([`ElementOut`]'s `project`).
+    pub project: bool,
+}
+
+/// A 3x3 matrix, row-major.
+type M3 = [f64; 9];
+
+fn outer(a: [f64; 3], b: [f64; 3], s: f64, m: &mut M3) {
+    for r in 0..3 {
+        for c in 0..3 {
+            m[3 * r + c] += s * a[r] * b[c];
+        }
+    }
+}
+
+/// A triangle's stretch and shear conditions with their Jacobians in closed form, the
+/// same quantities [`add_stretch`] plus [`add_shear`] give an [`ElementOut`] (tested
+/// equal), at a fraction of the work. Every condition's gradient is `g_i = du_i p + dv_i
+/// q` for two 3-vectors `p`, `q` (stretch u: `p = a n_u`, `q = 0`; shear: `p = a w_v`,
+/// `q = a w_u`) and its curvature `C d2C` is `du_i du_j`, `dv_i dv_j` or `du_i dv_j`
+/// times a fixed 3x3 matrix, so every 3x3 block of either Jacobian is
+///
+/// ```text
+/// K_ij = du_i du_j A + dv_i dv_j B + du_i dv_j M + dv_i du_j M^T
+/// ```
+///
+/// with `A`, `B`, `M` summed once per triangle over its three conditions. Writes the
+/// energy's share (returned), the forces `f` (3 vertices x 3) and the upper blocks (p <=
+/// q, rows of the symmetric layout: (0,0) (0,1) (0,2) (1,1) (1,2) (2,2)) of `df/dx` into
+/// `kx` and of `df/dv` into `kv` (54 values each; `kv` may be `None`).
+pub fn triangle_jacobians(
+    r: &TriangleRest,
+    x: &[[f64; 3]; 3],
+    v: &[[f64; 3]; 3],
+    p: &TriangleParams,
+    f: &mut [f64],
+    kx: &mut [f64],
+    kv: Option<&mut [f64]>,
+) -> f64 {
+    let a = r.area;
+    let (wu, wv) = r.wuv(x);
+    let (wu_dot, wv_dot) = r.wuv(v);
+    let (mut ka, mut kb, mut km) = ([0.0; 9], [0.0; 9], [0.0; 9]);
+    let (mut da, mut db, mut dm) = ([0.0; 9], [0.0; 9], [0.0; 9]);
+    // Force f_i = du_i fu + dv_i fv.
+    let (mut fu, mut fv) = ([0.0; 3], [0.0; 3]);
+    let mut energy = 0.0;
+    // Stretch along u and v: C = a (|w| - b), g_i = a coef_i n.
+    for (w, w_dot, b, kmat, dmat, fdir) in [
+        (wu, wu_dot, p.rest_stretch[0], &mut ka, &mut da, &mut fu),
+        (wv, wv_dot, p.rest_stretch[1], &mut kb, &mut db, &mut fv),
+    ] {
+        let len = dot(w, w).sqrt();
+        if len.is_nan() || len <= 0.0 {
+            continue;
+        }
+        let n = w.map(|c| c / len);
+        let c = a * (len - b);
+        let c_dot = a * dot(n, w_dot);
+        energy += 0.5 * p.stretch * c * c;
+        let s = -p.stretch * c - p.stretch_damping * c_dot;
+        for k in 0..3 {
+            fdir[k] += s * a * n[k];
+        }
+        outer(n, n, -p.stretch * a * a, kmat);
+        outer(n, n, -p.stretch_damping * a * a, dmat);
+        if !p.project || c >= 0.0 {
+            // -k C a (I - n n^T) / |w|
+            let s = -p.stretch * c * a / len;
+            for k in 0..3 {
+                kmat[4 * k] += s;
+            }
+            outer(n, n, -s, kmat);
+        }
+    }
+    // Shear: C = a w_u . w_v, g_i = du_i (a w_v) + dv_i (a w_u).
+    {
+        let c = a * dot(wu, wv);
+        let c_dot = a * (dot(wu_dot, wv) + dot(wu, wv_dot));
+        energy += 0.5 * p.shear * c * c;
+        let s = -p.shear * c - p.shear_damping * c_dot;
+        for k in 0..3 {
+            fu[k] += s * a * wv[k];
+            fv[k] += s * a * wu[k];
+        }
+        let (k2, d2) = (-p.shear * a * a, -p.shear_damping * a * a);
+        outer(wv, wv, k2, &mut ka);
+        outer(wu, wu, k2, &mut kb);
+        outer(wv, wu, k2, &mut km);
+        outer(wv, wv, d2, &mut da);
+        outer(wu, wu, d2, &mut db);
+        outer(wv, wu, d2, &mut dm);
+        if !p.project {
+            // -k C a (du_i dv_j + dv_i du_j) I: the identity goes into M (and M^T).
+            for k in 0..3 {
+                km[4 * k] -= p.shear * c * a;
+            }
+        }
+    }
+    for i in 0..3 {
+        for k in 0..3 {
+            f[3 * i + k] = r.du[i] * fu[k] + r.dv[i] * fv[k];
+        }
+    }
+    let blocks = |out: &mut [f64], a: &M3, b: &M3, m: &M3| {
+        let mut slot = 0;
+        for i in 0..3 {
+            for j in i..3 {
+                let (uu, vv) = (r.du[i] * r.du[j], r.dv[i] * r.dv[j]);
+                let (uv, vu) = (r.du[i] * r.dv[j], r.dv[i] * r.du[j]);
+                let o = &mut out[9 * slot..9 * slot + 9];
+                for rr in 0..3 {
+                    for cc in 0..3 {
+                        let e = 3 * rr + cc;
+                        o[e] = uu * a[e] + vv * b[e] + uv * m[e] + vu * m[3 * cc + rr];
+                    }
+                }
+                slot += 1;
+            }
+        }
+    };
+    blocks(kx, &ka, &kb, &km);
+    if let Some(kv) = kv {
+        blocks(kv, &da, &db, &dm);
+    }
+    energy
+}

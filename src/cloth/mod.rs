@@ -24,8 +24,8 @@ use crate::soa::Vec3s;
 use crate::solve::Filter;
 use crate::sparse::{Bsr3, Bsr3Pattern, ElementAssembly, LocalLayout, SparseError, VectorGather};
 use largestep_kernels::cloth::{
-    add_bend, add_shear, add_stretch, dihedral_angle, ConditionSink, ElementForces, ElementOut,
-    TriangleRest,
+    add_bend, add_shear, add_stretch, dihedral_angle, triangle_jacobians, ConditionSink,
+    ElementForces, ElementOut, TriangleParams, TriangleRest,
 };
 use largestep_kernels::get3;
 use rayon::prelude::*;
@@ -117,13 +117,16 @@ impl VertexPath {
 
 /// Step-size control of Baraff and Witkin (1998, section 5.3), applied by
 /// `scene::Simulation`: a step that fails (the solve does not converge, the state is not
-/// finite) or leaves a triangle stretched or compressed by more than `max_strain`
-/// ([`Cloth::max_strain`]) is undone and retried as two half steps, up to `max_halvings`
-/// times; after two good steps the step doubles back towards the scene's dt.
+/// finite) or stretches or compresses some triangle by more than `max_strain_change` in
+/// one step ([`Cloth::strain_change`]: the large-step artifact of a linearised step
+/// turning a rotation into stretch) is undone and retried as two half steps, down to
+/// `dt / 2^max_halvings`; after two good steps the step doubles back towards the scene's
+/// dt. The limit is on the change, not the strain itself, so cloth that is strained where
+/// it hangs from a pin is not rejected for it.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct StepControl {
-    /// Largest strain a step may leave (0.25: 25%), > 0.
-    pub max_strain: f64,
+    /// Largest change of any triangle's strain in one step (0.25: 25%), > 0.
+    pub max_strain_change: f64,
     /// Halvings allowed before the run fails.
     pub max_halvings: u32,
 }
@@ -131,7 +134,7 @@ pub struct StepControl {
 impl Default for StepControl {
     fn default() -> Self {
         StepControl {
-            max_strain: 0.25,
+            max_strain_change: 0.25,
             max_halvings: 6,
         }
     }
@@ -675,8 +678,23 @@ impl Cloth {
         self.gravity
     }
 
-    /// Adds triangle `t`'s stretch and shear conditions to `out` (with Jacobians into an
-    /// `ElementOut`, forces only into an `ElementForces`).
+    /// Triangle `t`'s element constants: the per-area material constants over its rest
+    /// area (see [`ClothMaterial`]).
+    fn triangle_params(&self, t: usize) -> TriangleParams {
+        let m = &self.material;
+        let inv_a = 1.0 / self.rest[t].area;
+        TriangleParams {
+            stretch: m.stretch * inv_a,
+            stretch_damping: m.stretch_damping * inv_a,
+            shear: m.shear * inv_a,
+            shear_damping: m.shear_damping * inv_a,
+            rest_stretch: m.rest_stretch,
+            project: self.definiteness_fix,
+        }
+    }
+
+    /// Adds triangle `t`'s stretch and shear conditions to `out` (forces only, into an
+    /// `ElementForces`; Jacobians into an `ElementOut`).
     fn triangle_into<S: ConditionSink<3>>(
         &self,
         out: &mut S,
@@ -684,20 +702,10 @@ impl Cloth {
         x: &[[f64; 3]; 3],
         v: &[[f64; 3]; 3],
     ) {
-        let m = &self.material;
+        let p = self.triangle_params(t);
         let r = &self.rest[t];
-        // Per-area material constants to element constants (see `ClothMaterial`).
-        let inv_a = 1.0 / r.area;
-        add_stretch(
-            out,
-            r,
-            x,
-            v,
-            m.stretch * inv_a,
-            m.stretch_damping * inv_a,
-            m.rest_stretch,
-        );
-        add_shear(out, r, x, v, m.shear * inv_a, m.shear_damping * inv_a);
+        add_stretch(out, r, x, v, p.stretch, p.stretch_damping, p.rest_stretch);
+        add_shear(out, r, x, v, p.shear, p.shear_damping);
     }
 
     /// Gravity and wind (external loads) into `f`, overwriting it.
@@ -859,24 +867,41 @@ impl Cloth {
         self.resolve_contacts(x, v, h)
     }
 
-    /// The largest stretch strain of any triangle, `max | |w_u| - b_u |` over both
-    /// directions (0 at rest; 0.1 is 10% stretched or compressed): what step-size
-    /// control watches (Baraff and Witkin 1998, section 5.3).
-    pub fn max_strain(&self, x: &[f64]) -> f64 {
-        let n = self.n;
+    /// Triangle `t`'s stretch strain, `max(| |w_u| - b_u |, | |w_v| - b_v |)` (0 at
+    /// rest; 0.1 is 10% stretched or compressed).
+    fn strain(&self, t: usize, x: &[f64]) -> f64 {
         let b = self.material.rest_stretch;
-        let mut worst = 0.0f64;
-        for (tri, r) in self.triangles.iter().zip(&self.rest) {
-            let (wu, wv) = r.wuv(&gather_nodes(x, n, tri));
-            let lu = (wu[0] * wu[0] + wu[1] * wu[1] + wu[2] * wu[2]).sqrt();
-            let lv = (wv[0] * wv[0] + wv[1] * wv[1] + wv[2] * wv[2]).sqrt();
-            let s = (lu - b[0]).abs().max((lv - b[1]).abs());
-            if s.is_nan() {
-                return f64::NAN;
-            }
-            worst = worst.max(s);
-        }
-        worst
+        let (wu, wv) = self.rest[t].wuv(&gather_nodes(x, self.n, &self.triangles[t]));
+        let lu = (wu[0] * wu[0] + wu[1] * wu[1] + wu[2] * wu[2]).sqrt();
+        let lv = (wv[0] * wv[0] + wv[1] * wv[1] + wv[2] * wv[2]).sqrt();
+        (lu - b[0]).abs().max((lv - b[1]).abs())
+    }
+
+    /// The largest stretch strain of any triangle (NaN if any is NaN).
+    pub fn max_strain(&self, x: &[f64]) -> f64 {
+        (0..self.triangles.len())
+            .map(|t| self.strain(t, x))
+            .fold(0.0, |m: f64, s| {
+                if s.is_nan() || m.is_nan() {
+                    f64::NAN
+                } else {
+                    m.max(s)
+                }
+            })
+    }
+
+    /// The largest change of any triangle's strain between `x0` and `x` (NaN if any is
+    /// NaN): what step-size control limits ([`StepControl`]).
+    pub fn strain_change(&self, x0: &[f64], x: &[f64]) -> f64 {
+        (0..self.triangles.len())
+            .map(|t| (self.strain(t, x) - self.strain(t, x0)).abs())
+            .fold(0.0, |m: f64, s| {
+                if s.is_nan() || m.is_nan() {
+                    f64::NAN
+                } else {
+                    m.max(s)
+                }
+            })
     }
 
     /// The deepest penetration into an obstacle (m, >= 0).
@@ -1049,19 +1074,20 @@ impl Mechanical for Cloth {
             let tri = ElementAssembly::with_pattern(
                 pattern.clone(),
                 &self.triangles,
-                LocalLayout::dense(3),
+                LocalLayout::symmetric(3),
             )?;
+            // Element matrices are symmetric: only their upper blocks are written.
             let hinge =
-                ElementAssembly::with_pattern(pattern, &self.hinges, LocalLayout::dense(4))?;
+                ElementAssembly::with_pattern(pattern, &self.hinges, LocalLayout::symmetric(4))?;
             let (nt, nh) = (self.triangles.len(), self.hinges.len());
             self.jac = Some(ClothJacobians {
                 tri,
                 hinge,
-                tri_kx: vec![0.0; 81 * nt],
-                tri_kv: vec![0.0; 81 * nt],
-                hinge_kx: vec![0.0; 144 * nh],
+                tri_kx: vec![0.0; TRI_K * nt],
+                tri_kv: vec![0.0; TRI_K * nt],
+                hinge_kx: vec![0.0; HINGE_K * nh],
                 hinge_kv: if self.material.bend_damping > 0.0 {
-                    vec![0.0; 144 * nh]
+                    vec![0.0; HINGE_K * nh]
                 } else {
                     Vec::new()
                 },
@@ -1094,26 +1120,24 @@ impl Mechanical for Cloth {
             let this = &*self;
             tri_f
                 .par_chunks_mut(9 * CHUNK)
-                .zip(jac.tri_kx.par_chunks_mut(81 * CHUNK))
-                .zip(jac.tri_kv.par_chunks_mut(81 * CHUNK))
+                .zip(jac.tri_kx.par_chunks_mut(TRI_K * CHUNK))
+                .zip(jac.tri_kv.par_chunks_mut(TRI_K * CHUNK))
                 .enumerate()
                 .for_each(|(c, ((fo, kxo), kvo))| {
                     for lt in 0..fo.len() / 9 {
                         let t = c * CHUNK + lt;
                         let el = &this.triangles[t];
-                        let mut e = ElementOut::new(this.definiteness_fix);
-                        this.triangle_into(
-                            &mut e,
-                            t,
+                        // Closed form (the condition-by-condition `triangle_into` gives the
+                        // same, tested; it serves the force-only path and the energy).
+                        let k = TRI_K * lt;
+                        triangle_jacobians(
+                            &this.rest[t],
                             &gather_nodes(x, n, el),
                             &gather_nodes(v, n, el),
-                        );
-                        let kx = &mut kxo[81 * lt..81 * lt + 81];
-                        write_element(
-                            &e,
+                            &this.triangle_params(t),
                             &mut fo[9 * lt..9 * lt + 9],
-                            kx,
-                            Some(&mut kvo[81 * lt..81 * lt + 81]),
+                            &mut kxo[k..k + TRI_K],
+                            Some(&mut kvo[k..k + TRI_K]),
                         );
                     }
                 });
@@ -1138,31 +1162,31 @@ impl Mechanical for Cloth {
             };
             let chunks = hinge_f
                 .par_chunks_mut(12 * CHUNK)
-                .zip(jac.hinge_kx.par_chunks_mut(144 * CHUNK));
+                .zip(jac.hinge_kx.par_chunks_mut(HINGE_K * CHUNK));
             if jac.hinge_kv.is_empty() {
                 chunks.enumerate().for_each(|(c, (fo, kxo))| {
                     for lh in 0..fo.len() / 12 {
-                        let (f, k) = (12 * lh, 144 * lh);
+                        let (f, k) = (12 * lh, HINGE_K * lh);
                         hinge(
                             c * CHUNK + lh,
                             &mut fo[f..f + 12],
-                            &mut kxo[k..k + 144],
+                            &mut kxo[k..k + HINGE_K],
                             None,
                         );
                     }
                 });
             } else {
                 chunks
-                    .zip(jac.hinge_kv.par_chunks_mut(144 * CHUNK))
+                    .zip(jac.hinge_kv.par_chunks_mut(HINGE_K * CHUNK))
                     .enumerate()
                     .for_each(|(c, ((fo, kxo), kvo))| {
                         for lh in 0..fo.len() / 12 {
-                            let (f, k) = (12 * lh, 144 * lh);
+                            let (f, k) = (12 * lh, HINGE_K * lh);
                             hinge(
                                 c * CHUNK + lh,
                                 &mut fo[f..f + 12],
-                                &mut kxo[k..k + 144],
-                                Some(&mut kvo[k..k + 144]),
+                                &mut kxo[k..k + HINGE_K],
+                                Some(&mut kvo[k..k + HINGE_K]),
                             );
                         }
                     });
@@ -1184,8 +1208,13 @@ impl Mechanical for Cloth {
     }
 }
 
-/// The forces and the K x K blocks of an element into element-major buffers (the
-/// `LocalLayout::dense(K)` order: block (i, j) at `9 (K i + j)`).
+/// Doubles per element in the Jacobian buffers: the upper blocks of the symmetric local
+/// matrix ([`LocalLayout::symmetric`]), 6 for a triangle, 10 for a hinge.
+const TRI_K: usize = 9 * 6;
+const HINGE_K: usize = 9 * 10;
+
+/// The forces and the upper blocks (p <= q, in [`LocalLayout::symmetric`] order) of an
+/// element's symmetric Jacobians into element-major buffers.
 fn write_element<const K: usize>(
     e: &ElementOut<K>,
     f: &mut [f64],
@@ -1194,8 +1223,8 @@ fn write_element<const K: usize>(
 ) {
     for i in 0..K {
         f[3 * i..3 * i + 3].copy_from_slice(&e.f[i]);
-        for j in 0..K {
-            let b = 9 * (K * i + j);
+        for j in i..K {
+            let b = 9 * LocalLayout::symmetric_index(K, i, j);
             kx[b..b + 9].copy_from_slice(&e.kx[i][j]);
             if let Some(kv) = kv.as_deref_mut() {
                 kv[b..b + 9].copy_from_slice(&e.kv[i][j]);

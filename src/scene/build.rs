@@ -149,8 +149,8 @@ impl Simulation {
                     "step-size control",
                     true,
                     format!(
-                        "halve dt when a step fails or strain exceeds {} (at most {} times)",
-                        sc.max_strain, sc.max_halvings
+                        "halve dt when a step fails or changes a strain by more than {} (at most {} times)",
+                        sc.max_strain_change, sc.max_halvings
                     ),
                 ));
             }
@@ -210,8 +210,9 @@ impl Simulation {
             );
             let why = match result {
                 Ok(info) => {
-                    let strain = c.max_strain(self.state.x.as_slice());
-                    if strain <= control.max_strain {
+                    let (xs, _) = self.saved.as_ref().expect("cloth keeps a saved state");
+                    let change = c.strain_change(xs, self.state.x.as_slice());
+                    if change <= control.max_strain_change {
                         total.newton_iterations += info.newton_iterations;
                         total.linear_iterations += info.linear_iterations;
                         total.residual = info.residual;
@@ -227,8 +228,8 @@ impl Simulation {
                         continue;
                     }
                     format!(
-                        "a triangle is strained by {strain:.3}, above max_strain = {}",
-                        control.max_strain
+                        "a triangle's strain changed by {change:.3} in one step, above max_strain_change = {}",
+                        control.max_strain_change
                     )
                 }
                 Err(e) => e.to_string(),

@@ -593,10 +593,10 @@ fn cloth_desc(
     }
     if let Some(sc) = &t.step_control {
         let d = StepControl::default();
-        let max_strain = finite_positive(
-            sc.max_strain.unwrap_or(d.max_strain),
-            at(&[&"step_control", &"max_strain"]),
-            "max_strain",
+        let max_strain_change = finite_positive(
+            sc.max_strain_change.unwrap_or(d.max_strain_change),
+            at(&[&"step_control", &"max_strain_change"]),
+            "max_strain_change",
             err,
         )?;
         let halvings = sc.max_halvings.unwrap_or(d.max_halvings as i64);
@@ -607,7 +607,7 @@ fn cloth_desc(
             ));
         }
         desc.step_control = StepControl {
-            max_strain,
+            max_strain_change,
             max_halvings: halvings as u32,
         };
     }

@@ -50,7 +50,7 @@
 //! # [[cloth.sdf]] file = "shape.sdf"   (SDFGen text: ni nj nk / origin / dx / values)
 //! # [cloth.wind] velocity = [3.0, 0.0, 0.0], drag = 0.5, gust = 0.5, frequency = 1.5
 //! # [[cloth.path]] vertices = [0], times = [0.0, 1.0], offsets = [[0,0,0], [0.3,0,0]]
-//! # [cloth.step_control] max_strain = 0.25, max_halvings = 6   (these are the defaults)
+//! # [cloth.step_control] max_strain_change = 0.25, max_halvings = 6   (these are the defaults)
 //! [cloth.grid]                # or [cloth.mesh] file = "sheet.obj" (with vt), uv_scale
 //! nu = 10
 //! nv = 10
@@ -353,9 +353,10 @@ pub struct PathTable {
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct StepControlTable {
-    /// Largest stretch strain a step may leave before it is retried at half the step.
+    /// Largest change of any triangle's strain in one step before the step is retried
+    /// at half the size.
     #[serde(default)]
-    pub max_strain: Option<f64>,
+    pub max_strain_change: Option<f64>,
     /// How many times a step may be halved before the run fails.
     #[serde(default)]
     pub max_halvings: Option<i64>,

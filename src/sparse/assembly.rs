@@ -46,6 +46,14 @@ impl Src {
             transpose: false,
         }
     }
+    /// The transpose of unique block `index`.
+    pub const fn transposed(index: u16) -> Self {
+        Self {
+            index,
+            negate: false,
+            transpose: true,
+        }
+    }
 }
 
 /// How an element type's K x K local blocks and K local vectors derive from the unique
@@ -75,6 +83,36 @@ impl LocalLayout {
             vectors: 1,
             vector_src: vec![Src::plus(0), Src::minus(0)],
         }
+    }
+
+    /// A K-vertex element with a symmetric local matrix: only the blocks (p, q) with
+    /// p <= q are written, row by row ([`LocalLayout::symmetric_index`]); block (q, p) is
+    /// the transpose of (p, q). Vectors as in [`LocalLayout::dense`]. Writes and gathers
+    /// k (k + 1) / 2 blocks instead of k^2 (6 of 9 for triangles, 10 of 16 for hinges).
+    pub fn symmetric(k: usize) -> Self {
+        Self {
+            k,
+            blocks: k * (k + 1) / 2,
+            block_src: (0..k * k)
+                .map(|i| {
+                    let (p, q) = (i / k, i % k);
+                    if p <= q {
+                        Src::plus(Self::symmetric_index(k, p, q) as u16)
+                    } else {
+                        Src::transposed(Self::symmetric_index(k, q, p) as u16)
+                    }
+                })
+                .collect(),
+            vectors: k,
+            vector_src: (0..k).map(|i| Src::plus(i as u16)).collect(),
+        }
+    }
+
+    /// Where block (p, q), p <= q, of a [`LocalLayout::symmetric`] element is written
+    /// among its unique blocks.
+    pub const fn symmetric_index(k: usize, p: usize, q: usize) -> usize {
+        // Rows 0..p hold k + (k - 1) + ... + (k - p + 1) blocks.
+        p * k - p * (p.saturating_sub(1)) / 2 + (q - p)
     }
 
     /// K vertices, every local block and vector written explicitly.
