@@ -722,3 +722,72 @@ pub fn triangle_jacobians(
     }
     energy
 }
+
+/// The bend element of a hinge with projected Jacobians (curvature dropped, see
+/// [`ElementOut`]'s `project`), written straight into buffers: `df/dx = -k g g^T` and
+/// `df/dv = -k_d g g^T` with `g` the closed-form angle gradient ([`bend_gradient`]), so no
+/// 12 x 12 matrix is formed. Writes the forces `f` (4 vertices x 3) and the upper blocks
+/// (p <= q, row by row: 10 blocks, 90 values) of `kx` and, if given, `kv`; returns the
+/// energy. A degenerate hinge writes zeros and returns 0. Tested equal to [`add_bend`]
+/// into a projecting [`ElementOut`].
+///
+/// `decouple`: move the coupling of the two opposite vertices (x2, x3) onto their
+/// diagonal blocks, `K'' = -k g g^T - k (E2 g2 - E3 g3)(E2 g2 - E3 g3)^T` (E_i puts a
+/// vertex's 3-vector in its place): the (2, 3) blocks cancel, so the matrix needs only
+/// the triangles' pattern (7 blocks per row on a regular mesh instead of 13: half the
+/// traffic of every PCG product), and the sum of two negative semi-definite terms stays
+/// negative semi-definite. The forces are unchanged; the Jacobian is then an
+/// approximation, stiffer in the mode where x2 and x3 move against each other, which the
+/// implicit step damps a little more.
+#[allow(clippy::too_many_arguments)] // the hinge's state, constants and outputs
+pub fn bend_jacobians_projected(
+    x: &[[f64; 3]; 4],
+    v: &[[f64; 3]; 4],
+    k: f64,
+    kd: f64,
+    theta0: f64,
+    decouple: bool,
+    f: &mut [f64],
+    kx: &mut [f64],
+    kv: Option<&mut [f64]>,
+) -> f64 {
+    let Some((theta, g)) = bend_gradient(x) else {
+        f[..12].fill(0.0);
+        kx[..90].fill(0.0);
+        if let Some(kv) = kv {
+            kv[..90].fill(0.0);
+        }
+        return 0.0;
+    };
+    let c = theta - theta0;
+    let s = force_scale(c, &g, k, kd, v);
+    for i in 0..4 {
+        for a in 0..3 {
+            f[3 * i + a] = s * g[i][a];
+        }
+    }
+    let write = |out: &mut [f64], scale: f64| {
+        let mut slot = 0;
+        for i in 0..4 {
+            for j in i..4 {
+                // Decoupled: (2, 3) is zero and (2, 2), (3, 3) are doubled.
+                let w = match (decouple, i, j) {
+                    (true, 2, 3) => 0.0,
+                    (true, 2, 2) | (true, 3, 3) => 2.0,
+                    _ => 1.0,
+                };
+                for a in 0..3 {
+                    for b in 0..3 {
+                        out[9 * slot + 3 * a + b] = -w * scale * g[i][a] * g[j][b];
+                    }
+                }
+                slot += 1;
+            }
+        }
+    };
+    write(kx, k);
+    if let Some(kv) = kv {
+        write(kv, kd);
+    }
+    0.5 * k * c * c
+}

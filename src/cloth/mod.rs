@@ -24,8 +24,8 @@ use crate::soa::Vec3s;
 use crate::solve::Filter;
 use crate::sparse::{Bsr3, Bsr3Pattern, ElementAssembly, LocalLayout, SparseError, VectorGather};
 use largestep_kernels::cloth::{
-    add_bend, add_shear, add_stretch, dihedral_angle, triangle_jacobians, ConditionSink,
-    ElementForces, ElementOut, TriangleParams, TriangleRest,
+    add_bend, add_shear, add_stretch, bend_jacobians_projected, dihedral_angle, triangle_jacobians,
+    ConditionSink, ElementForces, ElementOut, TriangleParams, TriangleRest,
 };
 use largestep_kernels::get3;
 use rayon::prelude::*;
@@ -1066,19 +1066,29 @@ impl Mechanical for Cloth {
 
     fn prepare_jacobians(&mut self) -> Result<Option<Arc<Bsr3Pattern>>, SparseError> {
         if self.jac.is_none() {
-            // One pattern for both element kinds: triangles padded to four vertices (the
-            // pattern deduplicates the repeated vertex) next to the hinges.
-            let mut all: Vec<[u32; 4]> = self.hinges.clone();
-            all.extend(self.triangles.iter().map(|t| [t[0], t[1], t[2], t[2]]));
+            // One pattern for both element kinds. Element matrices are symmetric: only
+            // their upper blocks are written. With the definiteness fix the hinges'
+            // opposite-vertex coupling is moved onto the diagonal
+            // (`bend_jacobians_projected`), so the triangles' pattern holds everything;
+            // exact Jacobians need the hinges' (x2, x3) pairs too.
+            let mut all: Vec<[u32; 4]> = self
+                .triangles
+                .iter()
+                .map(|t| [t[0], t[1], t[2], t[2]])
+                .collect();
+            let hinge_layout = if self.definiteness_fix {
+                LocalLayout::symmetric_without(4, &[(2, 3)])
+            } else {
+                all.extend_from_slice(&self.hinges);
+                LocalLayout::symmetric(4)
+            };
             let pattern = Arc::new(Bsr3Pattern::from_elements(self.n, &all)?);
             let tri = ElementAssembly::with_pattern(
                 pattern.clone(),
                 &self.triangles,
                 LocalLayout::symmetric(3),
             )?;
-            // Element matrices are symmetric: only their upper blocks are written.
-            let hinge =
-                ElementAssembly::with_pattern(pattern, &self.hinges, LocalLayout::symmetric(4))?;
+            let hinge = ElementAssembly::with_pattern(pattern, &self.hinges, hinge_layout)?;
             let (nt, nh) = (self.triangles.len(), self.hinges.len());
             self.jac = Some(ClothJacobians {
                 tri,
@@ -1147,18 +1157,19 @@ impl Mechanical for Cloth {
             let this = &*self;
             // One hinge into its force and Jacobian slots (`kv` only with bend damping:
             // without it the hinges' df/dv is zero and is neither written nor gathered).
+            // Projected: -k g g^T written straight into the buffers; exact: the
+            // automatic-differentiation Hessian through an `ElementOut`.
             let hinge = |h: usize, fo: &mut [f64], kx: &mut [f64], kv: Option<&mut [f64]>| {
                 let el = &this.hinges[h];
-                let mut e = ElementOut::new(this.definiteness_fix);
-                add_bend(
-                    &mut e,
-                    &gather_nodes(x, n, el),
-                    &gather_nodes(v, n, el),
-                    m.bend,
-                    m.bend_damping,
-                    this.theta0[h],
-                );
-                write_element(&e, fo, kx, kv);
+                let (xs, vs) = (gather_nodes(x, n, el), gather_nodes(v, n, el));
+                let (k, kd, t0) = (m.bend, m.bend_damping, this.theta0[h]);
+                if this.definiteness_fix {
+                    bend_jacobians_projected(&xs, &vs, k, kd, t0, true, fo, kx, kv);
+                } else {
+                    let mut e = ElementOut::new(false);
+                    add_bend(&mut e, &xs, &vs, k, kd, t0);
+                    write_element(&e, fo, kx, kv);
+                }
             };
             let chunks = hinge_f
                 .par_chunks_mut(12 * CHUNK)

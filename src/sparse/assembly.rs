@@ -54,6 +54,18 @@ impl Src {
             transpose: true,
         }
     }
+    /// No block: the local pair is left out of the matrix (its pattern need not hold it).
+    pub const fn absent() -> Self {
+        Self {
+            index: u16::MAX,
+            negate: false,
+            transpose: false,
+        }
+    }
+    /// Whether this is [`Src::absent`].
+    pub const fn is_absent(&self) -> bool {
+        self.index == u16::MAX
+    }
 }
 
 /// How an element type's K x K local blocks and K local vectors derive from the unique
@@ -106,6 +118,19 @@ impl LocalLayout {
             vectors: k,
             vector_src: (0..k).map(|i| Src::plus(i as u16)).collect(),
         }
+    }
+
+    /// [`LocalLayout::symmetric`] with the local pairs `(p, q)` and `(q, p)` of `absent`
+    /// left out of the matrix (their unique blocks are still in the buffer, unread): an
+    /// element whose kernel moved that coupling elsewhere, so the pattern need not hold
+    /// it.
+    pub fn symmetric_without(k: usize, absent: &[(usize, usize)]) -> Self {
+        let mut l = Self::symmetric(k);
+        for &(p, q) in absent {
+            l.block_src[p * k + q] = Src::absent();
+            l.block_src[q * k + p] = Src::absent();
+        }
+        l
     }
 
     /// Where block (p, q), p <= q, of a [`LocalLayout::symmetric`] element is written
@@ -223,10 +248,15 @@ impl ElementAssembly {
         if total > INDEX as usize {
             return Err(SparseError::TooLarge { blocks: total });
         }
+        // Slot of every local pair, u32::MAX for pairs the layout leaves out.
         let mut elem_slots = Vec::with_capacity(elements.len() * K * K);
         for el in elements {
-            for &a in el {
-                for &b in el {
+            for (p, &a) in el.iter().enumerate() {
+                for (q, &b) in el.iter().enumerate() {
+                    if layout.block_src[p * K + q].is_absent() {
+                        elem_slots.push(u32::MAX);
+                        continue;
+                    }
                     let s = pattern
                         .slot(a as usize, b as usize)
                         .expect("pattern holds every element pair");
@@ -237,11 +267,15 @@ impl ElementAssembly {
         let kk = K * K;
         let nb = layout.blocks;
         let bsrc = &layout.block_src;
-        let block_pairs = elem_slots.iter().enumerate().map(move |(g, &slot)| {
-            let (e, l) = (g / kk, g % kk);
-            let s = bsrc[l];
-            (slot as usize, encode(e * nb + s.index as usize, s))
-        });
+        let block_pairs = elem_slots
+            .iter()
+            .enumerate()
+            .filter(|(_, &slot)| slot != u32::MAX)
+            .map(move |(g, &slot)| {
+                let (e, l) = (g / kk, g % kk);
+                let s = bsrc[l];
+                (slot as usize, encode(e * nb + s.index as usize, s))
+            });
         let (block_ptr, block_src) = csr(pattern.nnz_blocks(), block_pairs);
         Ok(Self {
             pattern,
@@ -264,7 +298,7 @@ impl ElementAssembly {
     }
 
     /// The element -> slot map: slot of local block (p, q) of element e at
-    /// `e * K * K + p * K + q`.
+    /// `e * K * K + p * K + q` (`u32::MAX` for a pair the layout leaves out).
     pub fn elem_slots(&self) -> &[u32] {
         &self.elem_slots
     }
