@@ -452,9 +452,8 @@ impl ClothDesc {
                     why: "needs one offset per keyframe time, and at least one",
                 });
             }
-            for (j, w) in p.times.windows(2).enumerate() {
+            for w in p.times.windows(2) {
                 check("path", k, "times", w[1], w[1] > w[0], "must increase")?;
-                let _ = j;
             }
             for &t in &p.times {
                 check("path", k, "times", t, t.is_finite(), "must be finite")?;
@@ -879,29 +878,13 @@ impl Cloth {
 
     /// The largest stretch strain of any triangle (NaN if any is NaN).
     pub fn max_strain(&self, x: &[f64]) -> f64 {
-        (0..self.triangles.len())
-            .map(|t| self.strain(t, x))
-            .fold(0.0, |m: f64, s| {
-                if s.is_nan() || m.is_nan() {
-                    f64::NAN
-                } else {
-                    m.max(s)
-                }
-            })
+        nan_max((0..self.triangles.len()).map(|t| self.strain(t, x)))
     }
 
     /// The largest change of any triangle's strain between `x0` and `x` (NaN if any is
     /// NaN): what step-size control limits ([`StepControl`]).
     pub fn strain_change(&self, x0: &[f64], x: &[f64]) -> f64 {
-        (0..self.triangles.len())
-            .map(|t| (self.strain(t, x) - self.strain(t, x0)).abs())
-            .fold(0.0, |m: f64, s| {
-                if s.is_nan() || m.is_nan() {
-                    f64::NAN
-                } else {
-                    m.max(s)
-                }
-            })
+        nan_max((0..self.triangles.len()).map(|t| (self.strain(t, x) - self.strain(t, x0)).abs()))
     }
 
     /// The deepest penetration into an obstacle (m, >= 0).
@@ -1217,6 +1200,18 @@ impl Mechanical for Cloth {
         self.record_contact_pull(f);
         Ok(())
     }
+}
+
+/// The largest of non-negative values, 0 for none, NaN if any is NaN (`f64::max` would
+/// skip it: a blown-up state must not look unstrained).
+fn nan_max(values: impl Iterator<Item = f64>) -> f64 {
+    values.fold(0.0, |m, s| {
+        if s.is_nan() || m.is_nan() {
+            f64::NAN
+        } else {
+            m.max(s)
+        }
+    })
 }
 
 /// Doubles per element in the Jacobian buffers: the upper blocks of the symmetric local
