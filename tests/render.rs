@@ -442,7 +442,7 @@ fn preview_writes_frames_animation_and_sheet() {
         ..Default::default()
     };
     let mut calls = 0;
-    let summary = write_preview(&dir, &frames, &settings, &mut |_, _| calls += 1).unwrap();
+    let summary = write_preview(&dir, &frames, &[], &settings, &mut |_, _| calls += 1).unwrap();
     assert_eq!((summary.frames, calls), (5, 5));
     for k in 0..5 {
         let im = read_png(&dir.join(format!("frame_{k:05}.png"))).unwrap();
@@ -470,7 +470,7 @@ fn preview_writes_frames_animation_and_sheet() {
         "topology shared"
     );
     let again = temp_dir("again");
-    write_preview(&again, &back, &settings, &mut |_, _| {}).unwrap();
+    write_preview(&again, &back, &[], &settings, &mut |_, _| {}).unwrap();
     assert_eq!(
         std::fs::read(dir.join("frame_00003.png")).unwrap(),
         std::fs::read(again.join("frame_00003.png")).unwrap()
@@ -595,4 +595,48 @@ fn plots_are_written_as_svg_and_png_and_survive_bad_points() {
         .filter(|p| p.iter().all(|&c| c == 255))
         .count();
     assert!(dark > 500 && white > 100_000, "dark {dark}, white {white}");
+}
+
+#[test]
+fn obstacle_shapes_are_closed_outward_and_on_their_surfaces() {
+    use largestep::render::shapes::{capsule, cuboid};
+    // Signed volume by the divergence theorem: positive (outward winding) and exact.
+    let volume = |m: &largestep::io::Mesh| {
+        let n = m.positions.len() / 3;
+        let p = |i: u32| largestep::kernels::get3(&m.positions, n, i as usize);
+        m.triangles
+            .iter()
+            .map(|t| {
+                let (a, b, c) = (p(t[0]), p(t[1]), p(t[2]));
+                (a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
+                    + a[2] * (b[0] * c[1] - b[1] * c[0]))
+                    / 6.0
+            })
+            .sum::<f64>()
+    };
+    let b = cuboid([-0.5, 0.0, -1.0], [0.5, 0.75, 1.0]);
+    assert_eq!(b.triangles.len(), 12);
+    assert!(
+        (volume(&b) - 1.5).abs() < 1e-12,
+        "box volume {}",
+        volume(&b)
+    );
+    // Every capsule vertex is within the radius of the segment (the end spheres' inner
+    // halves lie inside), and the outermost ones on it.
+    let (a, e, r) = ([0.0, 0.0, 0.0], [1.0, 0.5, 0.0], 0.2);
+    let c = capsule(a, e, r, 16);
+    let n = c.positions.len() / 3;
+    let mut outermost = 0.0f64;
+    for i in 0..n {
+        let p = largestep::kernels::get3(&c.positions, n, i);
+        let d = [e[0] - a[0], e[1] - a[1], e[2] - a[2]];
+        let t = ((p[0] - a[0]) * d[0] + (p[1] - a[1]) * d[1] + (p[2] - a[2]) * d[2])
+            / (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+        let t = t.clamp(0.0, 1.0);
+        let q = [a[0] + t * d[0], a[1] + t * d[1], a[2] + t * d[2]];
+        let dist = ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt();
+        assert!(dist <= r + 1e-12, "vertex {i} at {dist}");
+        outermost = outermost.max(dist);
+    }
+    assert!((outermost - r).abs() < 1e-12);
 }

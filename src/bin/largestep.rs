@@ -298,7 +298,12 @@ fn run(
     if preview {
         let settings = runner.output().preview;
         let dir = runner.out_dir().join("preview");
-        match write_preview_with_bar(&dir, runner.kept_frames(), &settings) {
+        let scenery = runner
+            .simulation()
+            .cloth()
+            .map(scenery_of)
+            .unwrap_or_default();
+        match write_preview_with_bar(&dir, runner.kept_frames(), &scenery, &settings) {
             Ok(s) => println!("{s}"),
             Err(e) => {
                 eprintln!("error: {e}");
@@ -309,9 +314,19 @@ fn run(
     status
 }
 
+/// Meshes of a cloth's obstacles for previews.
+fn scenery_of(cloth: &largestep::cloth::Cloth) -> Vec<largestep::io::Mesh> {
+    cloth
+        .obstacles()
+        .iter()
+        .filter_map(|o| o.preview_mesh())
+        .collect()
+}
+
 fn write_preview_with_bar(
     dir: &std::path::Path,
     frames: &[largestep::io::Mesh],
+    scenery: &[largestep::io::Mesh],
     settings: &PreviewSettings,
 ) -> Result<largestep::render::preview::PreviewSummary, largestep::render::RenderError> {
     let bar = ProgressBar::new(frames.len() as u64);
@@ -319,7 +334,7 @@ fn write_preview_with_bar(
         ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} images")
             .expect("valid template"),
     );
-    let r = write_preview(dir, frames, settings, &mut |done, _| {
+    let r = write_preview(dir, frames, scenery, settings, &mut |done, _| {
         bar.set_position(done as u64)
     });
     bar.finish_and_clear();
@@ -332,15 +347,21 @@ fn render(
     scene: Option<PathBuf>,
     view: &ViewArgs,
 ) -> ExitCode {
-    let base = match scene {
+    let (base, scenery) = match scene {
         Some(path) => match Scene::load(&path) {
-            Ok(s) => s.output.preview,
+            Ok(s) => {
+                let scenery = match &s.system {
+                    largestep::scene::System::Cloth(c, _) => scenery_of(c),
+                    _ => Vec::new(),
+                };
+                (s.output.preview, scenery)
+            }
             Err(e) => {
                 eprintln!("error: {e}");
                 return ExitCode::from(2);
             }
         },
-        None => PreviewSettings::default(),
+        None => (PreviewSettings::default(), Vec::new()),
     };
     let settings = match view.apply(base) {
         Ok(s) => s,
@@ -362,7 +383,7 @@ fn render(
             .unwrap_or(std::path::Path::new("."))
             .join("preview")
     });
-    match write_preview_with_bar(&out, &frames, &settings) {
+    match write_preview_with_bar(&out, &frames, &scenery, &settings) {
         Ok(s) => {
             println!("{s}");
             ExitCode::SUCCESS

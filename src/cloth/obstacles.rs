@@ -253,6 +253,21 @@ impl Obstacle {
         Ok(())
     }
 
+    /// A mesh to draw the obstacle in previews: spheres, boxes and capsules. Planes (the
+    /// preview's ground stands in for a floor) and distance grids (that would need an
+    /// isosurface) give `None`.
+    pub fn preview_mesh(&self) -> Option<crate::io::Mesh> {
+        use crate::render::shapes;
+        match self {
+            Obstacle::Sphere { center, radius } => {
+                Some(shapes::uv_sphere(*center, *radius, 24, 48))
+            }
+            Obstacle::Box { min, max } => Some(shapes::cuboid(*min, *max)),
+            Obstacle::Capsule { a, b, radius } => Some(shapes::capsule(*a, *b, *radius, 32)),
+            Obstacle::Plane { .. } | Obstacle::Sdf(_) => None,
+        }
+    }
+
     /// Signed distance of `p` (m, negative inside) and the outward unit normal there, or
     /// `None` where there is no normal (the centre of a sphere, the axis of a capsule, a
     /// flat spot of a distance grid, outside a grid, NaN).

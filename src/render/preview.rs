@@ -127,10 +127,12 @@ pub fn bounds_of(frames: &[Mesh]) -> Bounds {
 }
 
 /// Renders `frames` into `dir`: `frame_NNNNN.png`, `animation.gif`, `contact-sheet.png`;
-/// `progress(done, total)` is called after each frame.
+/// `scenery` (obstacles) is drawn in every frame, in a second colour, and framed by the
+/// camera too. `progress(done, total)` is called after each frame.
 pub fn write_preview(
     dir: &Path,
     frames: &[Mesh],
+    scenery: &[Mesh],
     settings: &PreviewSettings,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<PreviewSummary, RenderError> {
@@ -141,7 +143,10 @@ pub fn write_preview(
         });
     }
     std::fs::create_dir_all(dir).map_err(file_err(dir))?;
-    let bounds = bounds_of(frames);
+    let mut bounds = bounds_of(frames);
+    for m in scenery {
+        bounds.add_positions(&m.positions);
+    }
     let camera = camera_for(&settings.camera, &bounds, &settings.render)?;
     let mut renderer = Renderer::new(settings.render)?;
     let shrink = settings
@@ -159,10 +164,14 @@ pub fn write_preview(
     for (k, mesh) in frames.iter().enumerate() {
         let mut style = Style::palette(0, &mesh.as_ref());
         style.wireframe = settings.wireframe;
-        let objects = [Object {
+        let mut objects = vec![Object {
             mesh: mesh.as_ref(),
             style,
         }];
+        objects.extend(scenery.iter().map(|m| Object {
+            mesh: m.as_ref(),
+            style: Style::palette(1, &m.as_ref()),
+        }));
         let t0 = std::time::Instant::now();
         let stats = renderer.render(&camera, &bounds, &objects, &mut image)?;
         render_seconds += t0.elapsed().as_secs_f64();

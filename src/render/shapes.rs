@@ -81,3 +81,92 @@ pub fn chain(start: [f64; 3], step: [f64; 3], count: usize) -> Mesh {
 pub fn from_triangles(points: &[[f64; 3]], triangles: &[[u32; 3]]) -> Mesh {
     mesh(points, triangles.to_vec(), Vec::new())
 }
+
+/// A solid axis-aligned box from `min` to `max`: 8 corners, 12 outward triangles.
+pub fn cuboid(min: [f64; 3], max: [f64; 3]) -> Mesh {
+    let p: Vec<[f64; 3]> = (0..8)
+        .map(|i| {
+            [
+                if i & 1 == 0 { min[0] } else { max[0] },
+                if i & 2 == 0 { min[1] } else { max[1] },
+                if i & 4 == 0 { min[2] } else { max[2] },
+            ]
+        })
+        .collect();
+    // Corner i has bit 0 = x, bit 1 = y, bit 2 = z; two triangles per face, wound
+    // counter-clockwise seen from outside.
+    let quads = [
+        [0, 4, 6, 2], // -x
+        [1, 3, 7, 5], // +x
+        [0, 1, 5, 4], // -y
+        [2, 6, 7, 3], // +y
+        [0, 2, 3, 1], // -z
+        [4, 5, 7, 6], // +z
+    ];
+    let t = quads
+        .iter()
+        .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+        .collect();
+    mesh(&p, t, Vec::new())
+}
+
+/// A capsule: the points within `radius` of the segment `a`-`b`, as two UV spheres at the
+/// ends and an open cylinder of `sectors` sides between them (overlapping, which a
+/// depth-buffered preview does not mind).
+pub fn capsule(a: [f64; 3], b: [f64; 3], radius: f64, sectors: usize) -> Mesh {
+    let sectors = sectors.max(3);
+    let d = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+    let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+    let mut points: Vec<[f64; 3]> = Vec::new();
+    let mut tris: Vec<[u32; 3]> = Vec::new();
+    let mut append = |m: &Mesh| {
+        let base = points.len() as u32;
+        let n = m.positions.len() / 3;
+        points.extend((0..n).map(|i| largestep_kernels::get3(&m.positions, n, i)));
+        tris.extend(m.triangles.iter().map(|t| t.map(|v| v + base)));
+    };
+    append(&uv_sphere(a, radius, sectors / 2 + 1, sectors));
+    append(&uv_sphere(b, radius, sectors / 2 + 1, sectors));
+    if len > 0.0 {
+        let axis = d.map(|c| c / len);
+        // Two unit vectors across the axis.
+        let helper = if axis[0].abs() < 0.9 {
+            [1.0, 0.0, 0.0]
+        } else {
+            [0.0, 1.0, 0.0]
+        };
+        let cross = |u: [f64; 3], v: [f64; 3]| {
+            [
+                u[1] * v[2] - u[2] * v[1],
+                u[2] * v[0] - u[0] * v[2],
+                u[0] * v[1] - u[1] * v[0],
+            ]
+        };
+        let e1 = {
+            let c = cross(axis, helper);
+            let l = (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt();
+            c.map(|x| x / l)
+        };
+        let e2 = cross(axis, e1);
+        let base = points.len() as u32;
+        for s in 0..sectors {
+            let ph = std::f64::consts::TAU * s as f64 / sectors as f64;
+            let r: [f64; 3] =
+                std::array::from_fn(|k| radius * (ph.cos() * e1[k] + ph.sin() * e2[k]));
+            points.push(std::array::from_fn(|k| a[k] + r[k]));
+            points.push(std::array::from_fn(|k| b[k] + r[k]));
+        }
+        for s in 0..sectors as u32 {
+            let n = (s + 1) % sectors as u32;
+            let (a0, b0, a1, b1) = (
+                base + 2 * s,
+                base + 2 * s + 1,
+                base + 2 * n,
+                base + 2 * n + 1,
+            );
+            tris.push([a0, a1, b1]);
+            tris.push([a0, b1, b0]);
+        }
+    }
+    mesh(&points, tris, Vec::new())
+}
