@@ -297,7 +297,32 @@ struct ClothJacobians {
 /// Elements per parallel task (fixed: thread-count independent results).
 const CHUNK: usize = 1024;
 
+/// What a value must be.
+#[derive(Clone, Copy)]
+enum Rule {
+    Finite,
+    NonNegative,
+    Positive,
+}
+
+/// `Ok` if `value` obeys `rule`, else the error naming item, index and field.
 fn check(
+    item: &'static str,
+    index: usize,
+    field: &'static str,
+    value: f64,
+    rule: Rule,
+) -> Result<(), ClothError> {
+    let (ok, why) = match rule {
+        Rule::Finite => (value.is_finite(), "must be finite"),
+        Rule::NonNegative => (value.is_finite() && value >= 0.0, "must be finite and >= 0"),
+        Rule::Positive => (value.is_finite() && value > 0.0, "must be finite and > 0"),
+    };
+    require(item, index, field, value, ok, why)
+}
+
+/// `Ok` if `ok`, else the error naming item, index, field and `why`.
+fn require(
     item: &'static str,
     index: usize,
     field: &'static str,
@@ -331,51 +356,24 @@ impl ClothDesc {
                 });
             }
         }
+        use Rule::{Finite, NonNegative, Positive};
         for (i, p) in self.positions.iter().enumerate() {
             for (c, &x) in p.iter().enumerate() {
-                check(
-                    "vertex",
-                    i,
-                    ["x", "y", "z"][c],
-                    x,
-                    x.is_finite(),
-                    "must be finite",
-                )?;
+                check("vertex", i, ["x", "y", "z"][c], x, Finite)?;
             }
         }
         for (i, p) in self.velocities.iter().enumerate() {
             for (c, &x) in p.iter().enumerate() {
-                check(
-                    "vertex",
-                    i,
-                    ["vx", "vy", "vz"][c],
-                    x,
-                    x.is_finite(),
-                    "must be finite",
-                )?;
+                check("vertex", i, ["vx", "vy", "vz"][c], x, Finite)?;
             }
         }
         for (i, p) in self.uv.iter().enumerate() {
             for (c, &x) in p.iter().enumerate() {
-                check(
-                    "vertex",
-                    i,
-                    ["u", "v"][c],
-                    x,
-                    x.is_finite(),
-                    "must be finite",
-                )?;
+                check("vertex", i, ["u", "v"][c], x, Finite)?;
             }
         }
         let m = &self.material;
-        check(
-            "material",
-            0,
-            "density",
-            m.density,
-            m.density.is_finite() && m.density > 0.0,
-            "must be finite and > 0",
-        )?;
+        check("material", 0, "density", m.density, Positive)?;
         for (field, v) in [
             ("stretch", m.stretch),
             ("shear", m.shear),
@@ -383,35 +381,15 @@ impl ClothDesc {
             ("stretch_damping", m.stretch_damping),
             ("shear_damping", m.shear_damping),
             ("bend_damping", m.bend_damping),
+            ("friction", self.friction),
         ] {
-            check(
-                "material",
-                0,
-                field,
-                v,
-                v.is_finite() && v >= 0.0,
-                "must be finite and >= 0",
-            )?;
+            check("material", 0, field, v, NonNegative)?;
         }
         for (c, &b) in m.rest_stretch.iter().enumerate() {
-            check(
-                "material",
-                c,
-                "rest_stretch",
-                b,
-                b.is_finite() && b > 0.0,
-                "must be finite and > 0",
-            )?;
+            check("material", c, "rest_stretch", b, Positive)?;
         }
         for (c, &g) in self.gravity.iter().enumerate() {
-            check(
-                "gravity",
-                c,
-                "component",
-                g,
-                g.is_finite(),
-                "must be finite",
-            )?;
+            check("gravity", c, "component", g, Finite)?;
         }
         for (k, o) in self.obstacles.iter().enumerate() {
             o.validate(k)?;
@@ -423,8 +401,7 @@ impl ClothDesc {
                     0,
                     ["velocity.x", "velocity.y", "velocity.z"][c],
                     x,
-                    x.is_finite(),
-                    "must be finite",
+                    Finite,
                 )?;
             }
             for (field, x) in [
@@ -432,16 +409,11 @@ impl ClothDesc {
                 ("gust", w.gust),
                 ("frequency", w.frequency),
             ] {
-                check(
-                    "wind",
-                    0,
-                    field,
-                    x,
-                    x.is_finite() && x >= 0.0,
-                    "must be finite and >= 0",
-                )?;
+                check("wind", 0, field, x, NonNegative)?;
             }
         }
+        let sc = self.step_control.max_strain_change;
+        check("step_control", 0, "max_strain_change", sc, Positive)?;
         for (k, p) in self.paths.iter().enumerate() {
             if p.times.is_empty() || p.times.len() != p.offsets.len() {
                 return Err(ClothError::Value {
@@ -453,33 +425,19 @@ impl ClothDesc {
                 });
             }
             for w in p.times.windows(2) {
-                check("path", k, "times", w[1], w[1] > w[0], "must increase")?;
+                require("path", k, "times", w[1], w[1] > w[0], "must be increasing")?;
             }
             for &t in &p.times {
-                check("path", k, "times", t, t.is_finite(), "must be finite")?;
+                check("path", k, "times", t, Finite)?;
             }
             for &x in p.offsets.iter().flatten() {
-                check("path", k, "offsets", x, x.is_finite(), "must be finite")?;
+                check("path", k, "offsets", x, Finite)?;
             }
             for &v in &p.vertices {
-                check(
-                    "path",
-                    k,
-                    "vertices",
-                    v as f64,
-                    v < n,
-                    "names a vertex that does not exist",
-                )?;
+                let why = "names a vertex that does not exist";
+                require("path", k, "vertices", v as f64, v < n, why)?;
             }
         }
-        check(
-            "material",
-            0,
-            "friction",
-            self.friction,
-            self.friction.is_finite() && self.friction >= 0.0,
-            "must be finite and >= 0",
-        )?;
         let mut rest = Vec::with_capacity(self.triangles.len());
         let mut mass = vec![0.0; n];
         for (t, tri) in self.triangles.iter().enumerate() {

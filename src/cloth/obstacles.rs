@@ -187,67 +187,55 @@ impl Obstacle {
 
     /// Checks the parameters; errors name the obstacle (its index among all obstacles).
     pub fn validate(&self, index: usize) -> Result<(), ClothError> {
-        let item = "obstacle";
-        let bad = |field: &'static str, value: f64, why: &'static str| ClothError::Value {
-            item,
-            index,
-            field,
-            value,
-            why,
-        };
-        let finite3 = |field: &'static str, v: [f64; 3]| -> Result<(), ClothError> {
-            match v.iter().find(|c| !c.is_finite()) {
-                Some(&c) => Err(bad(field, c, "must be finite")),
-                None => Ok(()),
-            }
-        };
-        let radius = |r: f64| {
-            if r.is_finite() && r > 0.0 {
-                Ok(())
-            } else {
-                Err(bad("radius", r, "must be finite and > 0"))
-            }
-        };
+        use super::Rule::{Finite, Positive};
+        let (item, k) = ("obstacle", index);
+        let check = |field, value, rule| super::check(item, k, field, value, rule);
+        let require = |field, value, ok, why| super::require(item, k, field, value, ok, why);
+        let finite3 = |field, v: [f64; 3]| v.iter().try_for_each(|&c| check(field, c, Finite));
         match self {
             Obstacle::Plane { point, normal } => {
                 finite3("point", *point)?;
                 finite3("normal", *normal)?;
-                if dot(*normal, *normal) == 0.0 {
-                    return Err(bad("normal", 0.0, "must not be zero"));
-                }
+                require(
+                    "normal",
+                    0.0,
+                    dot(*normal, *normal) != 0.0,
+                    "must not be zero",
+                )?;
             }
-            Obstacle::Sphere { center, radius: r } => {
+            Obstacle::Sphere { center, radius } => {
                 finite3("center", *center)?;
-                radius(*r)?;
+                check("radius", *radius, Positive)?;
             }
             Obstacle::Box { min, max } => {
                 finite3("min", *min)?;
                 finite3("max", *max)?;
-                if let Some(a) = (0..3).find(|&a| max[a] <= min[a]) {
-                    return Err(bad("max", max[a], "must be above min on every axis"));
+                for a in 0..3 {
+                    require(
+                        "max",
+                        max[a],
+                        max[a] > min[a],
+                        "must be above min on every axis",
+                    )?;
                 }
             }
-            Obstacle::Capsule { a, b, radius: r } => {
+            Obstacle::Capsule { a, b, radius } => {
                 finite3("a", *a)?;
                 finite3("b", *b)?;
-                radius(*r)?;
+                check("radius", *radius, Positive)?;
             }
             Obstacle::Sdf(s) => {
                 let g = &s.grid;
-                if g.n.iter().any(|&n| n < 2) || s.phi.len() != g.len() {
-                    return Err(bad(
-                        "grid",
-                        s.phi.len() as f64,
-                        "needs at least 2 nodes per axis and one distance per node",
-                    ));
-                }
+                let shape_ok = g.n.iter().all(|&n| n >= 2) && s.phi.len() == g.len();
+                let why = "needs at least 2 nodes per axis and one distance per node";
+                require("grid", s.phi.len() as f64, shape_ok, why)?;
                 finite3("origin", g.origin)?;
-                if let Some(&h) = g.spacing.iter().find(|h| !(h.is_finite() && **h > 0.0)) {
-                    return Err(bad("spacing", h, "must be finite and > 0"));
-                }
-                if let Some(&d) = s.phi.iter().find(|d| !d.is_finite()) {
-                    return Err(bad("distance", d, "must be finite"));
-                }
+                g.spacing
+                    .iter()
+                    .try_for_each(|&h| check("spacing", h, Positive))?;
+                s.phi
+                    .iter()
+                    .try_for_each(|&d| check("distance", d, Finite))?;
             }
         }
         Ok(())

@@ -161,17 +161,22 @@ pub fn write_preview(
     let mut warnings: Vec<String> = Vec::new();
     let mut image = Image::new(1, 1);
     let mut render_seconds = 0.0;
+    // The scenery first (the same every frame), then each frame's mesh.
+    let mut objects: Vec<Object<'_>> = scenery
+        .iter()
+        .map(|m| Object {
+            mesh: m.as_ref(),
+            style: Style::palette(1, &m.as_ref()),
+        })
+        .collect();
     for (k, mesh) in frames.iter().enumerate() {
         let mut style = Style::palette(0, &mesh.as_ref());
         style.wireframe = settings.wireframe;
-        let mut objects = vec![Object {
+        objects.truncate(scenery.len());
+        objects.push(Object {
             mesh: mesh.as_ref(),
             style,
-        }];
-        objects.extend(scenery.iter().map(|m| Object {
-            mesh: m.as_ref(),
-            style: Style::palette(1, &m.as_ref()),
-        }));
+        });
         let t0 = std::time::Instant::now();
         let stats = renderer.render(&camera, &bounds, &objects, &mut image)?;
         render_seconds += t0.elapsed().as_secs_f64();

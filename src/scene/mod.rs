@@ -316,9 +316,10 @@ impl Scene {
             }
             (None, Some(table)) => {
                 let base = Path::new(file).parent().unwrap_or(Path::new(""));
-                let (cloth, state) = cloth_desc(table, gravity, base, &err)?
+                let (desc, obstacle_paths) = cloth_desc(table, gravity, base, &err)?;
+                let (cloth, state) = desc
                     .build()
-                    .map_err(|e| err(path(&[&"cloth"]), e.to_string()))?;
+                    .map_err(|e| err(cloth_error_path(&e, &obstacle_paths), e.to_string()))?;
                 System::Cloth(cloth, state)
             }
             (Some(_), Some(_)) => {
@@ -347,14 +348,14 @@ impl Scene {
 }
 
 /// The cloth of a `[cloth]` table: a grid generator or an OBJ mesh, a material,
-/// obstacles, wind, paths and step control. Files are relative to `base` (the scene's
-/// folder).
+/// obstacles, wind, paths and step control, and the TOML path of each obstacle (for
+/// [`cloth_error_path`]). Files are relative to `base` (the scene's folder).
 fn cloth_desc(
     t: &schema::ClothTable,
     gravity: [f64; 3],
     base: &Path,
     err: &ErrFn<'_>,
-) -> Result<crate::cloth::ClothDesc, SceneError> {
+) -> Result<(crate::cloth::ClothDesc, Vec<Vec<Key>>), SceneError> {
     use crate::cloth::{Obstacle, SdfGrid, StepControl, VertexPath, Wind};
     let at = |f: &[&dyn PathPart]| {
         let mut p = path(&[&"cloth"]);
@@ -526,64 +527,20 @@ fn cloth_desc(
             .map_err(|e| err(at(&[&"sdf", &k, &"file"]), e.to_string()))?;
         obstacles.push((at(&[&"sdf", &k]), Obstacle::Sdf(std::sync::Arc::new(grid))));
     }
-    for (k, (p, o)) in obstacles.iter().enumerate() {
-        o.validate(k).map_err(|e| {
-            // Point at the offending key where the table has it.
-            let mut p = p.clone();
-            if let crate::cloth::ClothError::Value { field, .. } = &e {
-                if [
-                    "point", "normal", "center", "radius", "min", "max", "a", "b",
-                ]
-                .contains(field)
-                {
-                    p.extend(path(&[field]));
-                }
-            }
-            err(p, e.to_string())
-        })?;
-    }
+    // Obstacles, wind and paths are validated by `ClothDesc::build`; its errors are
+    // located by `cloth_error_path` (obstacles by the table each came from).
+    let obstacle_paths = obstacles.iter().map(|(p, _)| p.clone()).collect();
     desc.obstacles = obstacles.into_iter().map(|(_, o)| o).collect();
-    if let Some(w) = &t.wind {
-        if !w.velocity.iter().all(|c| c.is_finite()) {
-            return Err(err(at(&[&"wind", &"velocity"]), "must be finite".into()));
-        }
-        desc.wind = Some(Wind {
-            velocity: w.velocity,
-            drag: finite_nonneg(w.drag, at(&[&"wind", &"drag"]), "drag", err)?,
-            gust: finite_nonneg(w.gust, at(&[&"wind", &"gust"]), "gust", err)?,
-            frequency: finite_nonneg(w.frequency, at(&[&"wind", &"frequency"]), "frequency", err)?,
-        });
-    }
+    desc.wind = t.wind.as_ref().map(|w| Wind {
+        velocity: w.velocity,
+        drag: w.drag,
+        gust: w.gust,
+        frequency: w.frequency,
+    });
     for (k, pt) in t.path.iter().enumerate() {
         let mut vertices = Vec::with_capacity(pt.vertices.len());
         for (j, &v) in pt.vertices.iter().enumerate() {
             vertices.push(vertex(v, at(&[&"path", &k, &"vertices", &j]))?);
-        }
-        if pt.times.is_empty() || pt.times.len() != pt.offsets.len() {
-            return Err(err(
-                at(&[&"path", &k, &"offsets"]),
-                format!(
-                    "needs one offset per time ({} times, {} offsets), and at least one",
-                    pt.times.len(),
-                    pt.offsets.len()
-                ),
-            ));
-        }
-        for (j, &tk) in pt.times.iter().enumerate() {
-            if !tk.is_finite() || (j > 0 && tk <= pt.times[j - 1]) {
-                return Err(err(
-                    at(&[&"path", &k, &"times", &j]),
-                    format!("times must be finite and increasing, not {tk}"),
-                ));
-            }
-        }
-        for (j, o) in pt.offsets.iter().enumerate() {
-            if !o.iter().all(|c| c.is_finite()) {
-                return Err(err(
-                    at(&[&"path", &k, &"offsets", &j]),
-                    "must be finite".into(),
-                ));
-            }
         }
         desc.paths.push(VertexPath {
             vertices,
@@ -614,7 +571,49 @@ fn cloth_desc(
     desc.friction = finite_nonneg(t.friction, at(&[&"friction"]), "friction", err)?;
     desc.gravity = gravity;
     desc.definiteness_fix = t.definiteness_fix.unwrap_or(true);
-    Ok(desc)
+    Ok((desc, obstacle_paths))
+}
+
+/// The TOML path a cloth validation error refers to: the key where the table has it,
+/// else its table. `obstacle_paths`: each obstacle's table, in the description's order.
+fn cloth_error_path(e: &crate::cloth::ClothError, obstacle_paths: &[Vec<Key>]) -> Vec<Key> {
+    let cloth = |rest: &[&dyn PathPart]| {
+        let mut p = path(&[&"cloth"]);
+        p.extend(path(rest));
+        p
+    };
+    let crate::cloth::ClothError::Value {
+        item, index, field, ..
+    } = e
+    else {
+        return cloth(&[]);
+    };
+    // `velocity.x` is the key `velocity`.
+    let key = field.split('.').next().unwrap_or(field);
+    match *item {
+        "obstacle" => {
+            let mut p = obstacle_paths
+                .get(*index)
+                .cloned()
+                .unwrap_or_else(|| cloth(&[]));
+            if [
+                "point", "normal", "center", "radius", "min", "max", "a", "b",
+            ]
+            .contains(&key)
+            {
+                p.extend(path(&[&key]));
+            }
+            p
+        }
+        "wind" => cloth(&[&"wind", &key]),
+        "path" => cloth(&[&"path", index, &key]),
+        "step_control" => cloth(&[&"step_control", &key]),
+        "material" if key == "friction" => cloth(&[&"friction"]),
+        "material" if key != "rest_stretch" => cloth(&[&"material", &key]),
+        "gravity" => path(&[&"scene", &"gravity", index]),
+        "pinned" => cloth(&[&"pinned", index]),
+        _ => cloth(&[]),
+    }
 }
 
 type ErrFn<'a> = dyn Fn(Vec<Key>, String) -> SceneError + 'a;
