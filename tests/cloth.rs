@@ -223,6 +223,171 @@ proptest! {
     }
 }
 
+/// Four triangles' energies, forces, `kx` and `kv`.
+type Outs = ([f64; 4], Vec<f64>, Vec<f64>, Vec<f64>);
+
+/// Four triangles through [`triangle_jacobians_x4`] and one by one through
+/// [`triangle_jacobians`], outputs pre-filled with NaN so that a value left unwritten
+/// shows.
+fn x4_and_scalar(
+    r: &[TriangleRest; 4],
+    x: &[Tri3; 4],
+    v: &[Tri3; 4],
+    p: &[largestep::kernels::cloth::TriangleParams; 4],
+    with_kv: bool,
+) -> [Outs; 2] {
+    use largestep::kernels::cloth::{triangle_jacobians, triangle_jacobians_x4};
+    let nan = |len| vec![f64::NAN; len];
+    let (mut f4, mut kx4, mut kv4) = (nan(36), nan(216), nan(216));
+    let e4 = triangle_jacobians_x4(
+        r,
+        x,
+        v,
+        p,
+        &mut f4,
+        &mut kx4,
+        with_kv.then_some(&mut kv4[..]),
+    );
+    let (mut f1, mut kx1, mut kv1) = (nan(36), nan(216), nan(216));
+    let e1 = std::array::from_fn(|l| {
+        triangle_jacobians(
+            &r[l],
+            &x[l],
+            &v[l],
+            &p[l],
+            &mut f1[9 * l..9 * l + 9],
+            &mut kx1[54 * l..54 * l + 54],
+            with_kv.then_some(&mut kv1[54 * l..54 * l + 54]),
+        )
+    });
+    [(e4, f4, kx4, kv4), (e1, f1, kx1, kv1)]
+}
+
+/// Lane `l` of the SIMD outputs `a` equals that of the scalar ones `b` within `rel` of the
+/// largest magnitude in the lane's share of each output (and NaN exactly where `b` is).
+fn lane_close(a: &Outs, b: &Outs, l: usize, rel: f64) -> Result<(), String> {
+    let same = |what: &str, x: &[f64], y: &[f64]| -> Result<(), String> {
+        let scale = y
+            .iter()
+            .filter(|v| !v.is_nan())
+            .fold(1e-300f64, |m, v| m.max(v.abs()));
+        for (i, (p, q)) in x.iter().zip(y).enumerate() {
+            let ok = if q.is_nan() {
+                p.is_nan()
+            } else {
+                (p - q).abs() <= rel * scale
+            };
+            if !ok {
+                return Err(format!("lane {l}: {what}[{i}] {p} (x4) vs {q} (scalar)"));
+            }
+        }
+        Ok(())
+    };
+    same("energy", &a.0[l..l + 1], &b.0[l..l + 1])?;
+    same("f", &a.1[9 * l..9 * l + 9], &b.1[9 * l..9 * l + 9])?;
+    same("kx", &a.2[54 * l..54 * l + 54], &b.2[54 * l..54 * l + 54])?;
+    same("kv", &a.3[54 * l..54 * l + 54], &b.3[54 * l..54 * l + 54])
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(128))]
+
+    /// Four random triangles, stretched or compressed (rest stretch up to 2.5 against
+    /// deformations of order 1, so the lanes' `project` branches differ), with their own
+    /// parameters and `project` flags, with and without `kv`.
+    #[test]
+    fn simd_triangle_jacobians_equal_the_scalar_kernel(
+        vals in prop::collection::vec(-1f64..1.0, 96..97),
+        consts in prop::collection::vec(0.1f64..10.0, 24..25),
+        project in any::<[bool; 4]>(),
+        with_kv in any::<bool>(),
+    ) {
+        let mut tris = vec![];
+        for l in 0..4 {
+            let Some(t) = triangle(&vals[24 * l..24 * l + 24]) else { return Ok(()) };
+            tris.push(t);
+        }
+        let r = std::array::from_fn(|l| tris[l].0);
+        let x = std::array::from_fn(|l| tris[l].1);
+        let v = std::array::from_fn(|l| tris[l].2);
+        let p = std::array::from_fn(|l| {
+            let c = &consts[6 * l..6 * l + 6];
+            largestep::kernels::cloth::TriangleParams {
+                stretch: c[0],
+                stretch_damping: c[1],
+                shear: c[2],
+                shear_damping: c[3],
+                rest_stretch: [0.25 * c[4], 0.25 * c[5]],
+                project: project[l],
+            }
+        });
+        let [simd, scalar] = x4_and_scalar(&r, &x, &v, &p, with_kv);
+        for l in 0..4 {
+            prop_assert!(scalar.1[9 * l..9 * l + 9].iter().all(|v| v.is_finite()));
+            lane_close(&simd, &scalar, l, 1e-12).map_err(TestCaseError::fail)?;
+        }
+        if !with_kv {
+            prop_assert!(simd.3.iter().all(|v| v.is_nan()), "kv written without kv");
+        }
+    }
+}
+
+/// A lane whose `w_u` has zero length (no stretch-u direction), a collapsed lane (no
+/// direction at all) and a NaN lane give exactly what the scalar kernel gives for them,
+/// and the other lanes give the same whatever sits beside them.
+#[test]
+fn simd_triangle_jacobians_keep_degenerate_and_nan_lanes_to_themselves() {
+    use largestep::kernels::cloth::TriangleParams;
+    let r = TriangleRest::new([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]).unwrap();
+    let rs = [r; 4];
+    let healthy: Tri3 = [[0.1, 0.0, 0.2], [1.3, 0.1, 0.0], [0.0, 0.7, 0.1]];
+    // w_u = x1 - x0 = 0, w_v = x2 - x0 compressed to 0.6.
+    let zero_wu: Tri3 = [[0.2, 0.3, 0.0], [0.2, 0.3, 0.0], [0.2, 0.9, 0.0]];
+    let collapsed: Tri3 = [[0.5; 3]; 3];
+    let nan: Tri3 = [[f64::NAN, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+    let compressed: Tri3 = [[0.0; 3], [0.8, 0.1, 0.0], [0.05, 0.7, 0.2]];
+    let vel: Tri3 = [[0.3, -0.2, 0.1], [0.0, 0.4, -0.3], [-0.1, 0.2, 0.5]];
+    let p = |project| TriangleParams {
+        stretch: 4.0,
+        stretch_damping: 0.3,
+        shear: 2.0,
+        shear_damping: 0.1,
+        rest_stretch: [1.0, 1.0],
+        project,
+    };
+    for project in [false, true] {
+        let ps = [p(project), p(!project), p(project), p(true)];
+        let run = |x: [Tri3; 4]| x4_and_scalar(&rs, &x, &[vel; 4], &ps, true);
+        let [simd, scalar] = run([healthy, zero_wu, nan, compressed]);
+        for l in 0..4 {
+            lane_close(&simd, &scalar, l, 1e-12).unwrap();
+        }
+        // The zero-length stretch gives nothing: its lane's energy is the v stretch's and
+        // the shear's only, finite; the NaN lane is NaN; the others are finite.
+        assert!(scalar.1[..18]
+            .iter()
+            .chain(&scalar.1[27..])
+            .all(|v| v.is_finite()));
+        assert!(simd.0[2].is_nan() && simd.1[18..27].iter().all(|v| v.is_nan()));
+        // Neighbours do not matter: the healthy and compressed lanes give the same bits
+        // beside a collapsed lane and beside the degenerate ones.
+        let [other, _] = run([healthy, collapsed, collapsed, compressed]);
+        for l in [0, 3] {
+            let bits = |o: &Outs| {
+                let (f, k) = (9 * l..9 * l + 9, 54 * l..54 * l + 54);
+                let vals = [&o.0[l..l + 1], &o.1[f], &o.2[k.clone()], &o.3[k]].concat();
+                vals.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+            };
+            assert_eq!(bits(&simd), bits(&other), "lane {l}");
+        }
+        let [simd, scalar] = run([collapsed, healthy, collapsed, zero_wu]);
+        for l in 0..4 {
+            lane_close(&simd, &scalar, l, 1e-12).unwrap();
+        }
+        assert!(simd.1[..9].iter().all(|v| v.is_finite()), "collapsed lane");
+    }
+}
+
 #[test]
 fn degenerate_rest_triangles_are_rejected() {
     assert!(TriangleRest::new([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]]).is_none());

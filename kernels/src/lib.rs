@@ -9,7 +9,10 @@
 //! - Kernels never allocate, never do I/O and never return errors: lengths are checked
 //!   once at entry with `assert!`, other preconditions are documented.
 //! - Every SIMD kernel (`wide::f64x4`) has a scalar twin with the same signature and the
-//!   suffix `_scalar`; property tests hold the two together.
+//!   suffix `_scalar`, or, for a kernel over four elements at once (suffix `_x4`, one
+//!   element per lane), the one-element kernel of the same meaning
+//!   (`cloth::triangle_jacobians_x4`, `cloth::triangle_jacobians`); property tests hold
+//!   the two together.
 //! - Parallel drivers (suffix `_par`) split work into fixed ranges decided by the data,
 //!   never by the number of threads, so their results are bitwise independent of it.
 
