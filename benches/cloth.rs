@@ -4,9 +4,11 @@
 //! example) and 200.
 //!
 //! - `cloth/step/<n>/<dt>`: the whole linearised backward Euler step of the paper (forces,
-//!   Jacobians, system matrix, filtered PCG with block Jacobi, warm-started, to a relative
-//!   residual of 1e-2 (see `settings`), position update, paths and contacts), from a
-//!   draped state (the sheet has fallen for 0.5 s and lies on the sphere with contacts).
+//!   Jacobians, system matrix, filtered PCG warm-started to a relative residual of 1e-2
+//!   (see `settings`), position update, paths and contacts), from a draped state (the
+//!   sheet has fallen for 0.5 s and lies on the sphere with contacts). The solver is the
+//!   last part of the id: `pcg-mg` (aggregation multigrid, one V-cycle per iteration),
+//!   `pcg-bj` (block Jacobi, the paper's choice) or `cholesky` (faer, for comparison).
 //!   Rayon's thread count (all cores unless `RAYON_NUM_THREADS` says otherwise) is in the
 //!   summary; the rapier3d peer (`benches/peers/rapier-cloth`) is single-threaded.
 //! - The summary splits each step into assembly (`force_jacobians`: every element's
@@ -14,8 +16,9 @@
 //!   (the PCG iterations), and gives each its fraction of this machine's limit measured
 //!   in the same run: assembly against the triad bandwidth (the element buffers written
 //!   and read once, and the matrices written, as streaming traffic), the solve against
-//!   the triad bandwidth too (per iteration one block-sparse matrix-vector product, 36 B
-//!   per stored block plus five vectors of 24 B per vertex; PCG is bandwidth bound).
+//!   the triad bandwidth too (`Pcg::iteration_bytes`: per iteration the block-sparse
+//!   product, the vector passes and, with multigrid, the V-cycle's passes over every
+//!   level's matrix; PCG is bandwidth bound).
 //!
 //! Run with `cargo bench --bench cloth`; the summary is printed at the end and written to
 //! `target/criterion/cloth-summary.md`.
@@ -26,7 +29,7 @@ use largestep::integrate::{
     LinearSolverKind, MechSettings, MechStepper, Mechanical, Method, StepInfo,
 };
 use largestep::machine::triad_bandwidth;
-use largestep::solve::{PcgParams, Preconditioner};
+use largestep::solve::{Filter, Pcg, PcgParams, Preconditioner};
 use largestep::sparse::Bsr3;
 use std::time::{Duration, Instant};
 
@@ -62,19 +65,45 @@ fn sheet(n: usize) -> (Cloth, ClothState) {
     d.build().unwrap()
 }
 
-fn settings(cholesky: bool) -> MechSettings {
-    let mut s = MechSettings::new(Method::LinearizedBackwardEuler);
-    if cholesky {
-        s.linear = LinearSolverKind::Cholesky;
-        return s;
+/// The linear solvers compared.
+#[derive(Clone, Copy, PartialEq)]
+enum Solver {
+    Multigrid,
+    BlockJacobi,
+    Cholesky,
+}
+
+impl Solver {
+    fn name(self) -> &'static str {
+        match self {
+            Solver::Multigrid => "pcg-mg",
+            Solver::BlockJacobi => "pcg-bj",
+            Solver::Cholesky => "cholesky",
+        }
     }
-    s.linear = LinearSolverKind::Pcg(PcgParams {
-        // 1e-2: at dt = 1/60 the drape's error is 1.89e-2 m at 1e-2 against 1.83e-2 m
-        // converged (docs/studies/cloth-accuracy.md): the step, not the solve, dominates.
-        tolerance: 1e-2,
-        max_iterations: 2000,
-        preconditioner: Preconditioner::BlockJacobi,
-    });
+
+    fn pcg(self) -> PcgParams {
+        PcgParams {
+            // 1e-2: at dt = 1/60 the drape's error is 1.89e-2 m at 1e-2 against 1.83e-2 m
+            // converged (docs/studies/cloth-accuracy.md): the step, not the solve,
+            // dominates.
+            tolerance: 1e-2,
+            max_iterations: 2000,
+            preconditioner: if self == Solver::BlockJacobi {
+                Preconditioner::BlockJacobi
+            } else {
+                Preconditioner::Multigrid
+            },
+        }
+    }
+}
+
+fn settings(solver: Solver) -> MechSettings {
+    let mut s = MechSettings::new(Method::LinearizedBackwardEuler);
+    s.linear = match solver {
+        Solver::Cholesky => LinearSolverKind::Cholesky,
+        _ => LinearSolverKind::Pcg(solver.pcg()),
+    };
     s
 }
 
@@ -86,9 +115,9 @@ struct Sim {
 }
 
 impl Sim {
-    fn new(n: usize, cholesky: bool) -> Sim {
+    fn new(n: usize, solver: Solver) -> Sim {
         let (mut cloth, st) = sheet(n);
-        let stepper = MechStepper::new(settings(cholesky), &mut cloth).unwrap();
+        let stepper = MechStepper::new(settings(solver), &mut cloth).unwrap();
         Sim {
             cloth,
             st,
@@ -133,20 +162,23 @@ fn main() {
         triad
     );
     let cases = [32usize, 100, 200].into_iter().flat_map(|n| {
-        [("1/60", 1.0 / 60.0, false), ("1/30", 1.0 / 30.0, false)]
+        let mg = Solver::Multigrid;
+        [("1/60", 1.0 / 60.0, mg), ("1/30", 1.0 / 30.0, mg)]
             .into_iter()
-            // The faer Cholesky path beside PCG (the same filtered system, projected).
-            .chain((n <= 100).then_some(("1/60", 1.0 / 60.0, true)))
-            .map(move |(d, dt, chol)| (n, d, dt, chol))
+            // Block Jacobi PCG and the faer Cholesky path beside it (the same filtered
+            // system, projected).
+            .chain((n == 100).then_some(("1/60", 1.0 / 60.0, Solver::BlockJacobi)))
+            .chain((n <= 100).then_some(("1/60", 1.0 / 60.0, Solver::Cholesky)))
+            .map(move |(d, dt, solver)| (n, d, dt, solver))
     });
-    for (n, dt_name, dt, cholesky) in cases {
+    for (n, dt_name, dt, solver) in cases {
         {
-            let solver = if cholesky { "cholesky" } else { "pcg" };
-            let id = format!("cloth/step/{n}x{n}/{dt_name}/{solver}");
+            let id = format!("cloth/step/{n}x{n}/{dt_name}/{}", solver.name());
             if !wanted(&id) {
                 continue;
             }
-            let mut sim = Sim::new(n, cholesky);
+            let cholesky = solver == Solver::Cholesky;
+            let mut sim = Sim::new(n, solver);
             // Drape for 0.5 s so the timed steps have contacts and a deformed sheet.
             while sim.t < 0.5 {
                 sim.step(dt);
@@ -193,7 +225,20 @@ fn main() {
             let asm_bytes = 2.0 * 8.0 * ((9 + 2 * 54) * nt + (12 + hinge_blocks * 90) * nh) as f64
                 + 2.0 * 72.0 * blocks
                 + 48.0 * nv as f64;
-            let pcg_bytes = its * (36.0 * 2.0 * blocks + 5.0 * 24.0 * nv as f64);
+            // Bytes per PCG iteration, from a solver set up on this state's system.
+            let pcg_bytes = if cholesky {
+                0.0
+            } else {
+                let mut a = Bsr3::zeros(pattern.clone());
+                a.assign_lincomb(&[(-dt * dt, &kx), (-dt, &kv)]);
+                a.add_diagonal(sim.cloth.mass());
+                let mut filter = Filter::new(nv);
+                sim.cloth.constraints(&mut filter);
+                let mut pcg = Pcg::new(nv, solver.pcg());
+                let mut z = vec![0.0; 3 * nv];
+                pcg.solve(&mut a, &f, &mut z, Some(&filter)).unwrap();
+                its * pcg.iteration_bytes(&a) as f64
+            };
             md.push_str(&format!(
                 "| {id} | {:.1} | {:.2} ms | {:.2} ms | {:.2} ms | {:.0}% | {:.2} ms | {:.0} | {} | {} |\n",
                 1.0 / median,

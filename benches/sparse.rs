@@ -259,9 +259,10 @@ fn pcg_benches(b: &mut Bench, name: &str, a: &Bsr3) {
                 },
             );
             let bytes = pcg.iteration_bytes(a);
+            let mut a = a.clone();
             (bytes, move |x: &mut [f64]| {
                 x.fill(0.0);
-                let _ = pcg.solve(a, rhs, x, None); // NotConverged by design
+                let _ = pcg.solve(&mut a, rhs, x, None); // NotConverged by design
             })
         };
         let (bytes, mut run0) = solver(0);

@@ -7,7 +7,7 @@
 
 use largestep::integrate::{LinearSolverKind, MechSettings, MechStepper, Method};
 use largestep::mass_spring::{grid, GridOptions};
-use largestep::solve::{Pcg, PcgParams, SparseCholesky};
+use largestep::solve::{Pcg, PcgParams, Preconditioner, SparseCholesky};
 use largestep::sparse::examples::grid_spd;
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -69,17 +69,26 @@ fn steady_state_work_does_not_allocate() {
         );
 
         // PCG.
-        let a = grid_spd(&[40, 40, 4], 1.0, 0.05);
+        let mut a = grid_spd(&[40, 40, 4], 1.0, 0.05);
         let n = a.n();
         let b = vec![1.0; 3 * n];
-        let mut pcg = Pcg::new(n, PcgParams::default());
-        let mut x = vec![0.0; 3 * n];
-        pcg.solve(&a, &b, &mut x, None).unwrap();
-        let count = allocations_during(|| {
-            x.fill(0.0);
-            pcg.solve(&a, &b, &mut x, None).unwrap();
-        });
-        assert_eq!(count, 0, "PCG allocated {count} times");
+        for preconditioner in [Preconditioner::BlockJacobi, Preconditioner::Multigrid] {
+            let mut pcg = Pcg::new(
+                n,
+                PcgParams {
+                    preconditioner,
+                    ..PcgParams::default()
+                },
+            );
+            let mut x = vec![0.0; 3 * n];
+            // The first solve builds the multigrid hierarchy for this pattern.
+            pcg.solve(&mut a, &b, &mut x, None).unwrap();
+            let count = allocations_during(|| {
+                x.fill(0.0);
+                pcg.solve(&mut a, &b, &mut x, None).unwrap();
+            });
+            assert_eq!(count, 0, "PCG ({preconditioner:?}) allocated {count} times");
+        }
 
         // Whole steps of a pinned spring grid, each method with each linear solver.
         let mut desc = grid(&GridOptions {

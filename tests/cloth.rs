@@ -1337,6 +1337,41 @@ origin = [-0.5, 0.5, -0.5]
     }
 
     #[test]
+    fn scenes_choose_the_multigrid_preconditioner() {
+        // The same sheet with PCG and multigrid, and with Cholesky: the same motion.
+        let solver =
+            "[solver]\nlinear = \"pcg\"\ntolerance = 1e-9\npreconditioner = \"multigrid\"\n";
+        let base = sheet("pinned = [132, 143]", 0.3);
+        let mg = run(
+            &base.replace("[output]", &format!("{solver}[output]")),
+            "mg.toml",
+        );
+        let chol = run(
+            &base.replace("[output]", "[solver]\nlinear = \"cholesky\"\n[output]"),
+            "chol.toml",
+        );
+        let (a, b) = (
+            mg.simulation().state().x.y(),
+            chol.simulation().state().x.y(),
+        );
+        let diff = a
+            .iter()
+            .zip(b)
+            .fold(0.0f64, |m, (p, q)| m.max((p - q).abs()));
+        assert!(diff < 1e-6, "multigrid and Cholesky differ by {diff} m");
+        // An unknown name lists the choices, at its key.
+        let bad = base.replace(
+            "[output]",
+            "[solver]\nlinear = \"pcg\"\npreconditioner = \"amg\"\n[output]",
+        );
+        let e = Scene::parse(&bad, "bad.toml").unwrap_err().to_string();
+        assert!(
+            e.contains("preconditioner") && e.contains("multigrid"),
+            "{e}"
+        );
+    }
+
+    #[test]
     fn step_control_halves_failing_steps_and_reports_when_it_gives_up() {
         // A stiff sheet at a huge step with a PCG cap too small to converge: every try
         // fails until the step is small enough for warm-started PCG to converge.
@@ -1482,4 +1517,155 @@ fn a_hanging_strip_stretches_by_the_analytic_amount() {
         );
         assert!((bottom[0] - col as f64 * w).abs() < 1e-3 * w, "{bottom:?}");
     }
+}
+
+/// Aggregation multigrid (`Preconditioner::Multigrid`) on a draped sheet: the same step
+/// as block Jacobi to the solve's tolerance, in a fraction of the iterations (the
+/// sheet's stretch stiffness makes block Jacobi slow on the smooth error modes).
+#[test]
+fn multigrid_gives_the_same_step_as_block_jacobi_in_far_fewer_iterations() {
+    use largestep::cloth::{cloth_grid, ClothGridOptions, ClothMaterial, Obstacle};
+    use largestep::integrate::{LinearSolverKind, MechSettings, MechStepper, Method};
+    use largestep::solve::{PcgParams, Preconditioner};
+    let n = 40;
+    let mut d = cloth_grid(&ClothGridOptions {
+        nu: n,
+        nv: n,
+        size: [1.0, 1.0],
+        origin: [-0.5, 0.3, -0.5],
+        u_axis: [1.0, 0.0, 0.0],
+        v_axis: [0.0, 0.0, 1.0],
+        material: ClothMaterial {
+            density: 0.2,
+            stretch: 1000.0,
+            shear: 100.0,
+            bend: 1e-4,
+            stretch_damping: 0.1,
+            shear_damping: 0.01,
+            bend_damping: 0.0,
+            rest_stretch: [1.0, 1.0],
+        },
+    });
+    d.gravity = [0.0, -9.81, 0.0];
+    d.pinned = vec![0, n * n - 1];
+    d.obstacles = vec![Obstacle::Sphere {
+        center: [0.0; 3],
+        radius: 0.25,
+    }];
+    d.friction = 0.3;
+    let (mut cloth, mut st) = d.build().unwrap();
+    let settings = |preconditioner| {
+        let mut s = MechSettings::new(Method::LinearizedBackwardEuler);
+        s.linear = LinearSolverKind::Pcg(PcgParams {
+            tolerance: 1e-8,
+            max_iterations: 5000,
+            preconditioner,
+        });
+        s
+    };
+    let h = 1.0 / 60.0;
+    let mut stepper = MechStepper::new(settings(Preconditioner::Multigrid), &mut cloth).unwrap();
+    let mut t = 0.0;
+    while t < 0.4 {
+        let (x, v) = (st.x.as_mut_slice(), st.v.as_mut_slice());
+        stepper.step(&mut cloth, t, x, v, h).unwrap();
+        cloth.after_step(t + h, h, x, v);
+        t += h;
+    }
+    assert!(
+        cloth.contact_count() > 10,
+        "draped: {}",
+        cloth.contact_count()
+    );
+    // One step from this state with each preconditioner, both from a zero guess.
+    let mut results = Vec::new();
+    for pre in [Preconditioner::BlockJacobi, Preconditioner::Multigrid] {
+        let (mut c, mut s) = (cloth.clone(), st.clone());
+        let mut stepper = MechStepper::new(settings(pre), &mut c).unwrap();
+        let info = stepper
+            .step(&mut c, t, s.x.as_mut_slice(), s.v.as_mut_slice(), h)
+            .unwrap();
+        results.push((info.linear_iterations, s.v.as_slice().to_vec()));
+    }
+    let (bj, mg) = (&results[0], &results[1]);
+    assert!(
+        3 * mg.0 <= bj.0,
+        "multigrid {} iterations against block Jacobi {}",
+        mg.0,
+        bj.0
+    );
+    let scale = bj.1.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let diff =
+        bj.1.iter()
+            .zip(&mg.1)
+            .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+    assert!(
+        diff < 1e-5 * scale,
+        "velocities differ by {diff} (scale {scale})"
+    );
+    // The pinned corners stay fixed under both.
+    for v in [&bj.1, &mg.1] {
+        for &i in &[0, n * n - 1] {
+            let nn = n * n;
+            assert_eq!([v[i], v[nn + i], v[2 * nn + i]], [0.0; 3]);
+        }
+    }
+}
+
+/// Multigrid on a stiff, light sheet at a large step (stretch 1e5 N/m per unit area, 10
+/// g/m^2, dt = 1/30 s: the stiffness-to-mass ratio is 5000 times the draped scenes'):
+/// the steps agree with the Cholesky path's.
+#[test]
+fn multigrid_matches_cholesky_on_a_stiff_light_sheet_at_large_steps() {
+    use largestep::cloth::{cloth_grid, ClothGridOptions, ClothMaterial};
+    use largestep::integrate::{LinearSolverKind, MechSettings, MechStepper, Method};
+    use largestep::solve::{PcgParams, Preconditioner};
+    let n = 24;
+    let mut d = cloth_grid(&ClothGridOptions {
+        nu: n,
+        nv: n,
+        size: [1.0, 1.0],
+        origin: [0.0; 3],
+        u_axis: [1.0, 0.0, 0.0],
+        v_axis: [0.0, 0.0, 1.0],
+        material: ClothMaterial {
+            density: 0.01,
+            stretch: 1e5,
+            shear: 1e4,
+            bend: 1e-3,
+            stretch_damping: 1.0,
+            shear_damping: 0.1,
+            bend_damping: 0.0,
+            rest_stretch: [1.0, 1.0],
+        },
+    });
+    d.gravity = [0.0, -9.81, 0.0];
+    d.pinned = vec![0, n - 1];
+    let mut finals = Vec::new();
+    for linear in [
+        LinearSolverKind::Cholesky,
+        LinearSolverKind::Pcg(PcgParams {
+            tolerance: 1e-9,
+            max_iterations: 5000,
+            preconditioner: Preconditioner::Multigrid,
+        }),
+    ] {
+        let (mut cloth, mut st) = d.build().unwrap();
+        let mut s = MechSettings::new(Method::LinearizedBackwardEuler);
+        s.linear = linear;
+        let mut stepper = MechStepper::new(s, &mut cloth).unwrap();
+        let h = 1.0 / 30.0;
+        for k in 0..15 {
+            let (x, v) = (st.x.as_mut_slice(), st.v.as_mut_slice());
+            stepper.step(&mut cloth, k as f64 * h, x, v, h).unwrap();
+            cloth.after_step((k + 1) as f64 * h, h, x, v);
+        }
+        finals.push(st.x.as_slice().to_vec());
+    }
+    let diff = finals[0]
+        .iter()
+        .zip(&finals[1])
+        .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+    // The sheet swings by about a metre; 1e-6 m is the solve tolerance's reach.
+    assert!(diff < 1e-6, "positions differ by {diff} m");
 }

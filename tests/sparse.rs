@@ -195,6 +195,7 @@ fn pcg_converges_with_every_preconditioner() {
         Preconditioner::None,
         Preconditioner::Jacobi,
         Preconditioner::BlockJacobi,
+        Preconditioner::Multigrid,
     ] {
         let mut pcg = Pcg::new(
             n,
@@ -205,7 +206,7 @@ fn pcg_converges_with_every_preconditioner() {
             },
         );
         let mut x = vec![0.0; 3 * n];
-        let info = pcg.solve(&a, &b, &mut x, None).unwrap();
+        let info = pcg.solve(&mut a, &b, &mut x, None).unwrap();
         assert!(info.residual <= 1e-10);
         assert!(residual(&a, &x, &b) < 1e-9, "{pre:?}: true residual");
         iters.push(info.iterations);
@@ -214,11 +215,14 @@ fn pcg_converges_with_every_preconditioner() {
         2 * iters[1] < iters[0] && 2 * iters[2] < iters[0],
         "preconditioning helps: {iters:?}"
     );
+    // The coarse levels remove part of what block Jacobi leaves (on this small, badly
+    // scaled lattice at 1e-10; cloth gains far more, see tests/cloth.rs).
+    assert!(iters[3] < iters[2], "multigrid helps more: {iters:?}");
 }
 
 #[test]
 fn filtered_pcg_holds_constraints_exactly_at_any_iteration_count() {
-    let a = grid_spd(&[6, 6], 1.0, 0.05);
+    let a = grid_spd(&[16, 16], 1.0, 0.05);
     let n = a.n();
     let b = rhs(n);
     let mut f = Filter::new(n);
@@ -229,17 +233,20 @@ fn filtered_pcg_holds_constraints_exactly_at_any_iteration_count() {
         let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
         v.map(|c| c / l)
     };
-    for max in [1, 3, 1000] {
+    for (max, preconditioner) in [1, 3, 1000]
+        .into_iter()
+        .flat_map(|m| [Preconditioner::BlockJacobi, Preconditioner::Multigrid].map(|p| (m, p)))
+    {
         let mut pcg = Pcg::new(
             n,
             PcgParams {
                 tolerance: 1e-12,
                 max_iterations: max,
-                preconditioner: Preconditioner::BlockJacobi,
+                preconditioner,
             },
         );
         let mut x = vec![1.0; 3 * n];
-        let res = pcg.solve(&a, &b, &mut x, Some(&f));
+        let res = pcg.solve(&mut a.clone(), &b, &mut x, Some(&f));
         let g = |i: usize| [x[i], x[n + i], x[2 * n + i]];
         assert_eq!(g(0), [0.0; 3], "pinned vertex never moves");
         let p = unit([1.0, 2.0, 0.5]);
@@ -262,7 +269,10 @@ fn filtered_pcg_holds_constraints_exactly_at_any_iteration_count() {
                 .zip(&y)
                 .map(|(p, q)| (p - q).abs())
                 .fold(0.0, f64::max);
-            assert!(err < 1e-8, "PCG and projected Cholesky agree: {err}");
+            assert!(
+                err < 1e-8,
+                "PCG ({preconditioner:?}) and projected Cholesky agree: {err}"
+            );
         } else {
             assert!(matches!(res, Err(SolveError::NotConverged { .. })));
         }
@@ -303,7 +313,11 @@ fn indefinite_matrices_give_clear_errors() {
     let mut chol = SparseCholesky::new(a.pattern()).unwrap();
     let e = chol.factorize(&a).unwrap_err();
     assert!(matches!(e, SolveError::NotPositiveDefinite { .. }), "{e}");
-    for pre in [Preconditioner::Jacobi, Preconditioner::BlockJacobi] {
+    for pre in [
+        Preconditioner::Jacobi,
+        Preconditioner::BlockJacobi,
+        Preconditioner::Multigrid,
+    ] {
         let mut pcg = Pcg::new(
             n,
             PcgParams {
@@ -312,7 +326,7 @@ fn indefinite_matrices_give_clear_errors() {
             },
         );
         let mut x = vec![0.0; 3 * n];
-        let e = pcg.solve(&a, &rhs(n), &mut x, None).unwrap_err();
+        let e = pcg.solve(&mut a, &rhs(n), &mut x, None).unwrap_err();
         assert!(e.to_string().contains("not positive definite"), "{e}");
     }
     // Indefinite but with a positive diagonal: PCG meets negative curvature.
@@ -329,7 +343,7 @@ fn indefinite_matrices_give_clear_errors() {
         },
     );
     let mut x = vec![0.0; 3 * n];
-    let e = pcg.solve(&b, &rhs(n), &mut x, None).unwrap_err();
+    let e = pcg.solve(&mut b, &rhs(n), &mut x, None).unwrap_err();
     assert!(matches!(e, SolveError::NotPositiveDefinite { .. }), "{e}");
 }
 
@@ -338,19 +352,68 @@ fn pcg_iterates_are_thread_count_independent() {
     let a = grid_spd(&[24, 24, 12], 1.0, 0.05);
     let n = a.n();
     let b = rhs(n);
-    let run = || {
-        let mut pcg = Pcg::new(n, PcgParams::default());
-        let mut x = vec![0.0; 3 * n];
-        let info = pcg.solve(&a, &b, &mut x, None).unwrap();
-        (x, info.iterations, info.residual)
-    };
     let pool = |t| {
         rayon::ThreadPoolBuilder::new()
             .num_threads(t)
             .build()
             .unwrap()
     };
-    let one = pool(1).install(run);
-    let two = pool(2).install(run);
-    assert!(one == two, "bitwise identical with 1 and 2 threads");
+    for preconditioner in [Preconditioner::BlockJacobi, Preconditioner::Multigrid] {
+        let run = || {
+            let mut pcg = Pcg::new(
+                n,
+                PcgParams {
+                    preconditioner,
+                    ..PcgParams::default()
+                },
+            );
+            let mut x = vec![0.0; 3 * n];
+            let info = pcg.solve(&mut a.clone(), &b, &mut x, None).unwrap();
+            (x, info.iterations, info.residual)
+        };
+        let one = pool(1).install(run);
+        let two = pool(2).install(run);
+        assert!(
+            one == two,
+            "{preconditioner:?}: bitwise identical with 1 and 2 threads"
+        );
+    }
+}
+
+#[test]
+fn fused_residual_is_b_minus_a_x() {
+    let a = grid_spd(&[30, 20], 1.0, 0.1);
+    let n = a.n();
+    let x: Vec<f64> = (0..3 * n).map(|i| (i as f64 * 0.37).sin()).collect();
+    let b = rhs(n);
+    let mut ax = vec![0.0; 3 * n];
+    a.spmv(&mut ax, &x);
+    let mut r = vec![0.0; 3 * n];
+    a.residual(&mut r, &x, &b);
+    for i in 0..3 * n {
+        assert_eq!(r[i], b[i] - ax[i], "entry {i}");
+    }
+}
+
+#[test]
+fn multigrid_levels_shrink_to_a_small_coarsest_level() {
+    let mut a = grid_spd(&[64, 64], 1.0, 0.05);
+    let n = a.n();
+    let mut pcg = Pcg::new(
+        n,
+        PcgParams {
+            preconditioner: Preconditioner::Multigrid,
+            ..Default::default()
+        },
+    );
+    let mut x = vec![0.0; 3 * n];
+    pcg.solve(&mut a, &rhs(n), &mut x, None).unwrap();
+    let sizes = pcg.multigrid().level_sizes();
+    assert_eq!(sizes[0], n);
+    assert!(
+        sizes.windows(2).all(|w| 4 * w[1] <= w[0]),
+        "each level at most a quarter of the one above: {sizes:?}"
+    );
+    assert!(*sizes.last().unwrap() <= largestep::solve::multigrid::COARSEST);
+    assert!(residual(&a, &x, &rhs(n)) < 1e-7);
 }

@@ -151,3 +151,27 @@ pub fn bsr3_spmv_dot_par(y: &mut [f64], a: Bsr3Ref<'_>, x: &[f64]) -> f64 {
     });
     d
 }
+
+/// `r = b - A x` (the residual a multigrid smoother and its restriction need), parallel
+/// over the same fixed chunks as [`bsr3_spmv_dot_par`]; each chunk subtracts its rows
+/// while they are still in cache, so the residual costs one product, not a product and a
+/// vector pass.
+pub fn bsr3_residual_par(r: &mut [f64], a: Bsr3Ref<'_>, x: &[f64], b: &[f64]) {
+    check(r, &a, x);
+    assert_eq!(b.len(), 3 * a.n, "b must hold 3n values");
+    let n = a.n;
+    let rd = Disjoint::new(r);
+    par_reduce::<0, _>(chunk_count(n, PAR_CHUNK), &|c| {
+        let range = chunk_range(c, n, PAR_CHUNK);
+        // SAFETY: the row ranges of distinct chunks are disjoint.
+        let [r0, r1, r2] = unsafe { rd.components(n, range.clone()) };
+        rows_simd([&mut *r0, &mut *r1, &mut *r2], a, x, range.clone());
+        for (k, rk) in [r0, r1, r2].into_iter().enumerate() {
+            let bk = &b[k * n + range.start..k * n + range.end];
+            for (ri, bi) in rk.iter_mut().zip(bk) {
+                *ri = bi - *ri;
+            }
+        }
+        []
+    });
+}

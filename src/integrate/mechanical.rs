@@ -416,8 +416,9 @@ impl MechStepper {
                 sys.force_jacobians(t + h, x, v, &mut w.f, &mut w.dfdx, w.dfdv.as_mut())?;
                 // A dv = h (f0 + h K v0): solve A z = f0 + h K v0, then dv = h z. PCG
                 // starts from the previous step's z (the acceleration changes little
-                // from step to step: on a draped sheet this takes a few iterations
-                // where a zero guess takes hundreds).
+                // from step to step: on a falling sheet with block Jacobi this takes a
+                // few iterations where a zero guess takes hundreds); PCG drops it when
+                // it is worse than zero (contacts changed).
                 w.dfdx.spmv(&mut w.rhs, v);
                 kv::xpay(&mut w.rhs, &w.f, h);
                 system_matrix(&mut w.a, &w.dfdx, w.dfdv.as_ref(), &self.mass, h * h, h);

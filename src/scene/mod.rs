@@ -647,11 +647,12 @@ fn solver_settings(
             "none" => Preconditioner::None,
             "jacobi" => Preconditioner::Jacobi,
             "block-jacobi" => Preconditioner::BlockJacobi,
+            "multigrid" => Preconditioner::Multigrid,
             other => {
                 return Err(err(
                     at("preconditioner"),
                     format!(
-                        "unknown preconditioner `{other}`; expected none, jacobi or block-jacobi"
+                        "unknown preconditioner `{other}`; expected none, jacobi, block-jacobi or multigrid"
                     ),
                 ))
             }

@@ -2,7 +2,8 @@
 //! the numbers a user needs to act (iteration, residual, index, value).
 //!
 //! - [`Pcg`]: preconditioned conjugate gradients on a Bsr3 matrix, with Jacobi or
-//!   block-Jacobi preconditioning and the Baraff-Witkin constraint filter ([`Filter`]).
+//!   block-Jacobi or aggregation-multigrid ([`Multigrid`]) preconditioning and the
+//!   Baraff-Witkin constraint filter ([`Filter`]).
 //! - [`SparseCholesky`]: faer's supernodal/simplicial LL^T with one symbolic analysis (AMD
 //!   ordering) reused by every numeric refactorization, into buffers owned here.
 //! - [`Newton`]: Newton's method with a backtracking (Armijo) line search on `|F|^2 / 2`.
@@ -11,11 +12,13 @@
 pub mod cholesky;
 pub mod dense;
 pub mod filter;
+pub mod multigrid;
 pub mod newton;
 pub mod pcg;
 
 pub use cholesky::SparseCholesky;
 pub use filter::Filter;
+pub use multigrid::Multigrid;
 pub use newton::{Newton, NewtonParams, NewtonProblem};
 pub use pcg::{Pcg, PcgParams, Preconditioner};
 

@@ -13,7 +13,7 @@
 //! All reductions use fixed chunks and a fixed tree, so iterates are bitwise the same for
 //! any number of threads.
 
-use super::{filter::Filter, SolveError, SolveInfo};
+use super::{filter::Filter, multigrid::Multigrid, SolveError, SolveInfo};
 use crate::sparse::Bsr3;
 use largestep_kernels::vec as kv;
 use std::time::Instant;
@@ -29,6 +29,10 @@ pub enum Preconditioner {
     /// anisotropy of springs and elements at a vertex).
     #[default]
     BlockJacobi,
+    /// One V-cycle of aggregation multigrid ([`Multigrid`]): several times the work of
+    /// block Jacobi per iteration, and far fewer iterations on stiff systems (the draped
+    /// 100x100 cloth: about 10 instead of 100 to 160).
+    Multigrid,
 }
 
 /// PCG settings.
@@ -63,12 +67,16 @@ pub struct Pcg {
     q: Vec<f64>,
     z: Vec<f64>,
     d: Vec<f64>,
+    mg: Box<Multigrid>,
 }
 
 impl Pcg {
     /// Workspace for n vertices.
     pub fn new(n: usize, params: PcgParams) -> Self {
-        let block = params.preconditioner == Preconditioner::BlockJacobi;
+        let block = matches!(
+            params.preconditioner,
+            Preconditioner::BlockJacobi | Preconditioner::Multigrid
+        );
         Self {
             n,
             params,
@@ -79,11 +87,12 @@ impl Pcg {
             d: vec![
                 0.0;
                 match params.preconditioner {
-                    Preconditioner::None => 0,
+                    Preconditioner::None | Preconditioner::Multigrid => 0,
                     Preconditioner::Jacobi => 3 * n,
                     Preconditioner::BlockJacobi => 6 * n,
                 }
             ],
+            mg: Box::new(Multigrid::new()),
         }
     }
 
@@ -98,15 +107,26 @@ impl Pcg {
         self.params.max_iterations = max_iterations;
     }
 
-    /// Bytes one iteration moves at least: the matrix product and the two vector passes.
+    /// The multigrid hierarchy (empty unless the preconditioner is
+    /// [`Preconditioner::Multigrid`] and a solve has run).
+    pub fn multigrid(&self) -> &Multigrid {
+        &self.mg
+    }
+
+    /// Bytes one iteration moves at least: the matrix product and the two vector passes,
+    /// plus the V-cycle's passes over the level matrices with multigrid.
     pub fn iteration_bytes(&self, a: &Bsr3) -> usize {
         let n = self.n;
         let vec_doubles = match self.params.preconditioner {
             Preconditioner::None => 9 * 3 * n,
             Preconditioner::Jacobi => 11 * 3 * n,
-            Preconditioner::BlockJacobi => 36 * n,
+            Preconditioner::BlockJacobi | Preconditioner::Multigrid => 36 * n,
         };
-        a.as_kernel().spmv_bytes() + 8 * vec_doubles
+        let cycle = match self.params.preconditioner {
+            Preconditioner::Multigrid => self.mg.cycle_bytes(a),
+            _ => 0,
+        };
+        a.as_kernel().spmv_bytes() + 8 * vec_doubles + cycle
     }
 
     fn setup(&mut self, a: &Bsr3, filter: Option<&Filter>) -> Result<(), SolveError> {
@@ -115,6 +135,7 @@ impl Pcg {
         let constrained = |i: usize| filter.is_some_and(|f| f.projection(i) != IDENTITY);
         match self.params.preconditioner {
             Preconditioner::None => {}
+            Preconditioner::Multigrid => self.mg.setup(a, filter)?,
             Preconditioner::Jacobi => {
                 for (i, &slot) in diag.iter().enumerate() {
                     let b = a.block(slot as usize);
@@ -149,9 +170,14 @@ impl Pcg {
 
     /// Solves `A x = b` (with the filter: `S A S x = S b`, `(I - S) x = 0`). `x` holds the
     /// initial guess on entry (it is filtered first) and the solution on return.
+    ///
+    /// With a filter, `a` is projected in place first, `A <- S A S + (I - S)`
+    /// ([`Filter::project_matrix`]): the filtered system is the same, and the
+    /// preconditioner is built from the constrained problem (pinned vertices fixed,
+    /// contact vertices free only along their surface) instead of the free one.
     pub fn solve(
         &mut self,
-        a: &Bsr3,
+        a: &mut Bsr3,
         b: &[f64],
         x: &mut [f64],
         filter: Option<&Filter>,
@@ -160,6 +186,10 @@ impl Pcg {
         let n = self.n;
         assert_eq!(a.n(), n, "matrix and solver sizes differ");
         assert!(b.len() == 3 * n && x.len() == 3 * n);
+        if let Some(f) = filter {
+            f.project_matrix(a);
+        }
+        let a = &*a;
         self.setup(a, filter)?;
         let filt = |v: &mut [f64]| {
             if let Some(f) = filter {
@@ -194,6 +224,14 @@ impl Pcg {
                 seconds: start.elapsed().as_secs_f64(),
             });
         }
+        // A guess worse than none (its residual larger than the zero guess's, as when
+        // contacts change between implicit steps) is dropped, and PCG starts from zero.
+        // On the draped 100x100 cloth with multigrid: 16.8 iterations per step instead of
+        // 18.4 with the previous step's answer always kept.
+        if kv::norm2(&self.r) > bnorm {
+            x.fill(0.0);
+            self.r.copy_from_slice(&self.p);
+        }
         // p = S P^-1 r
         let mut rz = match pre {
             Preconditioner::None => {
@@ -210,6 +248,11 @@ impl Pcg {
                 let [rz, _] = kv::block_jacobi_apply(&mut self.z, &self.r, &self.d);
                 self.p.copy_from_slice(&self.z);
                 rz
+            }
+            Preconditioner::Multigrid => {
+                self.mg.apply(a, &self.r, &mut self.z, filter);
+                self.p.copy_from_slice(&self.z);
+                kv::dot_par(&self.r, &self.z)
             }
         };
         filt(&mut self.p);
@@ -258,6 +301,17 @@ impl Pcg {
                 Preconditioner::None => {
                     kv::pcg_update_jacobi_par(x, &mut self.r, &self.p, &self.q, None, alpha)
                 }
+                Preconditioner::Multigrid => {
+                    let [_, rr] =
+                        kv::pcg_update_jacobi_par(x, &mut self.r, &self.p, &self.q, None, alpha);
+                    // The V-cycle only when the test below does not stop here.
+                    if rr.sqrt() / bnorm <= tol {
+                        [rr, rr]
+                    } else {
+                        self.mg.apply(a, &self.r, &mut self.z, filter);
+                        [kv::dot_par(&self.r, &self.z), rr]
+                    }
+                }
             };
             residual = rr.sqrt() / bnorm;
             if !residual.is_finite() || !rz_new.is_finite() {
@@ -276,7 +330,9 @@ impl Pcg {
             let beta = rz_new / rz;
             rz = rz_new;
             match pre {
-                Preconditioner::BlockJacobi => kv::xpay_par(&mut self.p, &self.z, beta),
+                Preconditioner::BlockJacobi | Preconditioner::Multigrid => {
+                    kv::xpay_par(&mut self.p, &self.z, beta)
+                }
                 Preconditioner::Jacobi => {
                     kv::pcg_direction_jacobi_par(&mut self.p, &self.r, Some(&self.d), beta)
                 }

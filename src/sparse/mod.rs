@@ -15,7 +15,7 @@ pub use assembly::{ElementAssembly, LocalLayout, Src, VectorGather};
 pub use bridge::{to_csr, FaerCsc, Triangle};
 pub use mm::{read_matrix_market, write_matrix_market, MatrixMarket};
 
-use largestep_kernels::bsr3::{bsr3_spmv_dot_par, Bsr3Ref};
+use largestep_kernels::bsr3::{bsr3_residual_par, bsr3_spmv_dot_par, Bsr3Ref};
 use std::sync::Arc;
 
 /// Errors of the sparse layer: malformed connectivity and malformed matrix files.
@@ -227,6 +227,11 @@ impl Bsr3 {
     /// `y = A x` (parallel, deterministic). `x`, `y`: component-major, length 3n.
     pub fn spmv(&self, y: &mut [f64], x: &[f64]) {
         bsr3_spmv_dot_par(y, self.as_kernel(), x);
+    }
+
+    /// `r = b - A x` in one pass (parallel, deterministic).
+    pub fn residual(&self, r: &mut [f64], x: &[f64], b: &[f64]) {
+        bsr3_residual_par(r, self.as_kernel(), x, b);
     }
 
     /// `y = A x`, returning `x . y` (parallel, deterministic).
