@@ -217,12 +217,11 @@ fn main() {
                 .fold(f64::INFINITY, f64::min);
             let (nt, nh) = (sim.cloth.triangles().len(), sim.cloth.hinges().len());
             let blocks = pattern.nnz_blocks() as f64;
-            // Element buffers (forces and both Jacobians; hinges write no df/dv without
-            // bend damping) written and read, the two matrices written, positions and
+            // Element buffers written and read: per triangle forces and the upper blocks
+            // of both Jacobians (6 of 9), per hinge forces and the angle gradient (the
+            // gather forms its rank-one blocks); the two matrices written, positions and
             // velocities read.
-            // Symmetric element matrices: 6 of 9 blocks per triangle, 10 of 16 per hinge.
-            let hinge_blocks = if MATERIAL.bend_damping > 0.0 { 2 } else { 1 };
-            let asm_bytes = 2.0 * 8.0 * ((9 + 2 * 54) * nt + (12 + hinge_blocks * 90) * nh) as f64
+            let asm_bytes = 2.0 * 8.0 * ((9 + 2 * 54) * nt + (12 + 12) * nh) as f64
                 + 2.0 * 72.0 * blocks
                 + 48.0 * nv as f64;
             // Bytes per PCG iteration, from a solver set up on this state's system.

@@ -417,3 +417,61 @@ fn multigrid_levels_shrink_to_a_small_coarsest_level() {
     assert!(*sizes.last().unwrap() <= largestep::solve::multigrid::COARSEST);
     assert!(residual(&a, &x, &rhs(n)) < 1e-7);
 }
+
+#[test]
+fn rank_one_assembly_equals_the_dense_sum_of_weighted_outer_products() {
+    // Hinge-like elements of four vertices on a 5 x 4 vertex grid, the (2, 3) pair left
+    // out and its weight moved to (2, 2) and (3, 3), as the cloth's decoupled hinges do.
+    let (nx, ny) = (5u32, 4u32);
+    let n = (nx * ny) as usize;
+    let mut elements = Vec::new();
+    for y in 0..ny - 1 {
+        for x in 0..nx - 1 {
+            let v = y * nx + x;
+            elements.push([v, v + nx + 1, v + 1, v + nx]);
+        }
+    }
+    let weight = |p: usize, q: usize| match (p, q) {
+        (2, 3) | (3, 2) => 0.0,
+        (2, 2) | (3, 3) => 2.0,
+        _ => 1.0,
+    };
+    // The two triangles of each element: their pattern holds every weighted pair.
+    let mut all: Vec<[u32; 3]> = elements.iter().map(|e| [e[0], e[1], e[2]]).collect();
+    all.extend(elements.iter().map(|e| [e[0], e[1], e[3]]));
+    let pattern = std::sync::Arc::new(Bsr3Pattern::from_elements(n, &all).unwrap());
+    let asm = RankOneAssembly::with_pattern(pattern.clone(), &elements, weight).unwrap();
+    let g: Vec<f64> = (0..asm.vector_buffer_len())
+        .map(|i| ((i * 7919) % 113) as f64 / 57.0 - 1.0)
+        .collect();
+    let mut a = Bsr3::zeros(pattern);
+    a.add_diagonal(&vec![1.0; n]);
+    asm.gather_add(&g, -2.5, &mut a);
+    let m = 3 * n;
+    let mut want = vec![0.0; m * m];
+    for i in 0..n {
+        for c in 0..3 {
+            want[(c * n + i) * m + c * n + i] = 1.0;
+        }
+    }
+    for (e, el) in elements.iter().enumerate() {
+        for p in 0..4 {
+            for q in 0..4 {
+                for r in 0..3 {
+                    for c in 0..3 {
+                        let (row, col) = (r * n + el[p] as usize, c * n + el[q] as usize);
+                        want[row * m + col] +=
+                            -2.5 * weight(p, q) * g[12 * e + 3 * p + r] * g[12 * e + 3 * q + c];
+                    }
+                }
+            }
+        }
+    }
+    let got = a.to_dense();
+    let err = got
+        .iter()
+        .zip(&want)
+        .fold(0.0f64, |w, (x, y)| w.max((x - y).abs()));
+    assert!(err < 1e-13, "largest difference {err}");
+    assert!(a.max_asymmetry() < 1e-15);
+}

@@ -990,21 +990,10 @@ pub fn bend_jacobians_projected(
     kx: &mut [f64],
     kv: Option<&mut [f64]>,
 ) -> f64 {
-    let Some((theta, g)) = bend_gradient(x) else {
-        f[..12].fill(0.0);
-        kx[..90].fill(0.0);
-        if let Some(kv) = kv {
-            kv[..90].fill(0.0);
-        }
-        return 0.0;
-    };
-    let c = theta - theta0;
-    let s = force_scale(c, &g, k, kd, v);
-    for i in 0..4 {
-        for a in 0..3 {
-            f[3 * i + a] = s * g[i][a];
-        }
-    }
+    let mut flat = [0.0; 12];
+    let energy = bend_force_gradient(x, v, k, kd, theta0, f, &mut flat);
+    let g: [[f64; 3]; 4] =
+        core::array::from_fn(|i| [flat[3 * i], flat[3 * i + 1], flat[3 * i + 2]]);
     let write = |out: &mut [f64], scale: f64| {
         let mut slot = 0;
         for i in 0..4 {
@@ -1027,6 +1016,38 @@ pub fn bend_jacobians_projected(
     write(kx, k);
     if let Some(kv) = kv {
         write(kv, kd);
+    }
+    energy
+}
+
+/// A hinge's bend forces `f` (4 vertices x 3) and its angle gradient `g` (12 values), from
+/// which its projected Jacobians are `df/dx = -k g g^T` and `df/dv = -k_d g g^T` (see
+/// [`bend_jacobians_projected`], which forms their blocks). The assembler can form them
+/// itself from `g` (`largestep::sparse::RankOneAssembly`): 12 values per hinge to write
+/// and read instead of 90. Returns the energy; a degenerate hinge writes zeros and
+/// returns 0.
+pub fn bend_force_gradient(
+    x: &[[f64; 3]; 4],
+    v: &[[f64; 3]; 4],
+    k: f64,
+    kd: f64,
+    theta0: f64,
+    f: &mut [f64],
+    g_out: &mut [f64],
+) -> f64 {
+    assert!(f.len() >= 12 && g_out.len() >= 12);
+    let Some((theta, g)) = bend_gradient(x) else {
+        f[..12].fill(0.0);
+        g_out[..12].fill(0.0);
+        return 0.0;
+    };
+    let c = theta - theta0;
+    let s = force_scale(c, &g, k, kd, v);
+    for i in 0..4 {
+        for a in 0..3 {
+            f[3 * i + a] = s * g[i][a];
+            g_out[3 * i + a] = g[i][a];
+        }
     }
     0.5 * k * c * c
 }

@@ -22,9 +22,11 @@ pub use obstacles::{Obstacle, SdfGrid};
 use crate::integrate::{IntegrateError, Mechanical};
 use crate::soa::Vec3s;
 use crate::solve::Filter;
-use crate::sparse::{Bsr3, Bsr3Pattern, ElementAssembly, LocalLayout, SparseError, VectorGather};
+use crate::sparse::{
+    Bsr3, Bsr3Pattern, ElementAssembly, LocalLayout, RankOneAssembly, SparseError, VectorGather,
+};
 use largestep_kernels::cloth::{
-    add_bend, add_shear, add_stretch, bend_jacobians_projected, dihedral_angle, triangle_jacobians,
+    add_bend, add_shear, add_stretch, bend_force_gradient, dihedral_angle, triangle_jacobians,
     triangle_jacobians_x4, ConditionSink, ElementForces, ElementOut, TriangleParams, TriangleRest,
 };
 use largestep_kernels::get3;
@@ -287,11 +289,24 @@ pub struct Cloth {
 #[derive(Clone, Debug)]
 struct ClothJacobians {
     tri: ElementAssembly,
-    hinge: ElementAssembly,
     tri_kx: Vec<f64>,
     tri_kv: Vec<f64>,
-    hinge_kx: Vec<f64>,
-    hinge_kv: Vec<f64>,
+    hinge: HingeJacobians,
+}
+
+/// How hinge Jacobians reach the matrices.
+#[derive(Clone, Debug)]
+enum HingeJacobians {
+    /// Projected (definiteness fix): `-k g g^T` and `-k_d g g^T`, formed by the gather
+    /// from each hinge's angle gradient `g` (12 values per hinge).
+    RankOne { asm: RankOneAssembly, g: Vec<f64> },
+    /// Exact: each hinge's ten upper blocks of `df/dx` (and of `df/dv` with bend damping,
+    /// else `kv` is empty).
+    Blocks {
+        asm: ElementAssembly,
+        kx: Vec<f64>,
+        kv: Vec<f64>,
+    },
 }
 
 /// Elements per parallel task (fixed: thread-count independent results).
@@ -1025,31 +1040,50 @@ impl Mechanical for Cloth {
                 .iter()
                 .map(|t| [t[0], t[1], t[2], t[2]])
                 .collect();
-            let hinge_layout = if self.definiteness_fix {
-                LocalLayout::symmetric_without(4, &[(2, 3)])
-            } else {
+            if !self.definiteness_fix {
                 all.extend_from_slice(&self.hinges);
-                LocalLayout::symmetric(4)
-            };
+            }
             let pattern = Arc::new(Bsr3Pattern::from_elements(self.n, &all)?);
             let tri = ElementAssembly::with_pattern(
                 pattern.clone(),
                 &self.triangles,
                 LocalLayout::symmetric(3),
             )?;
-            let hinge = ElementAssembly::with_pattern(pattern, &self.hinges, hinge_layout)?;
             let (nt, nh) = (self.triangles.len(), self.hinges.len());
+            let hinge = if self.definiteness_fix {
+                // The decoupled hinge (`bend_jacobians_projected`): no (2, 3) coupling, its
+                // weight moved onto the (2, 2) and (3, 3) blocks.
+                let weight = |p: usize, q: usize| match (p, q) {
+                    (2, 3) | (3, 2) => 0.0,
+                    (2, 2) | (3, 3) => 2.0,
+                    _ => 1.0,
+                };
+                let asm = RankOneAssembly::with_pattern(pattern, &self.hinges, weight)?;
+                HingeJacobians::RankOne {
+                    g: vec![0.0; asm.vector_buffer_len()],
+                    asm,
+                }
+            } else {
+                let asm = ElementAssembly::with_pattern(
+                    pattern,
+                    &self.hinges,
+                    LocalLayout::symmetric(4),
+                )?;
+                HingeJacobians::Blocks {
+                    asm,
+                    kx: vec![0.0; HINGE_K * nh],
+                    kv: if self.material.bend_damping > 0.0 {
+                        vec![0.0; HINGE_K * nh]
+                    } else {
+                        Vec::new()
+                    },
+                }
+            };
             self.jac = Some(ClothJacobians {
                 tri,
-                hinge,
                 tri_kx: vec![0.0; TRI_K * nt],
                 tri_kv: vec![0.0; TRI_K * nt],
-                hinge_kx: vec![0.0; HINGE_K * nh],
-                hinge_kv: if self.material.bend_damping > 0.0 {
-                    vec![0.0; HINGE_K * nh]
-                } else {
-                    Vec::new()
-                },
+                hinge,
             });
         }
         Ok(self.jac.as_ref().map(|j| j.tri.pattern().clone()))
@@ -1067,7 +1101,7 @@ impl Mechanical for Cloth {
         v: &[f64],
         f: &mut [f64],
         dfdx: &mut Bsr3,
-        dfdv: Option<&mut Bsr3>,
+        mut dfdv: Option<&mut Bsr3>,
     ) -> Result<(), IntegrateError> {
         self.prepare_jacobians().map_err(IntegrateError::Sparse)?;
         self.external_forces(t, x, v, f);
@@ -1122,62 +1156,97 @@ impl Mechanical for Cloth {
             self.tri_f = tri_f;
             let mut hinge_f = std::mem::take(&mut self.hinge_f);
             let this = &*self;
-            // One hinge into its force and Jacobian slots (`kv` only with bend damping:
-            // without it the hinges' df/dv is zero and is neither written nor gathered).
-            // Projected: -k g g^T written straight into the buffers; exact: the
-            // automatic-differentiation Hessian through an `ElementOut`.
-            let hinge = |h: usize, fo: &mut [f64], kx: &mut [f64], kv: Option<&mut [f64]>| {
+            let nodes = |h: usize| {
                 let el = &this.hinges[h];
-                let (xs, vs) = (gather_nodes(x, n, el), gather_nodes(v, n, el));
-                let (k, kd, t0) = (m.bend, m.bend_damping, this.theta0[h]);
-                if this.definiteness_fix {
-                    bend_jacobians_projected(&xs, &vs, k, kd, t0, true, fo, kx, kv);
-                } else {
-                    let mut e = ElementOut::new(false);
-                    add_bend(&mut e, &xs, &vs, k, kd, t0);
-                    write_element(&e, fo, kx, kv);
-                }
+                (gather_nodes(x, n, el), gather_nodes(v, n, el))
             };
-            let chunks = hinge_f
-                .par_chunks_mut(12 * CHUNK)
-                .zip(jac.hinge_kx.par_chunks_mut(HINGE_K * CHUNK));
-            if jac.hinge_kv.is_empty() {
-                chunks.enumerate().for_each(|(c, (fo, kxo))| {
-                    for lh in 0..fo.len() / 12 {
-                        let (f, k) = (12 * lh, HINGE_K * lh);
-                        hinge(
-                            c * CHUNK + lh,
-                            &mut fo[f..f + 12],
-                            &mut kxo[k..k + HINGE_K],
-                            None,
-                        );
-                    }
-                });
-            } else {
-                chunks
-                    .zip(jac.hinge_kv.par_chunks_mut(HINGE_K * CHUNK))
+            let (k, kd) = (m.bend, m.bend_damping);
+            match &mut jac.hinge {
+                // Projected: forces and the angle gradient; the gather forms -k g g^T.
+                HingeJacobians::RankOne { g, .. } => hinge_f
+                    .par_chunks_mut(12 * CHUNK)
+                    .zip(g.par_chunks_mut(12 * CHUNK))
                     .enumerate()
-                    .for_each(|(c, ((fo, kxo), kvo))| {
+                    .for_each(|(c, (fo, go))| {
                         for lh in 0..fo.len() / 12 {
-                            let (f, k) = (12 * lh, HINGE_K * lh);
-                            hinge(
-                                c * CHUNK + lh,
-                                &mut fo[f..f + 12],
-                                &mut kxo[k..k + HINGE_K],
-                                Some(&mut kvo[k..k + HINGE_K]),
+                            let h = c * CHUNK + lh;
+                            let (xs, vs) = nodes(h);
+                            let r = 12 * lh..12 * lh + 12;
+                            let t0 = this.theta0[h];
+                            bend_force_gradient(
+                                &xs,
+                                &vs,
+                                k,
+                                kd,
+                                t0,
+                                &mut fo[r.clone()],
+                                &mut go[r],
                             );
                         }
-                    });
+                    }),
+                // Exact: the automatic-differentiation Hessian through an `ElementOut`
+                // (`kv` only with bend damping: without it the hinges' df/dv is zero and
+                // is neither written nor gathered).
+                HingeJacobians::Blocks { kx, kv, .. } => {
+                    let hinge =
+                        |h: usize, fo: &mut [f64], kx: &mut [f64], kv: Option<&mut [f64]>| {
+                            let (xs, vs) = nodes(h);
+                            let mut e = ElementOut::new(false);
+                            add_bend(&mut e, &xs, &vs, k, kd, this.theta0[h]);
+                            write_element(&e, fo, kx, kv);
+                        };
+                    let chunks = hinge_f
+                        .par_chunks_mut(12 * CHUNK)
+                        .zip(kx.par_chunks_mut(HINGE_K * CHUNK));
+                    if kv.is_empty() {
+                        chunks.enumerate().for_each(|(c, (fo, kxo))| {
+                            for lh in 0..fo.len() / 12 {
+                                let (f, k) = (12 * lh, HINGE_K * lh);
+                                hinge(
+                                    c * CHUNK + lh,
+                                    &mut fo[f..f + 12],
+                                    &mut kxo[k..k + HINGE_K],
+                                    None,
+                                );
+                            }
+                        });
+                    } else {
+                        chunks
+                            .zip(kv.par_chunks_mut(HINGE_K * CHUNK))
+                            .enumerate()
+                            .for_each(|(c, ((fo, kxo), kvo))| {
+                                for lh in 0..fo.len() / 12 {
+                                    let (f, k) = (12 * lh, HINGE_K * lh);
+                                    hinge(
+                                        c * CHUNK + lh,
+                                        &mut fo[f..f + 12],
+                                        &mut kxo[k..k + HINGE_K],
+                                        Some(&mut kvo[k..k + HINGE_K]),
+                                    );
+                                }
+                            });
+                    }
+                }
             }
             self.hinge_gather.gather_vectors_add(&hinge_f, f);
             self.hinge_f = hinge_f;
         }
         jac.tri.gather_blocks(&jac.tri_kx, dfdx);
-        jac.hinge.gather_blocks_add(&jac.hinge_kx, dfdx);
-        if let Some(d) = dfdv {
+        if let Some(d) = dfdv.as_deref_mut() {
             jac.tri.gather_blocks(&jac.tri_kv, d);
-            if !jac.hinge_kv.is_empty() {
-                jac.hinge.gather_blocks_add(&jac.hinge_kv, d);
+        }
+        match &jac.hinge {
+            HingeJacobians::RankOne { asm, g } => {
+                asm.gather_add(g, -m.bend, dfdx);
+                if let Some(d) = dfdv.filter(|_| m.bend_damping > 0.0) {
+                    asm.gather_add(g, -m.bend_damping, d);
+                }
+            }
+            HingeJacobians::Blocks { asm, kx, kv } => {
+                asm.gather_blocks_add(kx, dfdx);
+                if let Some(d) = dfdv.filter(|_| !kv.is_empty()) {
+                    asm.gather_blocks_add(kv, d);
+                }
             }
         }
         self.jac = Some(jac);

@@ -429,3 +429,123 @@ impl VectorGather {
         });
     }
 }
+
+/// Assembly of elements whose local matrix is a weighted outer product of one vector per
+/// element: block `(p, q)` is `w_pq g_p g_q^T` for the element's 3-vectors `g_p`.
+///
+/// Why: a projected Baraff-Witkin hinge has `df/dx = -k g g^T` with `g` the bend angle's
+/// gradient (4 vertices). Storing its ten upper blocks takes 90 doubles per hinge, written
+/// by the element kernel and read back by the gather; storing `g` takes 12, and the gather
+/// forms the blocks (nine products each) while it sums them. On a 100x100 sheet that is
+/// 2.9 MB of element data per matrix instead of 21.6 MB.
+///
+/// The vector buffer is element-major, `3 K` values per element (vertex p's vector at
+/// `3 p`). Each slot sums its sources in a fixed order, in parallel over slots, so the
+/// result does not depend on the thread count.
+#[derive(Clone, Debug)]
+pub struct RankOneAssembly {
+    pattern: Arc<Bsr3Pattern>,
+    k: usize,
+    elements: usize,
+    weight: Vec<f64>,
+    /// Sources of each slot: `src[ptr[s]..ptr[s + 1]]`, each `element * K^2 + p K + q`.
+    ptr: Vec<u32>,
+    src: Vec<u32>,
+}
+
+impl RankOneAssembly {
+    /// The sources of `elements` in `pattern` (which must hold every pair of vertices with
+    /// a non-zero weight), with weight `weight(p, q)` for local block `(p, q)`; a zero
+    /// weight leaves the pair out. `weight` must be symmetric for a symmetric matrix.
+    pub fn with_pattern<const K: usize>(
+        pattern: Arc<Bsr3Pattern>,
+        elements: &[[u32; K]],
+        weight: impl Fn(usize, usize) -> f64,
+    ) -> Result<Self, SparseError> {
+        let kk = K * K;
+        let total = elements.len() * kk;
+        if total > u32::MAX as usize {
+            return Err(SparseError::TooLarge { blocks: total });
+        }
+        let weight: Vec<f64> = (0..kk).map(|l| weight(l / K, l % K)).collect();
+        let mut pairs: Vec<(u32, u32)> = Vec::with_capacity(total);
+        for (e, el) in elements.iter().enumerate() {
+            for (p, &a) in el.iter().enumerate() {
+                if a as usize >= pattern.n() {
+                    return Err(SparseError::VertexOutOfRange {
+                        element: e,
+                        vertex: a as usize,
+                        n: pattern.n(),
+                    });
+                }
+                for (q, &b) in el.iter().enumerate() {
+                    if weight[p * K + q] == 0.0 {
+                        continue;
+                    }
+                    let s = pattern
+                        .slot(a as usize, b as usize)
+                        .expect("pattern holds every weighted element pair");
+                    pairs.push((s as u32, (e * kk + p * K + q) as u32));
+                }
+            }
+        }
+        // Stable: each slot keeps its sources in element order.
+        pairs.sort_by_key(|&(s, _)| s);
+        let mut ptr = vec![0u32; pattern.nnz_blocks() + 1];
+        for &(s, _) in &pairs {
+            ptr[s as usize + 1] += 1;
+        }
+        for s in 0..pattern.nnz_blocks() {
+            ptr[s + 1] += ptr[s];
+        }
+        Ok(Self {
+            pattern,
+            k: K,
+            elements: elements.len(),
+            weight,
+            ptr,
+            src: pairs.into_iter().map(|(_, c)| c).collect(),
+        })
+    }
+
+    /// Length of the element vector buffer: `3 K` per element.
+    pub fn vector_buffer_len(&self) -> usize {
+        3 * self.k * self.elements
+    }
+
+    /// `out += scale sum_e w_pq g_p g_q^T` over every element's blocks.
+    pub fn gather_add(&self, g: &[f64], scale: f64, out: &mut Bsr3) {
+        assert_eq!(g.len(), self.vector_buffer_len());
+        assert!(Arc::ptr_eq(out.pattern(), &self.pattern) || **out.pattern() == *self.pattern);
+        let (ptr, src, k) = (&self.ptr, &self.src, self.k);
+        let kk = k * k;
+        out.values_mut()
+            .par_chunks_mut(9 * GATHER_CHUNK)
+            .enumerate()
+            .for_each(|(c, vals)| {
+                let s0 = c * GATHER_CHUNK;
+                for (ls, v) in vals.chunks_exact_mut(9).enumerate() {
+                    let s = s0 + ls;
+                    let mut acc = [0.0f64; 9];
+                    for &code in &src[ptr[s] as usize..ptr[s + 1] as usize] {
+                        let code = code as usize;
+                        let (e, l) = (code / kk, code % kk);
+                        let (p, q) = (l / k, l % k);
+                        let base = 3 * k * e;
+                        let gp = &g[base + 3 * p..base + 3 * p + 3];
+                        let gq = &g[base + 3 * q..base + 3 * q + 3];
+                        let w = self.weight[l];
+                        for r in 0..3 {
+                            let wr = w * gp[r];
+                            for cc in 0..3 {
+                                acc[3 * r + cc] += wr * gq[cc];
+                            }
+                        }
+                    }
+                    for (o, a) in v.iter_mut().zip(acc) {
+                        *o += scale * a;
+                    }
+                }
+            });
+    }
+}

@@ -11,7 +11,7 @@ mod bridge;
 pub mod examples;
 mod mm;
 
-pub use assembly::{ElementAssembly, LocalLayout, Src, VectorGather};
+pub use assembly::{ElementAssembly, LocalLayout, RankOneAssembly, Src, VectorGather};
 pub use bridge::{to_csr, FaerCsc, Triangle};
 pub use mm::{read_matrix_market, write_matrix_market, MatrixMarket};
 
