@@ -318,39 +318,45 @@ impl ElementAssembly {
         assert_eq!(elem_blocks.len(), self.block_buffer_len());
         assert!(Arc::ptr_eq(out.pattern(), &self.pattern) || **out.pattern() == *self.pattern);
         let (ptr, src) = (&self.block_ptr, &self.block_src);
-        out.values_mut()
-            .par_chunks_mut(9 * GATHER_CHUNK)
-            .enumerate()
-            .for_each(|(c, vals)| {
-                let s0 = c * GATHER_CHUNK;
-                for (ls, v) in vals.chunks_exact_mut(9).enumerate() {
-                    let s = s0 + ls;
-                    let mut acc = [0.0f64; 9];
-                    for &code in &src[ptr[s] as usize..ptr[s + 1] as usize] {
-                        let b = &elem_blocks[9 * (code & INDEX) as usize..][..9];
-                        let sign = if code & NEG != 0 { -1.0 } else { 1.0 };
-                        if code & TRANS != 0 {
-                            for r in 0..3 {
-                                for cc in 0..3 {
-                                    acc[3 * r + cc] += sign * b[3 * cc + r];
-                                }
-                            }
-                        } else {
-                            for (a, bb) in acc.iter_mut().zip(b) {
-                                *a += sign * bb;
-                            }
+        for_each_block(out, |s, v| {
+            let mut acc = [0.0f64; 9];
+            for &code in &src[ptr[s] as usize..ptr[s + 1] as usize] {
+                let b = &elem_blocks[9 * (code & INDEX) as usize..][..9];
+                let sign = if code & NEG != 0 { -1.0 } else { 1.0 };
+                if code & TRANS != 0 {
+                    for r in 0..3 {
+                        for cc in 0..3 {
+                            acc[3 * r + cc] += sign * b[3 * cc + r];
                         }
                     }
-                    if add {
-                        for (o, a) in v.iter_mut().zip(acc) {
-                            *o += a;
-                        }
-                    } else {
-                        v.copy_from_slice(&acc);
+                } else {
+                    for (a, bb) in acc.iter_mut().zip(b) {
+                        *a += sign * bb;
                     }
                 }
-            });
+            }
+            if add {
+                for (o, a) in v.iter_mut().zip(acc) {
+                    *o += a;
+                }
+            } else {
+                v.copy_from_slice(&acc);
+            }
+        });
     }
+}
+
+/// Calls `f(slot, values)` for every block of `out`, in parallel over fixed chunks of
+/// slots (each slot's work is independent: results do not depend on the thread count).
+fn for_each_block(out: &mut Bsr3, f: impl Fn(usize, &mut [f64]) + Sync) {
+    out.values_mut()
+        .par_chunks_mut(9 * GATHER_CHUNK)
+        .enumerate()
+        .for_each(|(c, vals)| {
+            for (ls, v) in vals.chunks_exact_mut(9).enumerate() {
+                f(c * GATHER_CHUNK + ls, v);
+            }
+        });
 }
 
 impl VectorGather {
@@ -519,33 +525,26 @@ impl RankOneAssembly {
         assert!(Arc::ptr_eq(out.pattern(), &self.pattern) || **out.pattern() == *self.pattern);
         let (ptr, src, k) = (&self.ptr, &self.src, self.k);
         let kk = k * k;
-        out.values_mut()
-            .par_chunks_mut(9 * GATHER_CHUNK)
-            .enumerate()
-            .for_each(|(c, vals)| {
-                let s0 = c * GATHER_CHUNK;
-                for (ls, v) in vals.chunks_exact_mut(9).enumerate() {
-                    let s = s0 + ls;
-                    let mut acc = [0.0f64; 9];
-                    for &code in &src[ptr[s] as usize..ptr[s + 1] as usize] {
-                        let code = code as usize;
-                        let (e, l) = (code / kk, code % kk);
-                        let (p, q) = (l / k, l % k);
-                        let base = 3 * k * e;
-                        let gp = &g[base + 3 * p..base + 3 * p + 3];
-                        let gq = &g[base + 3 * q..base + 3 * q + 3];
-                        let w = self.weight[l];
-                        for r in 0..3 {
-                            let wr = w * gp[r];
-                            for cc in 0..3 {
-                                acc[3 * r + cc] += wr * gq[cc];
-                            }
-                        }
-                    }
-                    for (o, a) in v.iter_mut().zip(acc) {
-                        *o += scale * a;
+        for_each_block(out, |s, v| {
+            let mut acc = [0.0f64; 9];
+            for &code in &src[ptr[s] as usize..ptr[s + 1] as usize] {
+                let code = code as usize;
+                let (e, l) = (code / kk, code % kk);
+                let (p, q) = (l / k, l % k);
+                let base = 3 * k * e;
+                let gp = &g[base + 3 * p..base + 3 * p + 3];
+                let gq = &g[base + 3 * q..base + 3 * q + 3];
+                let w = self.weight[l];
+                for r in 0..3 {
+                    let wr = w * gp[r];
+                    for cc in 0..3 {
+                        acc[3 * r + cc] += wr * gq[cc];
                     }
                 }
-            });
+            }
+            for (o, a) in v.iter_mut().zip(acc) {
+                *o += scale * a;
+            }
+        });
     }
 }
