@@ -633,6 +633,38 @@ mod model {
     }
 
     #[test]
+    fn bend_damping_alone_gives_a_velocity_jacobian_proportional_to_the_stiffness() {
+        // Projected hinges only (no stretch or shear, so the triangles write no df/dv):
+        // df/dx = -k sum w g g^T and df/dv = -k_d sum w g g^T, so df/dv = (k_d / k) df/dx,
+        // whatever the matrix held before.
+        let mut d = deformed(4, 3);
+        d.definiteness_fix = true;
+        d.material.stretch = 0.0;
+        d.material.shear = 0.0;
+        d.material.stretch_damping = 0.0;
+        d.material.shear_damping = 0.0;
+        let (k, kd) = (d.material.bend, d.material.bend_damping);
+        let (mut c, st) = d.build().unwrap();
+        let n = c.vertex_count();
+        let pattern = c.prepare_jacobians().unwrap().unwrap();
+        let (mut kx, mut kv) = (Bsr3::zeros(pattern.clone()), Bsr3::zeros(pattern));
+        kv.values_mut().fill(f64::NAN);
+        let mut f = vec![0.0; 3 * n];
+        let (x, v) = (st.x.as_slice(), st.v.as_slice());
+        c.force_jacobians(0.0, x, v, &mut f, &mut kx, Some(&mut kv))
+            .unwrap();
+        let scale = kx.values().iter().fold(0.0f64, |m, a| m.max(a.abs()));
+        assert!(scale > 0.0);
+        for (a, b) in kx.values().iter().zip(kv.values()) {
+            assert!(
+                (a * kd / k - b).abs() <= 1e-12 * scale,
+                "{b} against {}",
+                a * kd / k
+            );
+        }
+    }
+
+    #[test]
     fn assembled_jacobians_match_finite_differences_and_are_symmetric() {
         let (mut c, st) = deformed(4, 3).build().unwrap();
         let n = c.vertex_count();

@@ -20,6 +20,7 @@
 //! no direction: that component gives no force and no Jacobian. Units: positions m,
 //! velocities m/s, k N/m, k_d N s/m (per unit (u, v) area squared), energy J.
 
+use crate::v3::{cross, dot, sub};
 use crate::vec::st;
 use wide::f64x4;
 
@@ -234,10 +235,6 @@ impl<const N: usize> ConditionSink<N> for ElementForces<N> {
     ) {
         self.add_condition(c, g, k, kd, v);
     }
-}
-
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 /// Adds the stretch conditions of a triangle, `C = a (|w_u| - b[0], |w_v| - b[1])` with
@@ -535,7 +532,6 @@ pub fn bend_gradient(x: &[[f64; 3]; 4]) -> Option<(f64, [[f64; 3]; 4])> {
     if !theta.is_finite() {
         return None;
     }
-    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
     let e = sub(x[1], x[0]);
     let ee = dot(e, e);
     let na = cross(e, sub(x[2], x[0]));
@@ -573,14 +569,6 @@ pub fn bend_gradient_ad(x: &[[f64; 3]; 4]) -> Option<(f64, [[f64; 3]; 4])> {
         g[var / 3][var % 3] = dihedral_angle(&xs).d;
     }
     Some((theta, g))
-}
-
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
 }
 
 /// Stretch and shear constants of a triangle for [`triangle_jacobians`]: element
@@ -998,11 +986,10 @@ pub fn bend_jacobians_projected(
         let mut slot = 0;
         for i in 0..4 {
             for j in i..4 {
-                // Decoupled: (2, 3) is zero and (2, 2), (3, 3) are doubled.
-                let w = match (decouple, i, j) {
-                    (true, 2, 3) => 0.0,
-                    (true, 2, 2) | (true, 3, 3) => 2.0,
-                    _ => 1.0,
+                let w = if decouple {
+                    decoupled_hinge_weight(i, j)
+                } else {
+                    1.0
                 };
                 for a in 0..3 {
                     for b in 0..3 {
@@ -1018,6 +1005,17 @@ pub fn bend_jacobians_projected(
         write(kv, kd);
     }
     energy
+}
+
+/// The weight of local block `(p, q)` in a decoupled hinge's Jacobian `-k w_pq g_p g_q^T`
+/// (see `decouple` in [`bend_jacobians_projected`]): 0 between the opposite vertices 2
+/// and 3, 2 on their diagonal blocks, 1 elsewhere.
+pub fn decoupled_hinge_weight(p: usize, q: usize) -> f64 {
+    match (p, q) {
+        (2, 3) | (3, 2) => 0.0,
+        (2, 2) | (3, 3) => 2.0,
+        _ => 1.0,
+    }
 }
 
 /// A hinge's bend forces `f` (4 vertices x 3) and its angle gradient `g` (12 values), from

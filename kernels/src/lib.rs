@@ -22,6 +22,7 @@ pub mod interp;
 pub mod par;
 pub mod raster;
 pub mod spring;
+pub mod v3;
 pub mod vec;
 
 /// Rows (or vertices) per task in the parallel drivers. Fixed, so that partial sums are

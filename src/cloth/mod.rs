@@ -26,10 +26,12 @@ use crate::sparse::{
     Bsr3, Bsr3Pattern, ElementAssembly, LocalLayout, RankOneAssembly, SparseError, VectorGather,
 };
 use largestep_kernels::cloth::{
-    add_bend, add_shear, add_stretch, bend_force_gradient, dihedral_angle, triangle_jacobians,
-    triangle_jacobians_x4, ConditionSink, ElementForces, ElementOut, TriangleParams, TriangleRest,
+    add_bend, add_shear, add_stretch, bend_force_gradient, decoupled_hinge_weight, dihedral_angle,
+    triangle_jacobians, triangle_jacobians_x4, ConditionSink, ElementForces, ElementOut,
+    TriangleParams, TriangleRest,
 };
 use largestep_kernels::get3;
+use largestep_kernels::v3::{cross, dot, sub};
 use rayon::prelude::*;
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -693,18 +695,12 @@ impl Cloth {
         crate::integrate::gravity_forces(&self.mass, self.gravity, f);
         let Some(w) = self.wind else { return };
         let n = self.n;
-        let speed = (w.velocity[0].powi(2) + w.velocity[1].powi(2) + w.velocity[2].powi(2)).sqrt();
+        let speed = dot(w.velocity, w.velocity).sqrt();
         for tri in &self.triangles {
             let xs = gather_nodes(x, n, tri);
-            let e1: [f64; 3] = std::array::from_fn(|c| xs[1][c] - xs[0][c]);
-            let e2: [f64; 3] = std::array::from_fn(|c| xs[2][c] - xs[0][c]);
             // N = e1 x e2 = 2 A n.
-            let nn = [
-                e1[1] * e2[2] - e1[2] * e2[1],
-                e1[2] * e2[0] - e1[0] * e2[2],
-                e1[0] * e2[1] - e1[1] * e2[0],
-            ];
-            let len2 = nn[0] * nn[0] + nn[1] * nn[1] + nn[2] * nn[2];
+            let nn = cross(sub(xs[1], xs[0]), sub(xs[2], xs[0]));
+            let len2 = dot(nn, nn);
             if len2.is_nan() || len2 <= 0.0 {
                 continue;
             }
@@ -712,10 +708,7 @@ impl Cloth {
             if w.gust > 0.0 && w.frequency > 0.0 && speed > 0.0 {
                 let centre: [f64; 3] =
                     std::array::from_fn(|c| (xs[0][c] + xs[1][c] + xs[2][c]) / 3.0);
-                let along = (centre[0] * w.velocity[0]
-                    + centre[1] * w.velocity[1]
-                    + centre[2] * w.velocity[2])
-                    / speed;
+                let along = dot(centre, w.velocity) / speed;
                 let phase = std::f64::consts::TAU * (w.frequency * t - along * w.frequency / speed);
                 let s = 1.0 + w.gust * phase.sin();
                 air = air.map(|c| c * s);
@@ -724,9 +717,7 @@ impl Cloth {
             let rel: [f64; 3] =
                 std::array::from_fn(|c| air[c] - (vs[0][c] + vs[1][c] + vs[2][c]) / 3.0);
             // drag A (rel . n) n = drag (rel . N) N / (2 |N|), a third to each vertex.
-            let s = w.drag * (rel[0] * nn[0] + rel[1] * nn[1] + rel[2] * nn[2])
-                / (2.0 * len2.sqrt())
-                / 3.0;
+            let s = w.drag * dot(rel, nn) / (2.0 * len2.sqrt()) / 3.0;
             for &i in tri {
                 for c in 0..3 {
                     f[c * n + i as usize] += s * nn[c];
@@ -795,12 +786,12 @@ impl Cloth {
                     x[k * n + i] = p[k] + (CONTACT_THICKNESS - d) * nrm[k];
                 }
                 let vel = get3(v, n, i);
-                let vn = vel[0] * nrm[0] + vel[1] * nrm[1] + vel[2] * nrm[2];
+                let vn = dot(vel, nrm);
                 if vn > 0.0 {
                     continue; // moving away: released
                 }
                 let vt: [f64; 3] = std::array::from_fn(|k| vel[k] - vn * nrm[k]);
-                let vt_len = (vt[0] * vt[0] + vt[1] * vt[1] + vt[2] * vt[2]).sqrt();
+                let vt_len = dot(vt, vt).sqrt();
                 // Coulomb: the tangential velocity change is at most friction times the
                 // normal one, which is the impact (-vn) plus what the pressing force
                 // delivered over the step (resting contact, where vn is zero).
@@ -826,7 +817,7 @@ impl Cloth {
         let n = self.n;
         for ((i, nrm), pull) in self.contacts.iter().zip(&mut self.contact_pull) {
             let fi = get3(f, n, *i as usize);
-            *pull = fi[0] * nrm[0] + fi[1] * nrm[1] + fi[2] * nrm[2];
+            *pull = dot(fi, *nrm);
         }
     }
 
@@ -852,8 +843,7 @@ impl Cloth {
     fn strain(&self, t: usize, x: &[f64]) -> f64 {
         let b = self.material.rest_stretch;
         let (wu, wv) = self.rest[t].wuv(&gather_nodes(x, self.n, &self.triangles[t]));
-        let lu = (wu[0] * wu[0] + wu[1] * wu[1] + wu[2] * wu[2]).sqrt();
-        let lv = (wv[0] * wv[0] + wv[1] * wv[1] + wv[2] * wv[2]).sqrt();
+        let (lu, lv) = (dot(wu, wu).sqrt(), dot(wv, wv).sqrt());
         (lu - b[0]).abs().max((lv - b[1]).abs())
     }
 
@@ -927,20 +917,14 @@ impl Mechanical for Cloth {
             let mut line: Option<[f64; 3]> = None;
             let mut fixed = false;
             for &(_, q) in &group[1..] {
-                let c = [
-                    p[1] * q[2] - p[2] * q[1],
-                    p[2] * q[0] - p[0] * q[2],
-                    p[0] * q[1] - p[1] * q[0],
-                ];
-                if c[0] * c[0] + c[1] * c[1] + c[2] * c[2] < 1e-12 {
+                let c = cross(p, q);
+                if dot(c, c) < 1e-12 {
                     continue; // (anti)parallel: the same plane
                 }
                 match line {
                     None => line = Some(c),
                     Some(l) => {
-                        let along = (l[0] * q[0] + l[1] * q[1] + l[2] * q[2]).abs();
-                        let ll = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
-                        if along > 1e-6 * ll {
+                        if dot(l, q).abs() > 1e-6 * dot(l, l).sqrt() {
                             fixed = true;
                         }
                     }
@@ -1033,7 +1017,7 @@ impl Mechanical for Cloth {
             // One pattern for both element kinds. Element matrices are symmetric: only
             // their upper blocks are written. With the definiteness fix the hinges'
             // opposite-vertex coupling is moved onto the diagonal
-            // (`bend_jacobians_projected`), so the triangles' pattern holds everything;
+            // (`decoupled_hinge_weight`), so the triangles' pattern holds everything;
             // exact Jacobians need the hinges' (x2, x3) pairs too.
             let mut all: Vec<[u32; 4]> = self
                 .triangles
@@ -1051,14 +1035,10 @@ impl Mechanical for Cloth {
             )?;
             let (nt, nh) = (self.triangles.len(), self.hinges.len());
             let hinge = if self.definiteness_fix {
-                // The decoupled hinge (`bend_jacobians_projected`): no (2, 3) coupling, its
-                // weight moved onto the (2, 2) and (3, 3) blocks.
-                let weight = |p: usize, q: usize| match (p, q) {
-                    (2, 3) | (3, 2) => 0.0,
-                    (2, 2) | (3, 3) => 2.0,
-                    _ => 1.0,
-                };
-                let asm = RankOneAssembly::with_pattern(pattern, &self.hinges, weight)?;
+                // The decoupled hinge: no (2, 3) coupling, its weight moved onto the
+                // (2, 2) and (3, 3) blocks.
+                let asm =
+                    RankOneAssembly::with_pattern(pattern, &self.hinges, decoupled_hinge_weight)?;
                 HingeJacobians::RankOne {
                     g: vec![0.0; asm.vector_buffer_len()],
                     asm,
@@ -1079,10 +1059,18 @@ impl Mechanical for Cloth {
                     },
                 }
             };
+            let tri_damping =
+                self.material.stretch_damping > 0.0 || self.material.shear_damping > 0.0;
             self.jac = Some(ClothJacobians {
                 tri,
                 tri_kx: vec![0.0; TRI_K * nt],
-                tri_kv: vec![0.0; TRI_K * nt],
+                // Without stretch and shear damping the triangles' df/dv is zero: not
+                // written, not gathered.
+                tri_kv: if tri_damping {
+                    vec![0.0; TRI_K * nt]
+                } else {
+                    Vec::new()
+                },
                 hinge,
             });
         }
@@ -1108,132 +1096,102 @@ impl Mechanical for Cloth {
         let n = self.n;
         let mut jac = self.jac.take().expect("prepared above");
         let m = self.material;
-        {
-            let mut tri_f = std::mem::take(&mut self.tri_f);
-            let this = &*self;
-            tri_f
-                .par_chunks_mut(9 * CHUNK)
-                .zip(jac.tri_kx.par_chunks_mut(TRI_K * CHUNK))
-                .zip(jac.tri_kv.par_chunks_mut(TRI_K * CHUNK))
-                .enumerate()
-                .for_each(|(c, ((fo, kxo), kvo))| {
-                    // Closed form (the condition-by-condition `triangle_into` gives the
-                    // same, tested; it serves the force-only path and the energy), four
-                    // triangles per call in SIMD lanes, the chunk's last (< 4) one by one:
-                    // equal either way to rounding (tested; so far to the bit), so the split
-                    // does not show, and it is fixed by the chunks, not the thread count.
-                    let (t0, m) = (c * CHUNK, fo.len() / 9);
-                    let full = m / 4 * 4;
-                    for lt in (0..full).step_by(4) {
-                        let t = t0 + lt;
-                        let (f, k) = (9 * lt, TRI_K * lt);
-                        triangle_jacobians_x4(
-                            this.rest[t..t + 4].try_into().expect("four triangles"),
-                            &four(t, |t| gather_nodes(x, n, &this.triangles[t])),
-                            &four(t, |t| gather_nodes(v, n, &this.triangles[t])),
-                            &four(t, |t| this.triangle_params(t)),
-                            &mut fo[f..f + 36],
-                            &mut kxo[k..k + 4 * TRI_K],
-                            Some(&mut kvo[k..k + 4 * TRI_K]),
-                        );
-                    }
-                    for lt in full..m {
-                        let t = t0 + lt;
-                        let el = &this.triangles[t];
-                        let k = TRI_K * lt;
-                        triangle_jacobians(
-                            &this.rest[t],
-                            &gather_nodes(x, n, el),
-                            &gather_nodes(v, n, el),
-                            &this.triangle_params(t),
-                            &mut fo[9 * lt..9 * lt + 9],
-                            &mut kxo[k..k + TRI_K],
-                            Some(&mut kvo[k..k + TRI_K]),
-                        );
-                    }
-                });
-            self.tri_gather.gather_vectors_add(&tri_f, f);
-            self.tri_f = tri_f;
-            let mut hinge_f = std::mem::take(&mut self.hinge_f);
-            let this = &*self;
-            let nodes = |h: usize| {
-                let el = &this.hinges[h];
-                (gather_nodes(x, n, el), gather_nodes(v, n, el))
-            };
-            let (k, kd) = (m.bend, m.bend_damping);
-            match &mut jac.hinge {
-                // Projected: forces and the angle gradient; the gather forms -k g g^T.
-                HingeJacobians::RankOne { g, .. } => hinge_f
-                    .par_chunks_mut(12 * CHUNK)
-                    .zip(g.par_chunks_mut(12 * CHUNK))
-                    .enumerate()
-                    .for_each(|(c, (fo, go))| {
-                        for lh in 0..fo.len() / 12 {
-                            let h = c * CHUNK + lh;
-                            let (xs, vs) = nodes(h);
-                            let r = 12 * lh..12 * lh + 12;
-                            let t0 = this.theta0[h];
-                            bend_force_gradient(
-                                &xs,
-                                &vs,
-                                k,
-                                kd,
-                                t0,
-                                &mut fo[r.clone()],
-                                &mut go[r],
-                            );
-                        }
-                    }),
-                // Exact: the automatic-differentiation Hessian through an `ElementOut`
-                // (`kv` only with bend damping: without it the hinges' df/dv is zero and
-                // is neither written nor gathered).
-                HingeJacobians::Blocks { kx, kv, .. } => {
-                    let hinge =
-                        |h: usize, fo: &mut [f64], kx: &mut [f64], kv: Option<&mut [f64]>| {
-                            let (xs, vs) = nodes(h);
-                            let mut e = ElementOut::new(false);
-                            add_bend(&mut e, &xs, &vs, k, kd, this.theta0[h]);
-                            write_element(&e, fo, kx, kv);
-                        };
-                    let chunks = hinge_f
-                        .par_chunks_mut(12 * CHUNK)
-                        .zip(kx.par_chunks_mut(HINGE_K * CHUNK));
-                    if kv.is_empty() {
-                        chunks.enumerate().for_each(|(c, (fo, kxo))| {
-                            for lh in 0..fo.len() / 12 {
-                                let (f, k) = (12 * lh, HINGE_K * lh);
-                                hinge(
-                                    c * CHUNK + lh,
-                                    &mut fo[f..f + 12],
-                                    &mut kxo[k..k + HINGE_K],
-                                    None,
-                                );
-                            }
-                        });
-                    } else {
-                        chunks
-                            .zip(kv.par_chunks_mut(HINGE_K * CHUNK))
-                            .enumerate()
-                            .for_each(|(c, ((fo, kxo), kvo))| {
-                                for lh in 0..fo.len() / 12 {
-                                    let (f, k) = (12 * lh, HINGE_K * lh);
-                                    hinge(
-                                        c * CHUNK + lh,
-                                        &mut fo[f..f + 12],
-                                        &mut kxo[k..k + HINGE_K],
-                                        Some(&mut kvo[k..k + HINGE_K]),
-                                    );
-                                }
-                            });
-                    }
+        let mut tri_f = std::mem::take(&mut self.tri_f);
+        let this = &*self;
+        // Closed form (the condition-by-condition `triangle_into` gives the same, tested;
+        // it serves the force-only path and the energy), four triangles per call in SIMD
+        // lanes, the chunk's last (< 4) one by one: equal either way to rounding (tested;
+        // so far to the bit), and the split is fixed by the chunks, not the thread count.
+        for_each_element_chunk(
+            (&mut tri_f, 9),
+            (&mut jac.tri_kx, &mut jac.tri_kv, TRI_K),
+            |t0, fo, kxo, mut kvo| {
+                let count = fo.len() / 9;
+                let full = count / 4 * 4;
+                for lt in (0..full).step_by(4) {
+                    let t = t0 + lt;
+                    let (f, k) = (9 * lt, TRI_K * lt);
+                    triangle_jacobians_x4(
+                        this.rest[t..t + 4].try_into().expect("four triangles"),
+                        &four(t, |t| gather_nodes(x, n, &this.triangles[t])),
+                        &four(t, |t| gather_nodes(v, n, &this.triangles[t])),
+                        &four(t, |t| this.triangle_params(t)),
+                        &mut fo[f..f + 36],
+                        &mut kxo[k..k + 4 * TRI_K],
+                        kvo.as_deref_mut().map(|kv| &mut kv[k..k + 4 * TRI_K]),
+                    );
                 }
+                for lt in full..count {
+                    let t = t0 + lt;
+                    let el = &this.triangles[t];
+                    let k = TRI_K * lt;
+                    triangle_jacobians(
+                        &this.rest[t],
+                        &gather_nodes(x, n, el),
+                        &gather_nodes(v, n, el),
+                        &this.triangle_params(t),
+                        &mut fo[9 * lt..9 * lt + 9],
+                        &mut kxo[k..k + TRI_K],
+                        kvo.as_deref_mut().map(|kv| &mut kv[k..k + TRI_K]),
+                    );
+                }
+            },
+        );
+        self.tri_gather.gather_vectors_add(&tri_f, f);
+        self.tri_f = tri_f;
+        let mut hinge_f = std::mem::take(&mut self.hinge_f);
+        let this = &*self;
+        let nodes = |h: usize| {
+            let el = &this.hinges[h];
+            (gather_nodes(x, n, el), gather_nodes(v, n, el))
+        };
+        let (k, kd) = (m.bend, m.bend_damping);
+        match &mut jac.hinge {
+            // Projected: forces and the angle gradient; the gather forms -k g g^T.
+            HingeJacobians::RankOne { g, .. } => {
+                for_each_element_chunk((&mut hinge_f, 12), (g, &mut [], 12), |h0, fo, go, _| {
+                    for lh in 0..fo.len() / 12 {
+                        let h = h0 + lh;
+                        let (xs, vs) = nodes(h);
+                        let r = 12 * lh..12 * lh + 12;
+                        let (f, g) = (&mut fo[r.clone()], &mut go[r]);
+                        bend_force_gradient(&xs, &vs, k, kd, this.theta0[h], f, g);
+                    }
+                })
             }
-            self.hinge_gather.gather_vectors_add(&hinge_f, f);
-            self.hinge_f = hinge_f;
+            // Exact: the automatic-differentiation Hessian through an `ElementOut`
+            // (`kv` only with bend damping: without it the hinges' df/dv is zero and is
+            // neither written nor gathered).
+            HingeJacobians::Blocks { kx, kv, .. } => for_each_element_chunk(
+                (&mut hinge_f, 12),
+                (kx, kv, HINGE_K),
+                |h0, fo, kxo, mut kvo| {
+                    for lh in 0..fo.len() / 12 {
+                        let h = h0 + lh;
+                        let (xs, vs) = nodes(h);
+                        let mut e = ElementOut::new(false);
+                        add_bend(&mut e, &xs, &vs, k, kd, this.theta0[h]);
+                        let kr = HINGE_K * lh..HINGE_K * (lh + 1);
+                        write_element(
+                            &e,
+                            &mut fo[12 * lh..12 * lh + 12],
+                            &mut kxo[kr.clone()],
+                            kvo.as_deref_mut().map(|kv| &mut kv[kr]),
+                        );
+                    }
+                },
+            ),
         }
+        self.hinge_gather.gather_vectors_add(&hinge_f, f);
+        self.hinge_f = hinge_f;
         jac.tri.gather_blocks(&jac.tri_kx, dfdx);
         if let Some(d) = dfdv.as_deref_mut() {
-            jac.tri.gather_blocks(&jac.tri_kv, d);
+            // Without stretch and shear damping the triangles write no df/dv.
+            if jac.tri_kv.is_empty() {
+                d.set_zero();
+            } else {
+                jac.tri.gather_blocks(&jac.tri_kv, d);
+            }
         }
         match &jac.hinge {
             HingeJacobians::RankOne { asm, g } => {
@@ -1265,6 +1223,28 @@ fn nan_max(values: impl Iterator<Item = f64>) -> f64 {
             m.max(s)
         }
     })
+}
+
+/// Runs `body(first element, f, kx, kv)` in parallel over fixed chunks of [`CHUNK`]
+/// elements of element-major buffers: `f` with `nf` values per element, `kx` and `kv`
+/// with `nk` (an empty `kv`, for a zero `df/dv`, gives `None`). The chunks depend on the
+/// element count only, so results do not depend on the thread count.
+fn for_each_element_chunk(
+    (f, nf): (&mut [f64], usize),
+    (kx, kv, nk): (&mut [f64], &mut [f64], usize),
+    body: impl Fn(usize, &mut [f64], &mut [f64], Option<&mut [f64]>) + Sync + Send,
+) {
+    let chunks = f
+        .par_chunks_mut(nf * CHUNK)
+        .zip(kx.par_chunks_mut(nk * CHUNK))
+        .enumerate();
+    if kv.is_empty() {
+        chunks.for_each(|(c, (f, kx))| body(c * CHUNK, f, kx, None));
+    } else {
+        chunks
+            .zip(kv.par_chunks_mut(nk * CHUNK))
+            .for_each(|((c, (f, kx)), kv)| body(c * CHUNK, f, kx, Some(kv)));
+    }
 }
 
 /// Doubles per element in the Jacobian buffers: the upper blocks of the symmetric local

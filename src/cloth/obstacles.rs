@@ -159,19 +159,7 @@ pub enum Obstacle {
     Sdf(Arc<SdfGrid>),
 }
 
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-/// `(|d|, d / |d|)`, `None` for a zero or NaN vector.
-fn unit(d: [f64; 3]) -> Option<(f64, [f64; 3])> {
-    let l = dot(d, d).sqrt();
-    (l > 0.0).then(|| (l, d.map(|c| c / l)))
-}
+use largestep_kernels::v3::{dot, length_and_unit as unit, sub};
 
 impl Obstacle {
     /// The kind, for messages.

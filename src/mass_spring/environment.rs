@@ -171,6 +171,4 @@ impl Penalty {
     }
 }
 
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
+use largestep_kernels::v3::dot;

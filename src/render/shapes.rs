@@ -1,5 +1,6 @@
 //! Small procedural meshes for tests, benchmarks and examples.
 
+use super::camera::{cross, normalize, sub};
 use crate::io::Mesh;
 
 fn mesh(points: &[[f64; 3]], triangles: Vec<[u32; 3]>, segments: Vec<[u32; 2]>) -> Mesh {
@@ -115,8 +116,7 @@ pub fn cuboid(min: [f64; 3], max: [f64; 3]) -> Mesh {
 /// depth-buffered preview does not mind).
 pub fn capsule(a: [f64; 3], b: [f64; 3], radius: f64, sectors: usize) -> Mesh {
     let sectors = sectors.max(3);
-    let d = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-    let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+    let d = sub(b, a);
     let mut points: Vec<[f64; 3]> = Vec::new();
     let mut tris: Vec<[u32; 3]> = Vec::new();
     let mut append = |m: &Mesh| {
@@ -127,27 +127,17 @@ pub fn capsule(a: [f64; 3], b: [f64; 3], radius: f64, sectors: usize) -> Mesh {
     };
     append(&uv_sphere(a, radius, sectors / 2 + 1, sectors));
     append(&uv_sphere(b, radius, sectors / 2 + 1, sectors));
-    if len > 0.0 {
-        let axis = d.map(|c| c / len);
-        // Two unit vectors across the axis.
+    // Two unit vectors across the axis (none for a zero-length capsule: two spheres).
+    let axis = normalize(d);
+    let across = axis.and_then(|axis| {
         let helper = if axis[0].abs() < 0.9 {
             [1.0, 0.0, 0.0]
         } else {
             [0.0, 1.0, 0.0]
         };
-        let cross = |u: [f64; 3], v: [f64; 3]| {
-            [
-                u[1] * v[2] - u[2] * v[1],
-                u[2] * v[0] - u[0] * v[2],
-                u[0] * v[1] - u[1] * v[0],
-            ]
-        };
-        let e1 = {
-            let c = cross(axis, helper);
-            let l = (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt();
-            c.map(|x| x / l)
-        };
-        let e2 = cross(axis, e1);
+        normalize(cross(axis, helper)).map(|e1| (e1, cross(axis, e1)))
+    });
+    if let Some((e1, e2)) = across {
         let base = points.len() as u32;
         for s in 0..sectors {
             let ph = std::f64::consts::TAU * s as f64 / sectors as f64;

@@ -52,6 +52,14 @@ impl Filter {
         }
     }
 
+    /// The constrained vertices with their projections, in the order first constrained.
+    pub fn constrained(&self) -> impl Iterator<Item = (usize, [f64; 9])> + '_ {
+        self.verts
+            .iter()
+            .zip(&self.s)
+            .map(|(&i, &s)| (i as usize, s))
+    }
+
     fn set(&mut self, i: usize, s: [f64; 9]) {
         assert!(i < self.n, "vertex {i} out of range ({} vertices)", self.n);
         match self.index_of[i] {

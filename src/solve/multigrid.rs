@@ -34,7 +34,7 @@
 //! product on every solve; here the coarse matrix is a sum.
 
 use super::{dense::DenseLu, filter::Filter, pcg::inverse_spd3, SolveError};
-use crate::sparse::{Bsr3, Bsr3Pattern};
+use crate::sparse::{csr, Bsr3, Bsr3Pattern};
 use rayon::prelude::*;
 use std::sync::Arc;
 
@@ -117,7 +117,7 @@ impl Smoother {
 
     /// One sweep, with `tmp` for the defect.
     fn sweep(&self, a: &Bsr3, x: &mut [f64], b: &[f64], tmp: &mut [f64]) {
-        residual(a, x, b, tmp);
+        a.residual(tmp, x, b);
         self.correct(x, tmp);
     }
 }
@@ -153,7 +153,6 @@ pub struct Multigrid {
     r: Vec<f64>,
     coarse: Vec<Coarse>,
     lu: Option<DenseLu>,
-    lu_rhs: Vec<f64>,
 }
 
 impl Multigrid {
@@ -162,16 +161,7 @@ impl Multigrid {
         Self::default()
     }
 
-    /// Number of levels, the fine one included (0 before the first setup).
-    pub fn levels(&self) -> usize {
-        if self.fine.is_none() {
-            0
-        } else {
-            1 + self.coarse.len()
-        }
-    }
-
-    /// Vertices per level, fine first.
+    /// Vertices per level, fine first (empty before the first setup).
     pub fn level_sizes(&self) -> Vec<usize> {
         self.fine
             .iter()
@@ -180,15 +170,15 @@ impl Multigrid {
             .collect()
     }
 
-    /// Bytes one V-cycle reads at least: per smoothed level two sweeps and one residual,
-    /// each a pass over the level's matrix.
+    /// Bytes one V-cycle reads at least: on every level but the last (solved by LU) two
+    /// passes over the level's matrix, the residual after the first sweep (which starts
+    /// from zero and needs no product) and the one inside the second sweep.
     pub fn cycle_bytes(&self, a: &Bsr3) -> usize {
-        let smoothed: usize = std::iter::once(a)
+        std::iter::once(a)
             .chain(self.coarse.iter().map(|c| &c.a))
             .take(self.coarse.len())
-            .map(|m| 3 * m.as_kernel().spmv_bytes())
-            .sum();
-        smoothed
+            .map(|m| 2 * m.as_kernel().spmv_bytes())
+            .sum()
     }
 
     /// Builds the hierarchy for `a`'s pattern if it is new, then the coarse matrices and
@@ -201,10 +191,6 @@ impl Multigrid {
             .is_some_and(|p| Arc::ptr_eq(p, a.pattern()) || **p == **a.pattern());
         if !same {
             self.build(a.pattern().clone());
-        }
-        let mut lu_level = None;
-        if self.coarse.is_empty() {
-            lu_level = Some(a);
         }
         if let Some(s) = self.smoother.as_mut() {
             s.factor(a, 0)?;
@@ -224,9 +210,10 @@ impl Multigrid {
                 s.factor(&c.a, l + 1)?;
             }
         }
-        let last = lu_level.or_else(|| self.coarse.last().map(|c| &c.a));
-        if let (Some(m), Some(lu)) = (last, self.lu.as_mut()) {
-            let n = m.n();
+        // The last level, solved by LU: the coarsest, or the fine one when it is small.
+        let last = self.coarse.last().map_or(a, |c| &c.a);
+        if let Some(lu) = self.lu.as_mut() {
+            let (m, n) = (last, last.n());
             let dense = lu.matrix_mut();
             dense.fill(0.0);
             m.for_each_entry(|r, c, v| dense[r * 3 * n + c] += v);
@@ -296,7 +283,6 @@ impl Multigrid {
         }
         let nl = self.coarse.last().map_or(fine.n(), |c| c.a.n());
         self.lu = Some(DenseLu::new(3 * nl));
-        self.lu_rhs = vec![0.0; 3 * nl];
         self.fine = Some(fine);
     }
 
@@ -316,7 +302,7 @@ impl Multigrid {
         // Down: smooth, restrict the residual.
         let smoother = self.smoother.as_ref().expect("smoothed fine level");
         smoother.first(z, r);
-        residual(a, z, r, &mut self.r);
+        a.residual(&mut self.r, z, r);
         if let Some(f) = filter {
             f.apply(&mut self.r);
         }
@@ -327,7 +313,7 @@ impl Multigrid {
             let c = &mut above[l];
             let s = c.smoother.as_ref().expect("smoothed level");
             s.first(&mut c.x, &c.b);
-            residual(&c.a, &c.x, &c.b, &mut c.r);
+            c.a.residual(&mut c.r, &c.x, &c.b);
             restrict(&c.r, &mut below[0]);
         }
         let last = &mut self.coarse[levels - 1];
@@ -404,20 +390,10 @@ fn aggregate(p: &Bsr3Pattern) -> (Vec<u32>, usize) {
 /// For a map from items to `0..m`, the items of each target in CSR form (items in
 /// increasing order within each target).
 fn invert(map: &[u32], m: usize) -> (Vec<u32>, Vec<u32>) {
-    let mut ptr = vec![0u32; m + 1];
-    for &t in map {
-        ptr[t as usize + 1] += 1;
-    }
-    for k in 0..m {
-        ptr[k + 1] += ptr[k];
-    }
-    let mut next = ptr.clone();
-    let mut items = vec![0u32; map.len()];
-    for (i, &t) in map.iter().enumerate() {
-        items[next[t as usize] as usize] = i as u32;
-        next[t as usize] += 1;
-    }
-    (ptr, items)
+    csr(
+        m,
+        map.iter().enumerate().map(|(i, &t)| (t as usize, i as u32)),
+    )
 }
 
 /// `c.a = P^T a P`: each coarse block is the sum of the fine blocks between its two
@@ -448,24 +424,14 @@ fn galerkin(a: &Bsr3, c: &mut Coarse) {
 /// block, so that the first coarse matrix is `(S P)^T A (S P)` (the projected fine
 /// matrix is `S A S + I - S`).
 fn remove_constraint_identity(f: &Filter, c: &mut Coarse) {
-    for (i, &ag) in c.agg.iter().enumerate() {
-        let s = f.projection(i);
-        if s == IDENTITY {
-            continue;
-        }
-        let slot = c.a.pattern().diag_slots()[ag as usize] as usize;
+    for (i, s) in f.constrained() {
+        let slot = c.a.pattern().diag_slots()[c.agg[i] as usize] as usize;
         let b = c.a.block_mut(slot);
-        for k in 0..9 {
-            b[k] -= IDENTITY[k] - s[k];
+        for (k, bk) in b.iter_mut().enumerate() {
+            let identity = if k % 4 == 0 { 1.0 } else { 0.0 };
+            *bk -= identity - s[k];
         }
     }
-}
-
-const IDENTITY: [f64; 9] = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
-
-/// `r = b - A x`.
-fn residual(a: &Bsr3, x: &[f64], b: &[f64], r: &mut [f64]) {
-    a.residual(r, x, b);
 }
 
 /// `c.b = P^T r`: each aggregate sums its vertices' residuals (gathered per aggregate,

@@ -132,7 +132,9 @@ impl Pcg {
     fn setup(&mut self, a: &Bsr3, filter: Option<&Filter>) -> Result<(), SolveError> {
         let n = self.n;
         let diag = a.pattern().diag_slots();
-        let constrained = |i: usize| filter.is_some_and(|f| f.projection(i) != IDENTITY);
+        // The matrix is projected under the filter (see `solve`): pinned vertices' blocks
+        // are the identity and contact vertices' are definite, so no vertex needs a
+        // special case here.
         match self.params.preconditioner {
             Preconditioner::None => {}
             Preconditioner::Multigrid => self.mg.setup(a, filter)?,
@@ -141,24 +143,18 @@ impl Pcg {
                     let b = a.block(slot as usize);
                     for c in 0..3 {
                         let v = b[4 * c];
-                        self.d[c * n + i] = if v > 0.0 {
-                            1.0 / v
-                        } else if constrained(i) {
-                            1.0
-                        } else {
+                        if !positive(v) {
                             return Err(not_pd("diagonal", c * n + i, v));
-                        };
+                        }
+                        self.d[c * n + i] = 1.0 / v;
                     }
                 }
             }
             Preconditioner::BlockJacobi => {
                 for (i, &slot) in diag.iter().enumerate() {
                     let b = a.block(slot as usize);
-                    let inv = match inverse_spd3(b) {
-                        Some(inv) => inv,
-                        None if constrained(i) => [1.0, 0.0, 0.0, 1.0, 0.0, 1.0],
-                        None => return Err(not_pd("diagonal block of vertex", i, b[0])),
-                    };
+                    let inv = inverse_spd3(b)
+                        .ok_or_else(|| not_pd("diagonal block of vertex", i, b[0]))?;
                     for (k, v) in inv.into_iter().enumerate() {
                         self.d[k * n + i] = v;
                     }
@@ -349,8 +345,6 @@ impl Pcg {
         })
     }
 }
-
-const IDENTITY: [f64; 9] = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
 
 /// `v > 0`, false for NaN: the form every definiteness test here needs.
 fn positive(v: f64) -> bool {

@@ -54,18 +54,6 @@ impl Src {
             transpose: true,
         }
     }
-    /// No block: the local pair is left out of the matrix (its pattern need not hold it).
-    pub const fn absent() -> Self {
-        Self {
-            index: u16::MAX,
-            negate: false,
-            transpose: false,
-        }
-    }
-    /// Whether this is [`Src::absent`].
-    pub const fn is_absent(&self) -> bool {
-        self.index == u16::MAX
-    }
 }
 
 /// How an element type's K x K local blocks and K local vectors derive from the unique
@@ -118,19 +106,6 @@ impl LocalLayout {
             vectors: k,
             vector_src: (0..k).map(|i| Src::plus(i as u16)).collect(),
         }
-    }
-
-    /// [`LocalLayout::symmetric`] with the local pairs `(p, q)` and `(q, p)` of `absent`
-    /// left out of the matrix (their unique blocks are still in the buffer, unread): an
-    /// element whose kernel moved that coupling elsewhere, so the pattern need not hold
-    /// it.
-    pub fn symmetric_without(k: usize, absent: &[(usize, usize)]) -> Self {
-        let mut l = Self::symmetric(k);
-        for &(p, q) in absent {
-            l.block_src[p * k + q] = Src::absent();
-            l.block_src[q * k + p] = Src::absent();
-        }
-        l
     }
 
     /// Where block (p, q), p <= q, of a [`LocalLayout::symmetric`] element is written
@@ -192,8 +167,12 @@ fn encode(global: usize, s: Src) -> u32 {
     code
 }
 
-/// CSR of sources from (target, source code) pairs given in element order.
-fn csr(targets: usize, pairs: impl Iterator<Item = (usize, u32)> + Clone) -> (Vec<u32>, Vec<u32>) {
+/// CSR of sources from (target, source code) pairs: the sources of target `t` are
+/// `src[ptr[t]..ptr[t + 1]]`, in the order the pairs come (element order here).
+pub(crate) fn csr(
+    targets: usize,
+    pairs: impl Iterator<Item = (usize, u32)> + Clone,
+) -> (Vec<u32>, Vec<u32>) {
     let mut ptr = vec![0u32; targets + 1];
     for (t, _) in pairs.clone() {
         ptr[t + 1] += 1;
@@ -248,15 +227,10 @@ impl ElementAssembly {
         if total > INDEX as usize {
             return Err(SparseError::TooLarge { blocks: total });
         }
-        // Slot of every local pair, u32::MAX for pairs the layout leaves out.
         let mut elem_slots = Vec::with_capacity(elements.len() * K * K);
         for el in elements {
-            for (p, &a) in el.iter().enumerate() {
-                for (q, &b) in el.iter().enumerate() {
-                    if layout.block_src[p * K + q].is_absent() {
-                        elem_slots.push(u32::MAX);
-                        continue;
-                    }
+            for &a in el {
+                for &b in el {
                     let s = pattern
                         .slot(a as usize, b as usize)
                         .expect("pattern holds every element pair");
@@ -267,15 +241,11 @@ impl ElementAssembly {
         let kk = K * K;
         let nb = layout.blocks;
         let bsrc = &layout.block_src;
-        let block_pairs = elem_slots
-            .iter()
-            .enumerate()
-            .filter(|(_, &slot)| slot != u32::MAX)
-            .map(move |(g, &slot)| {
-                let (e, l) = (g / kk, g % kk);
-                let s = bsrc[l];
-                (slot as usize, encode(e * nb + s.index as usize, s))
-            });
+        let block_pairs = elem_slots.iter().enumerate().map(move |(g, &slot)| {
+            let (e, l) = (g / kk, g % kk);
+            let s = bsrc[l];
+            (slot as usize, encode(e * nb + s.index as usize, s))
+        });
         let (block_ptr, block_src) = csr(pattern.nnz_blocks(), block_pairs);
         Ok(Self {
             pattern,
@@ -298,7 +268,7 @@ impl ElementAssembly {
     }
 
     /// The element -> slot map: slot of local block (p, q) of element e at
-    /// `e * K * K + p * K + q` (`u32::MAX` for a pair the layout leaves out).
+    /// `e * K * K + p * K + q`.
     pub fn elem_slots(&self) -> &[u32] {
         &self.elem_slots
     }
@@ -474,7 +444,7 @@ impl RankOneAssembly {
             return Err(SparseError::TooLarge { blocks: total });
         }
         let weight: Vec<f64> = (0..kk).map(|l| weight(l / K, l % K)).collect();
-        let mut pairs: Vec<(u32, u32)> = Vec::with_capacity(total);
+        let mut pairs: Vec<(usize, u32)> = Vec::with_capacity(total);
         for (e, el) in elements.iter().enumerate() {
             for (p, &a) in el.iter().enumerate() {
                 if a as usize >= pattern.n() {
@@ -491,26 +461,19 @@ impl RankOneAssembly {
                     let s = pattern
                         .slot(a as usize, b as usize)
                         .expect("pattern holds every weighted element pair");
-                    pairs.push((s as u32, (e * kk + p * K + q) as u32));
+                    pairs.push((s, (e * kk + p * K + q) as u32));
                 }
             }
         }
-        // Stable: each slot keeps its sources in element order.
-        pairs.sort_by_key(|&(s, _)| s);
-        let mut ptr = vec![0u32; pattern.nnz_blocks() + 1];
-        for &(s, _) in &pairs {
-            ptr[s as usize + 1] += 1;
-        }
-        for s in 0..pattern.nnz_blocks() {
-            ptr[s + 1] += ptr[s];
-        }
+        // Each slot keeps its sources in element order.
+        let (ptr, src) = csr(pattern.nnz_blocks(), pairs.iter().copied());
         Ok(Self {
             pattern,
             k: K,
             elements: elements.len(),
             weight,
             ptr,
-            src: pairs.into_iter().map(|(_, c)| c).collect(),
+            src,
         })
     }
 

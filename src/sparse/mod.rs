@@ -11,6 +11,7 @@ mod bridge;
 pub mod examples;
 mod mm;
 
+pub(crate) use assembly::csr;
 pub use assembly::{ElementAssembly, LocalLayout, RankOneAssembly, Src, VectorGather};
 pub use bridge::{to_csr, FaerCsc, Triangle};
 pub use mm::{read_matrix_market, write_matrix_market, MatrixMarket};

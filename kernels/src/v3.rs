@@ -1,0 +1,31 @@
+//! 3-vector arithmetic on `[f64; 3]` (positions, normals, directions): the one copy the
+//! element kernels, obstacles, contacts and the renderer's camera share.
+
+/// `a - b`.
+#[inline(always)]
+pub fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+/// `a . b`.
+#[inline(always)]
+pub fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// `a x b`.
+#[inline(always)]
+pub fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+/// `(|a|, a / |a|)`, `None` for a zero, infinite or NaN vector.
+#[inline]
+pub fn length_and_unit(a: [f64; 3]) -> Option<(f64, [f64; 3])> {
+    let l = dot(a, a).sqrt();
+    (l > 0.0 && l.is_finite()).then(|| (l, a.map(|c| c / l)))
+}
