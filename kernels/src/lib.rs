@@ -36,6 +36,22 @@ pub fn get3(v: &[f64], n: usize, i: usize) -> [f64; 3] {
     [v[i], v[n + i], v[2 * n + i]]
 }
 
+/// The vectors of element `el`'s K vertices in component-major data `v` holding n
+/// 3-vectors.
+#[inline(always)]
+pub fn gather_nodes<const K: usize>(v: &[f64], n: usize, el: &[u32; K]) -> [[f64; 3]; K] {
+    el.map(|i| get3(v, n, i as usize))
+}
+
+/// `[g(t), g(t + 1), g(t + 2), g(t + 3)]`: the inputs of four consecutive elements, for
+/// the kernels that take four elements per call (SIMD over elements). Written out:
+/// `[t, ..].map(g)` stayed an out-of-line call (`try_map`) whose result was copied, about
+/// 5% of the SIMD triangle loop, and `std::array::from_fn` made the hinge loop 2x slower.
+#[inline(always)]
+pub fn four<T>(t: usize, g: impl Fn(usize) -> T) -> [T; 4] {
+    [g(t), g(t + 1), g(t + 2), g(t + 3)]
+}
+
 /// The x, y and z component slices of component-major data holding `v.len() / 3` vectors.
 #[inline]
 pub fn split3_mut(v: &mut [f64]) -> [&mut [f64]; 3] {

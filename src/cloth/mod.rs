@@ -26,12 +26,12 @@ use crate::sparse::{
     Bsr3, Bsr3Pattern, ElementAssembly, LocalLayout, RankOneAssembly, SparseError, VectorGather,
 };
 use largestep_kernels::cloth::{
-    add_bend, add_shear, add_stretch, bend_force_gradient, decoupled_hinge_weight, dihedral_angle,
-    triangle_jacobians, triangle_jacobians_x4, ConditionSink, ElementForces, ElementOut,
-    TriangleParams, TriangleRest,
+    add_bend, add_shear, add_stretch, bend_force_gradient, bend_force_gradient_x4,
+    decoupled_hinge_weight, dihedral_angle, triangle_jacobians, triangle_jacobians_x4,
+    ConditionSink, ElementForces, ElementOut, TriangleParams, TriangleRest,
 };
-use largestep_kernels::get3;
 use largestep_kernels::v3::{cross, dot, sub};
+use largestep_kernels::{four, gather_nodes, get3};
 use rayon::prelude::*;
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -618,18 +618,6 @@ fn hinges_of(
     Ok((hinges, theta0))
 }
 
-fn gather_nodes<const K: usize>(v: &[f64], n: usize, el: &[u32; K]) -> [[f64; 3]; K] {
-    el.map(|i| get3(v, n, i as usize))
-}
-
-/// `[g(t), g(t + 1), g(t + 2), g(t + 3)]`: the inputs of four consecutive elements.
-/// Written out: `[t, ..].map(g)` stayed an out-of-line call (`try_map`) whose result was
-/// copied, about 5% of the SIMD triangle loop.
-#[inline(always)]
-fn four<T>(t: usize, g: impl Fn(usize) -> T) -> [T; 4] {
-    [g(t), g(t + 1), g(t + 2), g(t + 3)]
-}
-
 impl Cloth {
     /// Vertex count.
     pub fn vertex_count(&self) -> usize {
@@ -1147,10 +1135,27 @@ impl Mechanical for Cloth {
         };
         let (k, kd) = (m.bend, m.bend_damping);
         match &mut jac.hinge {
-            // Projected: forces and the angle gradient; the gather forms -k g g^T.
+            // Projected: forces and the angle gradient; the gather forms -k g g^T. Four
+            // hinges per call in SIMD lanes, the chunk's last (< 4) one by one: the same
+            // bits either way (tested).
             HingeJacobians::RankOne { g, .. } => {
                 for_each_element_chunk((&mut hinge_f, 12), (g, &mut [], 12), |h0, fo, go, _| {
-                    for lh in 0..fo.len() / 12 {
+                    let count = fo.len() / 12;
+                    let full = count / 4 * 4;
+                    for lh in (0..full).step_by(4) {
+                        let h = h0 + lh;
+                        let r = 12 * lh..12 * lh + 48;
+                        bend_force_gradient_x4(
+                            &four(h, |h| gather_nodes(x, n, &this.hinges[h])),
+                            &four(h, |h| gather_nodes(v, n, &this.hinges[h])),
+                            k,
+                            kd,
+                            this.theta0[h..h + 4].try_into().expect("four hinges"),
+                            &mut fo[r.clone()],
+                            &mut go[r],
+                        );
+                    }
+                    for lh in full..count {
                         let h = h0 + lh;
                         let (xs, vs) = nodes(h);
                         let r = 12 * lh..12 * lh + 12;
