@@ -309,3 +309,34 @@ proptest! {
         }
     }
 }
+
+/// The residual over `f32` block values equals, to the bit, the residual over the same
+/// values widened to `f64` (the widening is exact and the products run in `f64` alike),
+/// on 1 and 2 threads.
+#[test]
+fn f32_block_residual_equals_the_f64_residual_of_the_widened_values() {
+    let a = grid_spd(&[13, 11], 1.0, 0.05);
+    let k = a.as_kernel();
+    let v32: Vec<f32> = k.val.iter().map(|v| *v as f32).collect();
+    let v64: Vec<f64> = v32.iter().map(|v| *v as f64).collect();
+    let n = k.n;
+    let x: Vec<f64> = (0..3 * n)
+        .map(|i| ((i * 37 % 101) as f64 - 50.0) / 7.0)
+        .collect();
+    let b: Vec<f64> = (0..3 * n).map(|i| ((i * 13 % 29) as f64) / 3.0).collect();
+    let a32 = Bsr3Ref::new(n, k.row_ptr, k.col, &v32[..]);
+    let a64 = Bsr3Ref::new(n, k.row_ptr, k.col, &v64[..]);
+    for threads in [1, 2] {
+        let (mut r32, mut r64) = (vec![f64::NAN; 3 * n], vec![f64::NAN; 3 * n]);
+        in_pool(threads, || {
+            bsr3_residual_par(&mut r32, a32, &x, &b);
+            bsr3_residual_par(&mut r64, a64, &x, &b);
+        });
+        assert_eq!(r32, r64, "{threads} threads");
+    }
+    // Half the value bytes.
+    assert_eq!(
+        a64.spmv_bytes() - a32.spmv_bytes(),
+        4 * 9 * a32.nnz_blocks()
+    );
+}

@@ -21,9 +21,43 @@ use crate::PAR_CHUNK;
 use core::ops::Range;
 use wide::f64x4;
 
-/// A borrowed block-sparse 3x3 matrix (square, `n` block rows and columns).
+/// What a block-sparse matrix stores its values as: `f64`, or `f32` for a copy that
+/// moves half the bytes (multigrid's fine-level smoothing: a V-cycle on the rounded
+/// matrix is still a symmetric positive definite preconditioner). Products load the
+/// values into `f64` and accumulate in `f64` either way.
+pub trait BlockValue: Copy + Send + Sync + 'static {
+    /// `[b[0], b[1], b[2], b[3]]` as `f64`.
+    fn ld4(b: &[Self]) -> f64x4;
+    /// The value as `f64`.
+    fn get(self) -> f64;
+}
+
+impl BlockValue for f64 {
+    #[inline(always)]
+    fn ld4(b: &[f64]) -> f64x4 {
+        ld(b)
+    }
+    #[inline(always)]
+    fn get(self) -> f64 {
+        self
+    }
+}
+
+impl BlockValue for f32 {
+    #[inline(always)]
+    fn ld4(b: &[f32]) -> f64x4 {
+        f64x4::new([b[0] as f64, b[1] as f64, b[2] as f64, b[3] as f64])
+    }
+    #[inline(always)]
+    fn get(self) -> f64 {
+        self as f64
+    }
+}
+
+/// A borrowed block-sparse 3x3 matrix (square, `n` block rows and columns) with values
+/// stored as `T`.
 #[derive(Clone, Copy, Debug)]
-pub struct Bsr3Ref<'a> {
+pub struct Bsr3Ref<'a, T = f64> {
     /// Number of block rows (= block columns); the scalar size is 3n.
     pub n: usize,
     /// Block-row pointers, length n + 1, non-decreasing, `row_ptr[0] = 0`.
@@ -31,13 +65,13 @@ pub struct Bsr3Ref<'a> {
     /// Block-column index of each block, each `< n`.
     pub col: &'a [u32],
     /// Nine row-major values per block.
-    pub val: &'a [f64],
+    pub val: &'a [T],
 }
 
-impl<'a> Bsr3Ref<'a> {
+impl<'a, T: BlockValue> Bsr3Ref<'a, T> {
     /// Checks the lengths and the pointer bounds (not the sortedness of columns, which the
     /// products do not need) and wraps the arrays.
-    pub fn new(n: usize, row_ptr: &'a [u32], col: &'a [u32], val: &'a [f64]) -> Self {
+    pub fn new(n: usize, row_ptr: &'a [u32], col: &'a [u32], val: &'a [T]) -> Self {
         assert_eq!(row_ptr.len(), n + 1, "row_ptr must have n + 1 entries");
         assert_eq!(row_ptr[0], 0);
         let nb = row_ptr[n] as usize;
@@ -59,14 +93,21 @@ impl<'a> Bsr3Ref<'a> {
     /// Bytes a product moves at least: the blocks and their column indices, the row
     /// pointers, x read once and y written once.
     pub fn spmv_bytes(&self) -> usize {
-        self.nnz_blocks() * (9 * 8 + 4) + (self.n + 1) * 4 + 2 * 3 * self.n * 8
+        self.nnz_blocks() * (9 * core::mem::size_of::<T>() + 4)
+            + (self.n + 1) * 4
+            + 2 * 3 * self.n * 8
     }
 }
 
 /// y = A x over the block rows `rows`; `y` holds the three component slices of those rows.
 /// Returns `sum_i x_i . y_i` over the rows (the `p . Ap` of conjugate gradients).
 #[inline]
-fn rows_simd(y: [&mut [f64]; 3], a: Bsr3Ref<'_>, x: &[f64], rows: Range<usize>) -> f64 {
+fn rows_simd<T: BlockValue>(
+    y: [&mut [f64]; 3],
+    a: Bsr3Ref<'_, T>,
+    x: &[f64],
+    rows: Range<usize>,
+) -> f64 {
     let n = a.n;
     let (xs, ys, zs) = (&x[..n], &x[n..2 * n], &x[2 * n..3 * n]);
     let [y0, y1, y2] = y;
@@ -80,9 +121,9 @@ fn rows_simd(y: [&mut [f64]; 3], a: Bsr3Ref<'_>, x: &[f64], rows: Range<usize>) 
             let j = a.col[k] as usize;
             let (x0, x1, x2) = (xs[j], ys[j], zs[j]);
             let b = &a.val[9 * k..9 * k + 9];
-            acc0 = ld(b).mul_add(f64x4::new([x0, x1, x2, x0]), acc0);
-            acc1 = ld(&b[4..]).mul_add(f64x4::new([x1, x2, x0, x1]), acc1);
-            acc2 = b[8].mul_add(x2, acc2);
+            acc0 = T::ld4(b).mul_add(f64x4::new([x0, x1, x2, x0]), acc0);
+            acc1 = T::ld4(&b[4..]).mul_add(f64x4::new([x1, x2, x0, x1]), acc1);
+            acc2 = b[8].get().mul_add(x2, acc2);
         }
         let a0 = acc0.to_array();
         let a1 = acc1.to_array();
@@ -120,7 +161,7 @@ fn rows_scalar(y: [&mut [f64]; 3], a: Bsr3Ref<'_>, x: &[f64], rows: Range<usize>
     dot
 }
 
-fn check(y: &[f64], a: &Bsr3Ref<'_>, x: &[f64]) {
+fn check<T>(y: &[f64], a: &Bsr3Ref<'_, T>, x: &[f64]) {
     assert_eq!(x.len(), 3 * a.n, "x must hold 3n values");
     assert_eq!(y.len(), 3 * a.n, "y must hold 3n values");
 }
@@ -156,7 +197,7 @@ pub fn bsr3_spmv_dot_par(y: &mut [f64], a: Bsr3Ref<'_>, x: &[f64]) -> f64 {
 /// over the same fixed chunks as [`bsr3_spmv_dot_par`]; each chunk subtracts its rows
 /// while they are still in cache, so the residual costs one product, not a product and a
 /// vector pass.
-pub fn bsr3_residual_par(r: &mut [f64], a: Bsr3Ref<'_>, x: &[f64], b: &[f64]) {
+pub fn bsr3_residual_par<T: BlockValue>(r: &mut [f64], a: Bsr3Ref<'_, T>, x: &[f64], b: &[f64]) {
     check(r, &a, x);
     assert_eq!(b.len(), 3 * a.n, "b must hold 3n values");
     let n = a.n;
