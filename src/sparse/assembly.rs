@@ -423,8 +423,14 @@ pub struct RankOneAssembly {
     pattern: Arc<Bsr3Pattern>,
     k: usize,
     elements: usize,
+    /// Bits of a local vertex index in a source code: `ceil(log2 K)`.
+    bits: u32,
+    /// Weight of local block `(p, q)` at `(p << bits) | q`.
     weight: Vec<f64>,
-    /// Sources of each slot: `src[ptr[s]..ptr[s + 1]]`, each `element * K^2 + p K + q`.
+    /// Sources of each slot: `src[ptr[s]..ptr[s + 1]]`, each
+    /// `(element << 2 bits) | (p << bits) | q`, decoded by shifts and masks: as
+    /// `element * K^2 + p K + q` it took two integer divisions per source, and the gather
+    /// of the 100x100 sheet's hinges took 1.55 ms instead of 1.15 (2 threads).
     ptr: Vec<u32>,
     src: Vec<u32>,
 }
@@ -438,12 +444,22 @@ impl RankOneAssembly {
         elements: &[[u32; K]],
         weight: impl Fn(usize, usize) -> f64,
     ) -> Result<Self, SparseError> {
-        let kk = K * K;
-        let total = elements.len() * kk;
-        if total > u32::MAX as usize {
-            return Err(SparseError::TooLarge { blocks: total });
+        let bits = K.next_power_of_two().trailing_zeros();
+        let codes = elements.len() << (2 * bits);
+        if codes > u32::MAX as usize {
+            return Err(SparseError::TooLarge { blocks: codes });
         }
-        let weight: Vec<f64> = (0..kk).map(|l| weight(l / K, l % K)).collect();
+        let weight: Vec<f64> = (0..1usize << (2 * bits))
+            .map(|l| {
+                let (p, q) = (l >> bits, l & ((1 << bits) - 1));
+                if p < K && q < K {
+                    weight(p, q)
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let total = elements.len() * K * K;
         let mut pairs: Vec<(usize, u32)> = Vec::with_capacity(total);
         for (e, el) in elements.iter().enumerate() {
             for (p, &a) in el.iter().enumerate() {
@@ -455,13 +471,14 @@ impl RankOneAssembly {
                     });
                 }
                 for (q, &b) in el.iter().enumerate() {
-                    if weight[p * K + q] == 0.0 {
+                    let l = (p << bits) | q;
+                    if weight[l] == 0.0 {
                         continue;
                     }
                     let s = pattern
                         .slot(a as usize, b as usize)
                         .expect("pattern holds every weighted element pair");
-                    pairs.push((s, (e * kk + p * K + q) as u32));
+                    pairs.push((s, ((e << (2 * bits)) | l) as u32));
                 }
             }
         }
@@ -471,6 +488,7 @@ impl RankOneAssembly {
             pattern,
             k: K,
             elements: elements.len(),
+            bits,
             weight,
             ptr,
             src,
@@ -486,14 +504,14 @@ impl RankOneAssembly {
     pub fn gather_add(&self, g: &[f64], scale: f64, out: &mut Bsr3) {
         assert_eq!(g.len(), self.vector_buffer_len());
         assert!(Arc::ptr_eq(out.pattern(), &self.pattern) || **out.pattern() == *self.pattern);
-        let (ptr, src, k) = (&self.ptr, &self.src, self.k);
-        let kk = k * k;
+        let (ptr, src, k, bits) = (&self.ptr, &self.src, self.k, self.bits);
+        let mask = (1usize << bits) - 1;
         for_each_block(out, |s, v| {
             let mut acc = [0.0f64; 9];
             for &code in &src[ptr[s] as usize..ptr[s + 1] as usize] {
                 let code = code as usize;
-                let (e, l) = (code / kk, code % kk);
-                let (p, q) = (l / k, l % k);
+                let (e, l) = (code >> (2 * bits), code & ((1 << (2 * bits)) - 1));
+                let (p, q) = (l >> bits, l & mask);
                 let base = 3 * k * e;
                 let gp = &g[base + 3 * p..base + 3 * p + 3];
                 let gq = &g[base + 3 * q..base + 3 * q + 3];
