@@ -741,8 +741,12 @@ pub fn triangle_jacobians(
 /// 1e-12 relative; the lanes repeat the twin's operations in its order without fused
 /// multiply-adds, and the values have agreed to the bit). Unlike the twin it forms
 /// `df/dv` only when `kv` is given. Measured on one core, gathers included: over 968
-/// triangles (output in cache) it takes 0.8 of the twin's time, 0.7 without `kv`; over
-/// 20,000 both are limited by writing the 936 bytes of output per triangle.
+/// triangles (output in cache) it took 0.8 of the twin's time, 0.7 without `kv`; over
+/// the 19,600 triangles of a 100x100 sheet both are limited by writing the 936 bytes of
+/// output per triangle (1.4 ms each, `cloth/kernel/triangles` in benches/cloth.rs), and
+/// inside the 2-thread cloth assembly it took 1.5 ms against the twin's 0.9, so the
+/// cloth uses the twin. Kept as the measured alternative for machines or meshes where
+/// the output stays in cache.
 pub fn triangle_jacobians_x4(
     r: &[TriangleRest; 4],
     x: &[[[f64; 3]; 3]; 4],
@@ -853,7 +857,7 @@ pub fn triangle_jacobians_x4(
         du[i] * fu[k] + dv[i] * fv[k]
     });
     scatter_lanes::<9>(&fo, f);
-    scatter_lanes::<54>(blocks_x4(&du, &dv, &ka, &kb, &km).as_flattened(), kx);
+    write_blocks_x4(&du, &dv, &ka, &kb, &km, kx);
     if let Some(kv) = kv {
         // df/dv: the stretch directions' -k_d a^2 n n^T (where they have one), then the
         // shear's, as the twin adds them.
@@ -867,7 +871,7 @@ pub fn triangle_jacobians_x4(
         outer_x4(wv, wv, d2, &mut da);
         outer_x4(wu, wu, d2, &mut db);
         outer_x4(wv, wu, d2, &mut dm);
-        scatter_lanes::<54>(blocks_x4(&du, &dv, &da, &db, &dm).as_flattened(), kv);
+        write_blocks_x4(&du, &dv, &da, &db, &dm, kv);
     }
     energy.to_array()
 }
@@ -902,12 +906,21 @@ fn select_x4<const N: usize>(mask: f64x4, if_one: [f64x4; N], if_zero: [f64x4; N
     std::array::from_fn(|i| mask.bitselect(if_one[i], if_zero[i]))
 }
 
-/// The upper blocks `K_ij = du_i du_j A + dv_i dv_j B + du_i dv_j M + dv_i du_j M^T`, row
-/// by row, (0,0) (0,1) (0,2) (1,1) (1,2) (2,2), entry by entry as in
-/// [`triangle_jacobians`]. Written out so that every index is a constant: one loop over
-/// the 54 entries stayed a loop with computed indices, and the kernel took 1.5x as long.
+/// Writes the upper blocks `K_ij = du_i du_j A + dv_i dv_j B + du_i dv_j M + dv_i du_j
+/// M^T`, (0,0) (0,1) (0,2) (1,1) (1,2) (2,2), entry by entry as in [`triangle_jacobians`],
+/// each lane's 54 values after the previous lane's. Written out so that every index is a
+/// constant (one loop over the 54 entries stayed a loop with computed indices, and the
+/// kernel took 1.5x as long), and each block scattered as soon as it is formed: forming
+/// all 54 vectors first spilled them to the stack.
 #[inline(always)]
-fn blocks_x4(du: &[f64x4; 3], dv: &[f64x4; 3], a: &M3x4, b: &M3x4, m: &M3x4) -> [[f64x4; 9]; 6] {
+fn write_blocks_x4(
+    du: &[f64x4; 3],
+    dv: &[f64x4; 3],
+    a: &M3x4,
+    b: &M3x4,
+    m: &M3x4,
+    out: &mut [f64],
+) {
     let block = |i: usize, j: usize| -> [f64x4; 9] {
         let (uu, vv) = (du[i] * du[j], dv[i] * dv[j]);
         let (uv, vu) = (du[i] * dv[j], dv[i] * du[j]);
@@ -927,26 +940,34 @@ fn blocks_x4(du: &[f64x4; 3], dv: &[f64x4; 3], a: &M3x4, b: &M3x4, m: &M3x4) -> 
             e(2, 2),
         ]
     };
-    [
-        block(0, 0),
-        block(0, 1),
-        block(0, 2),
-        block(1, 1),
-        block(1, 2),
-        block(2, 2),
-    ]
+    scatter_lanes_at::<9>(&block(0, 0), out, 54, 0);
+    scatter_lanes_at::<9>(&block(0, 1), out, 54, 9);
+    scatter_lanes_at::<9>(&block(0, 2), out, 54, 18);
+    scatter_lanes_at::<9>(&block(1, 1), out, 54, 27);
+    scatter_lanes_at::<9>(&block(1, 2), out, 54, 36);
+    scatter_lanes_at::<9>(&block(2, 2), out, 54, 45);
 }
 
 /// Writes N values of four lanes lane after lane: lane l's value j to `out[N l + j]`.
-/// Four values at a time go through a 4x4 transpose and leave as whole vectors.
 #[inline(always)]
 fn scatter_lanes<const N: usize>(vals: &[f64x4], out: &mut [f64]) {
+    scatter_lanes_at::<N>(vals, out, N, 0);
+}
+
+/// Writes N values of four lanes: lane l's value j to `out[stride l + offset + j]`. Four
+/// values at a time go through a 4x4 transpose and leave as whole vectors.
+#[inline(always)]
+fn scatter_lanes_at<const N: usize>(vals: &[f64x4], out: &mut [f64], stride: usize, offset: usize) {
     let vals = &vals[..N];
-    let (o0, rest) = out.split_at_mut(N);
-    let (o1, rest) = rest.split_at_mut(N);
-    let (o2, rest) = rest.split_at_mut(N);
-    let o3 = &mut rest[..N];
-    let mut outs = [o0, o1, o2, o3];
+    let (o0, rest) = out.split_at_mut(stride);
+    let (o1, rest) = rest.split_at_mut(stride);
+    let (o2, o3) = rest.split_at_mut(stride);
+    let mut outs = [
+        &mut o0[offset..offset + N],
+        &mut o1[offset..offset + N],
+        &mut o2[offset..offset + N],
+        &mut o3[offset..offset + N],
+    ];
     for q in 0..N / 4 {
         let j = 4 * q;
         let t = f64x4::transpose([vals[j], vals[j + 1], vals[j + 2], vals[j + 3]]);

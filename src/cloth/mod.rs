@@ -27,8 +27,8 @@ use crate::sparse::{
 };
 use largestep_kernels::cloth::{
     add_bend, add_shear, add_stretch, bend_force_gradient, bend_force_gradient_x4,
-    decoupled_hinge_weight, dihedral_angle, triangle_jacobians, triangle_jacobians_x4,
-    ConditionSink, ElementForces, ElementOut, TriangleParams, TriangleRest,
+    decoupled_hinge_weight, dihedral_angle, triangle_jacobians, ConditionSink, ElementForces,
+    ElementOut, TriangleParams, TriangleRest,
 };
 use largestep_kernels::v3::{cross, dot, sub};
 use largestep_kernels::{four, gather_nodes, get3};
@@ -1087,29 +1087,17 @@ impl Mechanical for Cloth {
         let mut tri_f = std::mem::take(&mut self.tri_f);
         let this = &*self;
         // Closed form (the condition-by-condition `triangle_into` gives the same, tested;
-        // it serves the force-only path and the energy), four triangles per call in SIMD
-        // lanes, the chunk's last (< 4) one by one: equal either way to rounding (tested;
-        // so far to the bit), and the split is fixed by the chunks, not the thread count.
+        // it serves the force-only path and the energy), one triangle per call: the
+        // four-lane `triangle_jacobians_x4` gives the same bits (tested) but took 1.5 ms
+        // here against 0.9 ms (draped 100x100 sheet, 2 threads): a triangle writes 936 B
+        // of forces and blocks, the kernel is bound by those writes, and the lanes'
+        // interleaved stores cost more than the arithmetic they save (see
+        // `cloth/kernel/triangles` in benches/cloth.rs).
         for_each_element_chunk(
             (&mut tri_f, 9),
             (&mut jac.tri_kx, &mut jac.tri_kv, TRI_K),
             |t0, fo, kxo, mut kvo| {
-                let count = fo.len() / 9;
-                let full = count / 4 * 4;
-                for lt in (0..full).step_by(4) {
-                    let t = t0 + lt;
-                    let (f, k) = (9 * lt, TRI_K * lt);
-                    triangle_jacobians_x4(
-                        this.rest[t..t + 4].try_into().expect("four triangles"),
-                        &four(t, |t| gather_nodes(x, n, &this.triangles[t])),
-                        &four(t, |t| gather_nodes(v, n, &this.triangles[t])),
-                        &four(t, |t| this.triangle_params(t)),
-                        &mut fo[f..f + 36],
-                        &mut kxo[k..k + 4 * TRI_K],
-                        kvo.as_deref_mut().map(|kv| &mut kv[k..k + 4 * TRI_K]),
-                    );
-                }
-                for lt in full..count {
+                for lt in 0..fo.len() / 9 {
                     let t = t0 + lt;
                     let el = &this.triangles[t];
                     let k = TRI_K * lt;
