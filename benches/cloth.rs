@@ -24,15 +24,12 @@
 //! `target/criterion/cloth-summary.md`.
 
 use criterion::Criterion;
-use largestep::cloth::{
-    cloth_grid, Cloth, ClothDesc, ClothGridOptions, ClothMaterial, ClothState, Obstacle,
-};
+use largestep::cloth::{cloth_grid, Cloth, ClothGridOptions, ClothMaterial, ClothState, Obstacle};
 use largestep::integrate::{
     LinearSolverKind, MechSettings, MechStepper, Mechanical, Method, StepInfo,
 };
 use largestep::kernels::cloth::{
     bend_force_gradient, bend_force_gradient_x4, triangle_jacobians, triangle_jacobians_x4,
-    TriangleParams, TriangleRest,
 };
 use largestep::kernels::{four, gather_nodes};
 use largestep::machine::triad_bandwidth;
@@ -53,10 +50,6 @@ pub const MATERIAL: ClothMaterial = ClothMaterial {
 };
 
 fn sheet(n: usize) -> (Cloth, ClothState) {
-    sheet_desc(n).build().unwrap()
-}
-
-fn sheet_desc(n: usize) -> ClothDesc {
     let mut d = cloth_grid(&ClothGridOptions {
         nu: n,
         nv: n,
@@ -73,7 +66,7 @@ fn sheet_desc(n: usize) -> ClothDesc {
         radius: 0.25,
     }];
     d.friction = 0.3;
-    d
+    d.build().unwrap()
 }
 
 /// The linear solvers compared.
@@ -289,21 +282,10 @@ fn kernels(c: &mut Criterion, triad: f64, wanted: &dyn Fn(&str) -> bool, md: &mu
     let nv = sim.cloth.vertex_count();
     let (x, v) = (sim.st.x.as_slice(), sim.st.v.as_slice());
     let m = MATERIAL;
-    // Triangles: rest from the grid's (u, v), per-area constants as the cloth forms them.
-    let uv = sheet_desc(n).uv;
-    let tris = sim.cloth.triangles();
-    let rest: Vec<TriangleRest> = tris
-        .iter()
-        .map(|t| TriangleRest::new(t.map(|i| uv[i as usize])).unwrap())
-        .collect();
-    let params = |r: &TriangleRest| TriangleParams {
-        stretch: m.stretch / r.area,
-        stretch_damping: m.stretch_damping / r.area,
-        shear: m.shear / r.area,
-        shear_damping: m.shear_damping / r.area,
-        rest_stretch: m.rest_stretch,
-        project: true,
-    };
+    // The cloth's own element constants.
+    let (cloth, tris) = (&sim.cloth, sim.cloth.triangles());
+    let rest = cloth.triangle_rest();
+    let params = |t: usize| cloth.triangle_params(t);
     let tri3 = |y: &[f64], t: usize| gather_nodes(y, nv, &tris[t]);
     let nt = tris.len() / 4 * 4;
     let (mut tf, mut tkx, mut tkv) = (vec![0.0; 9 * nt], vec![0.0; 54 * nt], vec![0.0; 54 * nt]);
@@ -313,7 +295,7 @@ fn kernels(c: &mut Criterion, triad: f64, wanted: &dyn Fn(&str) -> bool, md: &mu
                 &rest[t],
                 &tri3(x, t),
                 &tri3(v, t),
-                &params(&rest[t]),
+                &params(t),
                 &mut tf[9 * t..9 * t + 9],
                 &mut tkx[54 * t..54 * t + 54],
                 Some(&mut tkv[54 * t..54 * t + 54]),
@@ -327,28 +309,29 @@ fn kernels(c: &mut Criterion, triad: f64, wanted: &dyn Fn(&str) -> bool, md: &mu
                 &four(t, |t| rest[t]),
                 &four(t, |t| tri3(x, t)),
                 &four(t, |t| tri3(v, t)),
-                &four(t, |t| params(&rest[t])),
+                &four(t, params),
                 &mut tf4[9 * t..9 * t + 36],
                 &mut tkx4[54 * t..54 * t + 216],
                 Some(&mut tkv4[54 * t..54 * t + 216]),
             );
         }
     };
-    // Hinges: the grid is flat at rest, so every rest angle is 0.
-    let hinges = sim.cloth.hinges();
+    // Hinges, with the cloth's rest angles.
+    let theta0 = cloth.rest_angles();
+    let hinges = cloth.hinges();
     let hinge4 = |y: &[f64], h: usize| gather_nodes(y, nv, &hinges[h]);
     let nh = hinges.len() / 4 * 4;
     let (k, kd) = (m.bend, m.bend_damping);
     let (mut hf, mut hg) = (vec![0.0; 12 * nh], vec![0.0; 12 * nh]);
     let mut hinge_scalar = || {
-        for h in 0..nh {
+        for (h, &rest_angle) in theta0[..nh].iter().enumerate() {
             let r = 12 * h..12 * h + 12;
             bend_force_gradient(
                 &hinge4(x, h),
                 &hinge4(v, h),
                 k,
                 kd,
-                0.0,
+                rest_angle,
                 &mut hf[r.clone()],
                 &mut hg[r],
             );
@@ -363,7 +346,7 @@ fn kernels(c: &mut Criterion, triad: f64, wanted: &dyn Fn(&str) -> bool, md: &mu
                 &four(h, |h| hinge4(v, h)),
                 k,
                 kd,
-                [0.0; 4],
+                four(h, |h| theta0[h]),
                 &mut hf4[r.clone()],
                 &mut hg4[r],
             );

@@ -648,9 +648,19 @@ impl Cloth {
         self.gravity
     }
 
+    /// Each triangle's constants from its rest (u, v), in triangle order.
+    pub fn triangle_rest(&self) -> &[TriangleRest] {
+        &self.rest
+    }
+
+    /// Each hinge's rest angle (rad), in hinge order.
+    pub fn rest_angles(&self) -> &[f64] {
+        &self.theta0
+    }
+
     /// Triangle `t`'s element constants: the per-area material constants over its rest
     /// area (see [`ClothMaterial`]).
-    fn triangle_params(&self, t: usize) -> TriangleParams {
+    pub fn triangle_params(&self, t: usize) -> TriangleParams {
         let m = &self.material;
         let inv_a = 1.0 / self.rest[t].area;
         TriangleParams {

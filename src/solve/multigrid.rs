@@ -48,7 +48,7 @@
 
 use super::{dense::DenseLu, filter::Filter, pcg::inverse_spd3, SolveError};
 use crate::sparse::{csr, Bsr3, Bsr3Pattern};
-use largestep_kernels::bsr3::{bsr3_residual_par, BlockValue, Bsr3Ref};
+use largestep_kernels::bsr3::{bsr3_residual_par, Bsr3Ref};
 use rayon::prelude::*;
 use std::sync::Arc;
 
@@ -130,8 +130,8 @@ impl Smoother {
     }
 
     /// One sweep, with `tmp` for the defect.
-    fn sweep<T: BlockValue>(&self, a: Bsr3Ref<'_, T>, x: &mut [f64], b: &[f64], tmp: &mut [f64]) {
-        bsr3_residual_par(tmp, a, x, b);
+    fn sweep(&self, a: &Bsr3, x: &mut [f64], b: &[f64], tmp: &mut [f64]) {
+        a.residual(tmp, x, b);
         self.correct(x, tmp);
     }
 }
@@ -328,10 +328,7 @@ impl Multigrid {
         // Down: smooth, restrict the residual.
         let smoother = self.smoother.as_ref().expect("smoothed fine level");
         smoother.first(z, r);
-        match rounded(&self.fine32, a) {
-            Some(a32) => bsr3_residual_par(&mut self.r, a32, z, r),
-            None => a.residual(&mut self.r, z, r),
-        }
+        fine_residual(&self.fine32, a, &mut self.r, z, r);
         if let Some(f) = filter {
             f.apply(&mut self.r);
         }
@@ -354,17 +351,16 @@ impl Multigrid {
             let c = &mut above[l];
             prolong(&below[0], &mut c.x);
             let s = c.smoother.as_ref().expect("smoothed level");
-            s.sweep(c.a.as_kernel(), &mut c.x, &c.b, &mut c.r);
+            s.sweep(&c.a, &mut c.x, &c.b, &mut c.r);
         }
         prolong(&self.coarse[0], z);
         if let Some(f) = filter {
             f.apply(z);
         }
         let smoother = self.smoother.as_ref().expect("smoothed fine level");
-        match rounded(&self.fine32, a) {
-            Some(a32) => smoother.sweep(a32, z, r, &mut self.r),
-            None => smoother.sweep(a.as_kernel(), z, r, &mut self.r),
-        }
+        // The fine level's sweep, its product on the `f32` copy.
+        fine_residual(&self.fine32, a, &mut self.r, z, r);
+        smoother.correct(z, &self.r);
         if let Some(f) = filter {
             f.apply(z);
         }
@@ -375,6 +371,15 @@ impl Multigrid {
 fn rounded<'a>(val32: &'a [f32], a: &'a Bsr3) -> Option<Bsr3Ref<'a, f32>> {
     let k = a.as_kernel();
     (val32.len() == k.val.len()).then(|| Bsr3Ref::new(k.n, k.row_ptr, k.col, val32))
+}
+
+/// `res = b - A x` on the fine level: through the `f32` values `val32` when they fit,
+/// else through `a`'s own.
+fn fine_residual(val32: &[f32], a: &Bsr3, res: &mut [f64], x: &[f64], b: &[f64]) {
+    match rounded(val32, a) {
+        Some(a32) => bsr3_residual_par(res, a32, x, b),
+        None => a.residual(res, x, b),
+    }
 }
 
 /// `out = val` rounded to `f32` (parallel; allocates only when the length changes), or
