@@ -24,15 +24,15 @@
 //! `target/criterion/cloth-summary.md`.
 
 use criterion::Criterion;
-use largestep::cloth::{cloth_grid, Cloth, ClothGridOptions, ClothMaterial, ClothState, Obstacle};
-use largestep::integrate::{
-    LinearSolverKind, MechSettings, MechStepper, Mechanical, Method, StepInfo,
-};
+use largestep::cloth::{cloth_grid, Cloth, ClothGridOptions, ClothMaterial, ClothState};
+use largestep::collide::Obstacle;
+use largestep::integrate::{LinearSolverKind, MechSettings, Method};
 use largestep::kernels::cloth::{
     bend_force_gradient, bend_force_gradient_x4, triangle_jacobians, triangle_jacobians_x4,
 };
 use largestep::kernels::{four, gather_nodes};
 use largestep::machine::triad_bandwidth;
+use largestep::simulation::{MechModel, MechSimulation};
 use largestep::solve::{Filter, Pcg, PcgParams, Preconditioner};
 use largestep::sparse::Bsr3;
 use std::time::{Duration, Instant};
@@ -111,45 +111,13 @@ fn settings(solver: Solver) -> MechSettings {
     s
 }
 
-struct Sim {
-    cloth: Cloth,
-    st: ClothState,
-    stepper: MechStepper,
-    t: f64,
-}
-
-impl Sim {
-    fn new(n: usize, solver: Solver) -> Sim {
-        let (mut cloth, st) = sheet(n);
-        let stepper = MechStepper::new(settings(solver), &mut cloth).unwrap();
-        Sim {
-            cloth,
-            st,
-            stepper,
-            t: 0.0,
-        }
-    }
-
-    fn step(&mut self, dt: f64) -> StepInfo {
-        let info = self
-            .stepper
-            .step(
-                &mut self.cloth,
-                self.t,
-                self.st.x.as_mut_slice(),
-                self.st.v.as_mut_slice(),
-                dt,
-            )
-            .unwrap();
-        self.cloth.after_step(
-            self.t + dt,
-            dt,
-            self.st.x.as_mut_slice(),
-            self.st.v.as_mut_slice(),
-        );
-        self.t += dt;
-        info
-    }
+/// The benchmark's simulation: the sheet with its contacts, every step at dt (no
+/// step-size control: the cases time fixed steps).
+fn simulation(n: usize, solver: Solver) -> MechSimulation<Cloth> {
+    let (cloth, st) = sheet(n);
+    let mut sim = MechSimulation::new(cloth, st, settings(solver)).unwrap();
+    sim.set_step_control(None);
+    sim
 }
 
 fn main() {
@@ -182,20 +150,20 @@ fn main() {
                 continue;
             }
             let cholesky = solver == Solver::Cholesky;
-            let mut sim = Sim::new(n, solver);
+            let mut sim = simulation(n, solver);
             // Drape for 0.5 s so the timed steps have contacts and a deformed sheet.
-            while sim.t < 0.5 {
-                sim.step(dt);
+            while sim.time() < 0.5 {
+                sim.step(dt).unwrap();
             }
             let mut infos = Vec::new();
-            c.bench_function(&id, |b| b.iter(|| infos.push(sim.step(dt))));
+            c.bench_function(&id, |b| b.iter(|| infos.push(sim.step(dt).unwrap())));
             // Timed by hand: the split and the best step.
             let reps = 10;
             let mut times = Vec::with_capacity(reps);
             let (mut solve, mut its) = (0.0, 0);
             for _ in 0..reps {
                 let t0 = Instant::now();
-                let info = sim.step(dt);
+                let info = sim.step(dt).unwrap();
                 times.push(t0.elapsed().as_secs_f64());
                 solve += info.solve_seconds;
                 its += info.linear_iterations;
@@ -204,22 +172,27 @@ fn main() {
             times.sort_by(f64::total_cmp);
             let (best, median) = (times[0], 0.5 * (times[reps / 2 - 1] + times[reps / 2]));
             // Assembly alone, at the current state.
-            let nv = sim.cloth.vertex_count();
-            let pattern = sim.cloth.prepare_jacobians().unwrap().unwrap();
+            let cloth = sim.model();
+            let nv = cloth.vertex_count();
+            let mut work = cloth.work();
+            let pattern = cloth.prepare_jacobians(&mut work).unwrap().unwrap();
             let mut kx = Bsr3::zeros(pattern.clone());
             let mut kv = Bsr3::zeros(pattern.clone());
             let mut f = vec![0.0; 3 * nv];
-            let (x, v) = (sim.st.x.as_slice().to_vec(), sim.st.v.as_slice().to_vec());
+            let (x, v) = (
+                sim.state().x.as_slice().to_vec(),
+                sim.state().v.as_slice().to_vec(),
+            );
             let assembly = (0..reps)
                 .map(|_| {
                     let t0 = Instant::now();
-                    sim.cloth
-                        .force_jacobians(0.0, &x, &v, &mut f, &mut kx, Some(&mut kv))
+                    cloth
+                        .force_jacobians(&mut work, 0.0, &x, &v, &mut f, &mut kx, Some(&mut kv))
                         .unwrap();
                     t0.elapsed().as_secs_f64()
                 })
                 .fold(f64::INFINITY, f64::min);
-            let (nt, nh) = (sim.cloth.triangles().len(), sim.cloth.hinges().len());
+            let (nt, nh) = (cloth.triangles().len(), cloth.hinges().len());
             let blocks = pattern.nnz_blocks() as f64;
             // Element buffers written and read: per triangle forces and the upper blocks
             // of both Jacobians (6 of 9), per hinge forces and the angle gradient (the
@@ -234,9 +207,9 @@ fn main() {
             } else {
                 let mut a = Bsr3::zeros(pattern.clone());
                 a.assign_lincomb(&[(-dt * dt, &kx), (-dt, &kv)]);
-                a.add_diagonal(sim.cloth.mass());
+                a.add_diagonal(cloth.mass());
                 let mut filter = Filter::new(nv);
-                sim.cloth.constraints(&mut filter);
+                sim.constraints(&mut filter);
                 let mut pcg = Pcg::new(nv, solver.pcg());
                 let mut z = vec![0.0; 3 * nv];
                 pcg.solve(&mut a, &f, &mut z, Some(&filter)).unwrap();
@@ -256,7 +229,7 @@ fn main() {
                 } else {
                     format!("{:.0}%", 100.0 * pcg_bytes / solve.max(1e-12) / 1e9 / triad)
                 },
-                sim.cloth.contact_count(),
+                sim.contact_count(),
             ));
         }
     }
@@ -275,15 +248,16 @@ fn main() {
 /// those writes.
 fn kernels(c: &mut Criterion, triad: f64, wanted: &dyn Fn(&str) -> bool, md: &mut String) {
     let n = 100;
-    let mut sim = Sim::new(n, Solver::Multigrid);
-    while sim.t < 0.5 {
-        sim.step(1.0 / 60.0);
+    let mut sim = simulation(n, Solver::Multigrid);
+    while sim.time() < 0.5 {
+        sim.step(1.0 / 60.0).unwrap();
     }
-    let nv = sim.cloth.vertex_count();
-    let (x, v) = (sim.st.x.as_slice(), sim.st.v.as_slice());
+    let cloth = sim.model();
+    let nv = cloth.vertex_count();
+    let (x, v) = (sim.state().x.as_slice(), sim.state().v.as_slice());
     let m = MATERIAL;
     // The cloth's own element constants.
-    let (cloth, tris) = (&sim.cloth, sim.cloth.triangles());
+    let tris = cloth.triangles();
     let rest = cloth.triangle_rest();
     let params = |t: usize| cloth.triangle_params(t);
     let tri3 = |y: &[f64], t: usize| gather_nodes(y, nv, &tris[t]);

@@ -2,7 +2,7 @@
 //! assignment), 32^3 and 64^3 lattices, on 1 thread and on all threads.
 //!
 //! - `jello/forces/<simd|scalar>/<n>/<threads>t`: one evaluation of every spring's force
-//!   (`kernels::spring::spring_forces`, SIMD over springs, and its scalar twin), on a
+//!   (`kernels::mass_spring::spring_forces`, SIMD over springs, and its scalar twin), on a
 //!   deformed, moving lattice. The memory the kernel must move is counted as streaming
 //!   traffic: per spring its two endpoint indices and three constants in, its force out
 //!   (8 + 24 + 24 B), plus positions and velocities once (48 B per particle); the summary
@@ -16,10 +16,11 @@
 //! The summary is printed at the end and written to `target/criterion/jello-summary.md`.
 
 use criterion::Criterion;
-use largestep::integrate::{MechSettings, MechStepper, Method};
-use largestep::kernels::spring::{spring_forces, spring_forces_scalar, Springs};
+use largestep::integrate::{MechSettings, Method};
+use largestep::kernels::mass_spring::{spring_forces, spring_forces_scalar, Springs};
 use largestep::machine::triad_bandwidth;
 use largestep::mass_spring::{lattice, CollisionDesc, LatticeOptions, MassSpringDesc};
+use largestep::simulation::MechSimulation;
 use std::time::{Duration, Instant};
 
 fn cube(n: usize) -> MassSpringDesc {
@@ -43,6 +44,7 @@ fn cube(n: usize) -> MassSpringDesc {
     d.collisions = Some(CollisionDesc {
         bounds: Some(([-2.0; 3], [2.0; 3])),
         planes: vec![[-1.0, 1.0, 1.0, 2.0]],
+        obstacles: Vec::new(),
         stiffness: 400.0,
         damping: 0.25,
     });
@@ -138,18 +140,12 @@ fn main() {
                 if !wanted(&id) {
                     continue;
                 }
-                let (mut model, mut st) = desc.build().unwrap();
-                let mut stepper = pool
-                    .install(|| MechStepper::new(MechSettings::new(method), &mut model))
+                let (model, st) = desc.build().unwrap();
+                let mut sim = pool
+                    .install(|| MechSimulation::new(model, st, MechSettings::new(method)))
                     .unwrap();
-                let mut t = 0.0;
                 let mut step = || {
-                    pool.install(|| {
-                        stepper
-                            .step(&mut model, t, st.x.as_mut_slice(), st.v.as_mut_slice(), dt)
-                            .unwrap()
-                    });
-                    t += dt;
+                    pool.install(|| sim.step(dt).unwrap());
                 };
                 step(); // first step builds the solver structures
                 let seconds = if n == 64 && name == "lbe" {

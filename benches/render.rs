@@ -16,8 +16,9 @@
 //! `target/criterion/render-summary.md`.
 
 use criterion::Criterion;
-use largestep::render::shapes::wavy_sheet;
-use largestep::render::{Bounds, Camera, Image, Object, Renderer, Settings, Style};
+use largestep::io::Image;
+use largestep::render::{Bounds, Camera, Object, Renderer, Settings, Style};
+use largestep::shapes::wavy_sheet;
 use std::time::{Duration, Instant};
 
 /// Floating-point operations per pixel (hand count of the ground/sky and object shading).

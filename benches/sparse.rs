@@ -16,7 +16,7 @@
 use criterion::{Criterion, Throughput};
 use faer::sparse::linalg::matmul::sparse_dense_matmul;
 use faer::{Accum, Mat, Par};
-use largestep::kernels::bsr3::{bsr3_spmv, bsr3_spmv_scalar};
+use largestep::kernels::sparse::{bsr3_spmv, bsr3_spmv_scalar};
 use largestep::machine::triad_bandwidth;
 use largestep::solve::{Pcg, PcgParams, Preconditioner, SparseCholesky};
 use largestep::sparse::examples::grid_spd;

@@ -3,20 +3,29 @@
 //! See `docs/architecture.md` for the layout and the conventions.
 pub use largestep_kernels as kernels;
 
+// Lets files shared with the integration tests (`study/problems.rs`) name the crate the
+// same way in both.
+extern crate self as largestep;
+
 pub mod machine;
 #[cfg(feature = "cli")]
 pub mod plot;
 pub mod render;
+pub mod shapes;
 
+#[cfg(feature = "cloth")]
 pub mod cloth;
+pub mod collide;
 pub mod integrate;
 pub mod io;
+pub mod loads;
 #[cfg(feature = "mass-spring")]
 pub mod mass_spring;
-#[cfg(feature = "mass-spring")]
 pub mod scene;
+pub mod simulation;
 pub mod soa;
 pub mod solve;
 pub mod sparse;
 #[cfg(feature = "cli")]
 pub mod study;
+pub mod validate;

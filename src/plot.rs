@@ -4,7 +4,7 @@
 //! no system font is needed; SVGs name the font family and leave drawing to the viewer.
 
 use crate::io::write_atomically;
-use crate::render::Image;
+use crate::io::Image;
 use plotters::coord::ranged1d::{AsRangedCoord, Ranged, ValueFormatter};
 use plotters::prelude::*;
 use std::path::Path;

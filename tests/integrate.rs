@@ -1,9 +1,12 @@
 //! Integrator validation: nominal orders, exact energy laws on the linear oscillator,
 //! long-time behaviour of symplectic Euler, and the course notes' sample problem.
 
-use largestep::integrate::problems::{Oscillator, Pendulum, Quadratic, StiffScalar};
+#[path = "../src/study/problems.rs"]
+mod problems;
+
 use largestep::integrate::*;
 use largestep::solve::{PcgParams, Preconditioner, SolveError};
+use problems::{Oscillator, Pendulum, Quadratic, StiffScalar};
 use std::f64::consts::PI;
 
 fn settings(method: Method, linear: LinearSolverKind) -> MechSettings {

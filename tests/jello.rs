@@ -1,9 +1,11 @@
 //! The jello cube: lattice, force field, penalty collisions, world files, integrators.
 
 use largestep::integrate::*;
+use largestep::loads::{Body, ForceField, Load};
 use largestep::mass_spring::world::World;
 use largestep::mass_spring::*;
 use largestep::scene::{Runner, Scene};
+use largestep::simulation::{MechModel, MechSimulation};
 use largestep::sparse::Bsr3;
 use std::path::{Path, PathBuf};
 
@@ -44,19 +46,14 @@ fn simulate(
     dt: f64,
     t_end: f64,
 ) -> Result<(MassSpringState, f64, f64), IntegrateError> {
-    let (mut m, mut st) = desc.build().unwrap();
-    let mut stepper = MechStepper::new(MechSettings::new(method), &mut m)?;
+    let (m, st) = desc.build().unwrap();
+    let n = m.particle_count();
+    let mut sim = MechSimulation::new(m, st, MechSettings::new(method))?;
     let steps = (t_end / dt).round() as usize;
     let (mut worst, mut speed) = (0.0f64, 0.0f64);
-    let n = m.particle_count();
-    for k in 0..steps {
-        stepper.step(
-            &mut m,
-            k as f64 * dt,
-            st.x.as_mut_slice(),
-            st.v.as_mut_slice(),
-            dt,
-        )?;
+    for _ in 0..steps {
+        sim.step(dt)?;
+        let st = sim.state();
         worst = st.x.as_slice().iter().fold(worst, |w, c| w.max(c.abs()));
         let v = st.v.as_slice();
         for i in 0..n {
@@ -64,7 +61,7 @@ fn simulate(
             speed = speed.max(s2.sqrt());
         }
     }
-    Ok((st, worst, speed))
+    Ok((sim.state().clone(), worst, speed))
 }
 
 #[test]
@@ -152,7 +149,11 @@ fn force_field_is_exact_for_linear_fields() {
         }
     }
     let mut out = vec![0.0; 3 * n];
-    field.add_forces(&x, &mut out);
+    let body = Body {
+        mass: &vec![1.0; n],
+        triangles: &[],
+    };
+    field.add_forces(0.0, &body, &x, &x, &mut out);
     for (i, p) in pts.iter().enumerate() {
         for c in 0..3 {
             assert!((out[c * n + i] - f(*p)[c]).abs() < 1e-12);
@@ -233,6 +234,7 @@ fn implicit_step_is_stable_where_rk4_is_not() {
     desc.collisions = Some(CollisionDesc {
         bounds: Some(([-2.0; 3], [2.0; 3])),
         planes: vec![],
+        obstacles: Vec::new(),
         stiffness: 1e4,
         damping: 0.25,
     });
@@ -266,20 +268,22 @@ fn penalty_jacobians_match_finite_differences() {
     desc.collisions = Some(CollisionDesc {
         bounds: Some(([-2.0; 3], [2.0; 3])),
         planes: vec![[1.0, -0.2, -1.0, 1.05]],
+        obstacles: Vec::new(),
         stiffness: 500.0,
         damping: 0.7,
     });
-    let (mut m, st) = desc.build().unwrap();
+    let (m, st) = desc.build().unwrap();
     assert!(m.max_penetration(st.x.as_slice()) > 0.05);
     let n = m.particle_count();
-    let pattern = m.prepare_jacobians().unwrap().unwrap();
+    let mut w = m.work();
+    let pattern = m.prepare_jacobians(&mut w).unwrap().unwrap();
     let (mut kx, mut kv) = (Bsr3::zeros(pattern.clone()), Bsr3::zeros(pattern));
     let (x, v) = (st.x.as_slice().to_vec(), st.v.as_slice().to_vec());
     let mut f = vec![0.0; 3 * n];
-    m.force_jacobians(0.0, &x, &v, &mut f, &mut kx, Some(&mut kv))
+    m.force_jacobians(&mut w, 0.0, &x, &v, &mut f, &mut kx, Some(&mut kv))
         .unwrap();
     let mut f2 = vec![0.0; 3 * n];
-    m.force(0.0, &x, &v, &mut f2);
+    m.force(&mut w, 0.0, &x, &v, &mut f2);
     assert_eq!(f, f2, "force_jacobians and force agree on f");
     let (dense_x, dense_v) = (kx.to_dense(), kv.to_dense());
     let h = 1e-7;
@@ -295,8 +299,8 @@ fn penalty_jacobians_match_finite_differences() {
                 vm[col] -= h;
             }
             let (mut fp, mut fm) = (vec![0.0; 3 * n], vec![0.0; 3 * n]);
-            m.force(0.0, &xp, &vp, &mut fp);
-            m.force(0.0, &xm, &vm, &mut fm);
+            m.force(&mut w, 0.0, &xp, &vp, &mut fp);
+            m.force(&mut w, 0.0, &xm, &vm, &mut fm);
             for row in 0..3 * n {
                 let fd = (fp[row] - fm[row]) / (2.0 * h);
                 let an = dense[row * 3 * n + col];
@@ -321,16 +325,18 @@ fn undamped_penalty_jacobian_in_x_matches_finite_differences() {
     desc.collisions = Some(CollisionDesc {
         bounds: Some(([-2.0; 3], [2.0; 3])),
         planes: vec![],
+        obstacles: Vec::new(),
         stiffness: 500.0,
         damping: 0.0,
     });
-    let (mut m, st) = desc.build().unwrap();
+    let (m, st) = desc.build().unwrap();
     let n = m.particle_count();
-    let pattern = m.prepare_jacobians().unwrap().unwrap();
+    let mut w = m.work();
+    let pattern = m.prepare_jacobians(&mut w).unwrap().unwrap();
     let mut kx = Bsr3::zeros(pattern);
     let (x, v) = (st.x.as_slice().to_vec(), st.v.as_slice().to_vec());
     let mut f = vec![0.0; 3 * n];
-    m.force_jacobians(0.0, &x, &v, &mut f, &mut kx, None)
+    m.force_jacobians(&mut w, 0.0, &x, &v, &mut f, &mut kx, None)
         .unwrap();
     let dense = kx.to_dense();
     let h = 1e-7;
@@ -339,8 +345,8 @@ fn undamped_penalty_jacobian_in_x_matches_finite_differences() {
         xp[col] += h;
         xm[col] -= h;
         let (mut fp, mut fm) = (vec![0.0; 3 * n], vec![0.0; 3 * n]);
-        m.force(0.0, &xp, &v, &mut fp);
-        m.force(0.0, &xm, &v, &mut fm);
+        m.force(&mut w, 0.0, &xp, &v, &mut fp);
+        m.force(&mut w, 0.0, &xm, &v, &mut fm);
         for row in 0..3 * n {
             let fd = (fp[row] - fm[row]) / (2.0 * h);
             let an = dense[row * 3 * n + col];
@@ -366,7 +372,7 @@ fn world_files_round_trip_and_run_from_the_cli_layer() {
     let scene = Scene::load(&world_path("jello.w")).unwrap();
     assert_eq!(scene.dt, 0.0005);
     let out = std::env::temp_dir().join(format!("largestep-jello-{}", std::process::id()));
-    let mut runner = Runner::new(scene, &out).unwrap();
+    let mut runner = Runner::new(scene, &out);
     runner.run(Some(2), &mut |_| {}).unwrap();
     let csv = std::fs::read_to_string(out.join("energy.csv")).unwrap();
     assert!(csv.lines().next().unwrap().contains("penetration_m"));
@@ -450,9 +456,11 @@ fn toml_scene_reproduces_the_world_file() {
             std::process::id(),
             scene.file.len()
         ));
-        let mut runner = Runner::new(scene, &out).unwrap();
+        let mut runner = Runner::new(scene, &out);
         runner.run(None, &mut |_| {}).unwrap();
-        runner.simulation().state().x.as_slice().to_vec()
+        let sim = runner.simulation();
+        let sim = sim.downcast_ref::<MechSimulation<MassSpring>>().unwrap();
+        sim.state().x.as_slice().to_vec()
     };
     // jello.w displaces its last corner to (8/7, 8/7, 8/7), which a lattice table cannot
     // say: compare with the file with that corner at rest.
@@ -461,7 +469,7 @@ fn toml_scene_reproduces_the_world_file() {
     assert_eq!(lines[27518], "1.142857 1.142857 1.142857");
     lines[27518] = "1.000000 1.000000 1.000000";
     let w = World::parse(&lines.join("\n"), "jello-rest.w").unwrap();
-    let mut world = Scene::from_world(&w, "jello-rest.w").unwrap();
+    let mut world = w.to_scene("jello-rest.w").unwrap();
     world.duration = 0.05;
     let a = run(world);
     let b = run(Scene::parse(JELLO_TOML, "jello-equivalent.toml").unwrap());
@@ -524,6 +532,7 @@ fn resting_cube_stays_at_rest_on_the_floor() {
     desc.collisions = Some(CollisionDesc {
         bounds: Some(([-2.0; 3], [2.0; 3])),
         planes: vec![],
+        obstacles: Vec::new(),
         stiffness: 400.0,
         damping: 0.25,
     });

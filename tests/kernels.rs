@@ -2,9 +2,9 @@
 //! parallel drivers against thread counts, interpolation against the course notes, and
 //! spring elements against finite differences.
 
-use largestep::kernels::bsr3::*;
 use largestep::kernels::interp::*;
-use largestep::kernels::spring::*;
+use largestep::kernels::mass_spring::*;
+use largestep::kernels::sparse::*;
 use largestep::kernels::vec::*;
 use largestep::sparse::examples::grid_spd;
 use proptest::prelude::*;
@@ -288,7 +288,7 @@ proptest! {
         m in 1usize..40,
         seed in 0u64..1000,
     ) {
-        use largestep::kernels::spring::{spring_forces, spring_forces_scalar, Springs};
+        use largestep::kernels::mass_spring::{spring_forces, spring_forces_scalar, Springs};
         let n = 10;
         let x = coords[..30].to_vec();
         let v = coords[30..].to_vec();

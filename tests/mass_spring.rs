@@ -3,6 +3,7 @@
 
 use largestep::integrate::*;
 use largestep::mass_spring::*;
+use largestep::simulation::{MechModel, MechSimulation};
 use largestep::sparse::Bsr3;
 use proptest::prelude::*;
 
@@ -50,23 +51,25 @@ proptest! {
         seed in prop::collection::vec(-1f64..1.0, 7..23),
         damping in prop_oneof![Just(0.0), 0.1f64..2.0],
     ) {
-        let (mut m, st) = random_system(&seed, damping);
+        let (m, st) = random_system(&seed, damping);
+        let mut w = m.work();
         let n = m.particle_count();
-        let pattern = m.prepare_jacobians().unwrap().unwrap();
+        let pattern = m.prepare_jacobians(&mut w).unwrap().unwrap();
         let (mut kx, mut dv) = (Bsr3::zeros(pattern.clone()), Bsr3::zeros(pattern));
         let mut f = vec![0.0; 3 * n];
         let (x, v) = (st.x.as_slice().to_vec(), st.v.as_slice().to_vec());
-        m.force_jacobians(0.0, &x, &v, &mut f, &mut kx, Some(&mut dv)).unwrap();
+        m.force_jacobians(&mut w, 0.0, &x, &v, &mut f, &mut kx, Some(&mut dv)).unwrap();
         prop_assert!(kx.max_asymmetry() <= 1e-12 * 50.0);
         prop_assert!(dv.max_asymmetry() == 0.0);
         // Forces from force() and force_jacobians() agree.
         let mut f2 = vec![0.0; 3 * n];
-        m.force(0.0, &x, &v, &mut f2);
+        m.force(&mut w, 0.0, &x, &v, &mut f2);
         prop_assert_eq!(&f, &f2);
         // Columns against central differences: dF/dx of the elastic force (damping off),
         // dF/dv of the full force.
         let (kd, dd) = (kx.to_dense(), dv.to_dense());
-        let (mut m0, _) = random_system(&seed, 0.0);
+        let (m0, _) = random_system(&seed, 0.0);
+        let mut w0 = m0.work();
         let h = 1e-6;
         let mut fp = vec![0.0; 3 * n];
         let mut fm = vec![0.0; 3 * n];
@@ -74,8 +77,8 @@ proptest! {
             let (mut xp, mut xm) = (x.clone(), x.clone());
             xp[col] += h;
             xm[col] -= h;
-            m0.force(0.0, &xp, &v, &mut fp);
-            m0.force(0.0, &xm, &v, &mut fm);
+            m0.force(&mut w0, 0.0, &xp, &v, &mut fp);
+            m0.force(&mut w0, 0.0, &xm, &v, &mut fm);
             for row in 0..3 * n {
                 let fd = (fp[row] - fm[row]) / (2.0 * h);
                 prop_assert!((kd[row * 3 * n + col] - fd).abs() < 1e-5 * 50.0, "K[{row},{col}]");
@@ -83,8 +86,8 @@ proptest! {
             let (mut vp, mut vm) = (v.clone(), v.clone());
             vp[col] += h;
             vm[col] -= h;
-            m.force(0.0, &x, &vp, &mut fp);
-            m.force(0.0, &x, &vm, &mut fm);
+            m.force(&mut w, 0.0, &x, &vp, &mut fp);
+            m.force(&mut w, 0.0, &x, &vm, &mut fm);
             for row in 0..3 * n {
                 let fd = (fp[row] - fm[row]) / (2.0 * h);
                 prop_assert!((dd[row * 3 * n + col] - fd).abs() < 1e-6 * (1.0 + damping), "D[{row},{col}]");
@@ -94,10 +97,10 @@ proptest! {
 
     #[test]
     fn internal_forces_sum_to_zero(seed in prop::collection::vec(-1f64..1.0, 7..23)) {
-        let (mut m, st) = random_system(&seed, 0.7);
+        let (m, st) = random_system(&seed, 0.7);
         let n = m.particle_count();
         let mut f = vec![0.0; 3 * n];
-        m.force(0.0, st.x.as_slice(), st.v.as_slice(), &mut f);
+        m.force(&mut m.work(), 0.0, st.x.as_slice(), st.v.as_slice(), &mut f);
         // Subtract gravity: the springs alone carry no net force.
         let total_mass: f64 = m.mass().iter().sum();
         let sum_y: f64 = f[n..2 * n].iter().sum::<f64>() + 9.81 * total_mass;
@@ -117,28 +120,21 @@ fn hanging_chain() -> MassSpringDesc {
 #[test]
 fn every_integrator_runs_the_chain_and_keeps_the_pin() {
     for method in Method::ALL {
-        let (mut m, mut st) = hanging_chain().build().unwrap();
-        let mut stepper = MechStepper::new(MechSettings::new(method), &mut m).unwrap();
+        let (m, st) = hanging_chain().build().unwrap();
+        let e0 = m.potential_energy(0.0, st.x.as_slice()).unwrap()
+            + kinetic_energy(m.mass(), st.v.as_slice());
+        let mut sim = MechSimulation::new(m, st, MechSettings::new(method)).unwrap();
         assert_eq!(
-            stepper.has_matrix(),
+            sim.stepper().has_matrix(),
             method.is_implicit(),
             "{method}: matrix only when implicit"
         );
         let h = if method.is_implicit() { 1e-3 } else { 2e-4 };
         let steps = (0.5 / h) as usize;
-        let e0 = m.potential_energy(0.0, st.x.as_slice()).unwrap()
-            + kinetic_energy(m.mass(), st.v.as_slice());
-        for k in 0..steps {
-            stepper
-                .step(
-                    &mut m,
-                    k as f64 * h,
-                    st.x.as_mut_slice(),
-                    st.v.as_mut_slice(),
-                    h,
-                )
-                .unwrap_or_else(|e| panic!("{method}: {e}"));
+        for _ in 0..steps {
+            sim.step(h).unwrap_or_else(|e| panic!("{method}: {e}"));
         }
+        let (m, st) = (sim.model(), sim.state());
         assert_eq!(
             st.x.get(0),
             [0.0, 0.0, 0.0],
@@ -163,19 +159,19 @@ fn every_integrator_runs_the_chain_and_keeps_the_pin() {
 
 #[test]
 fn explicit_runs_build_no_jacobian_structures() {
-    let (mut m, _) = hanging_chain().build().unwrap();
-    let _ = MechStepper::new(MechSettings::new(Method::Rk4), &mut m).unwrap();
-    assert!(!m.has_jacobians());
-    let _ = MechStepper::new(MechSettings::new(Method::BackwardEuler), &mut m).unwrap();
-    assert!(m.has_jacobians());
+    let (m, st) = hanging_chain().build().unwrap();
+    let sim = MechSimulation::new(m.clone(), st.clone(), MechSettings::new(Method::Rk4)).unwrap();
+    assert!(!sim.work().has_jacobians());
+    let sim = MechSimulation::new(m, st, MechSettings::new(Method::BackwardEuler)).unwrap();
+    assert!(sim.work().has_jacobians());
     let mut no_damp = hanging_chain();
     for s in &mut no_damp.springs {
         s.damping = 0.0;
     }
-    let (mut m, _) = no_damp.build().unwrap();
-    let st = MechStepper::new(MechSettings::new(Method::BackwardEuler), &mut m).unwrap();
+    let (m, st) = no_damp.build().unwrap();
+    let sim = MechSimulation::new(m, st, MechSettings::new(Method::BackwardEuler)).unwrap();
     assert!(
-        !st.has_damping_matrix(),
+        !sim.stepper().has_damping_matrix(),
         "no damping matrix without damping"
     );
 }
@@ -206,22 +202,14 @@ fn results_do_not_depend_on_the_thread_count() {
         Method::LinearizedBackwardEuler,
     ] {
         let run = || {
-            let (mut m, mut st) = desc.build().unwrap();
+            let (m, st) = desc.build().unwrap();
             let mut s = MechSettings::new(method);
             s.linear = LinearSolverKind::Pcg(Default::default());
-            let mut stepper = MechStepper::new(s, &mut m).unwrap();
-            for k in 0..20 {
-                stepper
-                    .step(
-                        &mut m,
-                        k as f64 * 1e-3,
-                        st.x.as_mut_slice(),
-                        st.v.as_mut_slice(),
-                        1e-3,
-                    )
-                    .unwrap();
+            let mut sim = MechSimulation::new(m, st, s).unwrap();
+            for _ in 0..20 {
+                sim.step(1e-3).unwrap();
             }
-            st
+            sim.state().clone()
         };
         let pool = |t| {
             rayon::ThreadPoolBuilder::new()

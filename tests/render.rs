@@ -5,12 +5,12 @@
 //! change is meant, regenerate them with `LARGESTEP_BLESS=1 cargo test --test render`,
 //! look at them, and commit them.
 
-use largestep::io::{parse_obj, read_png, Mesh};
+use largestep::io::{parse_obj, read_png, Image, Mesh};
 use largestep::render::preview::{load_frames, write_preview, PreviewSettings};
-use largestep::render::shapes::{chain, from_triangles, uv_sphere, wavy_sheet};
 use largestep::render::{
-    Bounds, Camera, CameraSpec, Image, Object, RenderError, Renderer, Settings, Style,
+    Bounds, Camera, CameraSpec, Object, RenderError, Renderer, Settings, Style,
 };
+use largestep::shapes::{chain, from_triangles, uv_sphere, wavy_sheet};
 use std::path::PathBuf;
 
 fn small(ground: bool) -> Settings {
@@ -599,7 +599,7 @@ fn plots_are_written_as_svg_and_png_and_survive_bad_points() {
 
 #[test]
 fn obstacle_shapes_are_closed_outward_and_on_their_surfaces() {
-    use largestep::render::shapes::{capsule, cuboid};
+    use largestep::shapes::{capsule, cuboid};
     // Signed volume by the divergence theorem: positive (outward winding) and exact.
     let volume = |m: &largestep::io::Mesh| {
         let n = m.positions.len() / 3;

@@ -30,7 +30,7 @@ fn shipped_scenes_run_a_few_frames() {
     ] {
         let scene = Scene::load(&scene_path(name)).unwrap();
         let out = tmp(name);
-        let mut runner = Runner::new(scene, &out).unwrap();
+        let mut runner = Runner::new(scene, &out);
         let mut seen = 0;
         let summary = runner.run(Some(3), &mut |p| seen = p.frame).unwrap();
         assert_eq!(seen, 3);
@@ -48,8 +48,7 @@ fn explain_lists_built_and_left_out_stages() {
     let explicit = Runner::new(
         Scene::load(&scene_path("hanging-chain.toml")).unwrap(),
         &tmp("x1"),
-    )
-    .unwrap();
+    );
     let text = explicit.explain();
     assert!(
         text.contains("left out  Jacobian assembly, system matrix and linear solver"),
@@ -60,8 +59,7 @@ fn explain_lists_built_and_left_out_stages() {
     let implicit = Runner::new(
         Scene::load(&scene_path("spring-grid.toml")).unwrap(),
         &tmp("x2"),
-    )
-    .unwrap();
+    );
     let text = implicit.explain();
     assert!(text.contains("built     Jacobian assembly"), "{text}");
     assert!(
@@ -255,7 +253,7 @@ fn blow_up_stops_with_the_step_and_keeps_earlier_frames() {
         + "\n[output]\nevery = 5\n";
     let scene = Scene::parse(&text, "boom.toml").unwrap();
     let out = tmp("boom");
-    let mut runner = Runner::new(scene, &out).unwrap();
+    let mut runner = Runner::new(scene, &out);
     let err = runner.run(None, &mut |_| {}).expect_err("must blow up");
     let msg = err.to_string();
     assert!(
@@ -456,4 +454,69 @@ fn cli_run_with_preview_and_render_write_images_and_plots() {
         .unwrap();
     assert_eq!(st.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&st.stderr).contains("--eye and --target"));
+}
+
+/// A scene with a chain and a cloth: two independent systems, stepped one after the other,
+/// written as one mesh per frame; each moves exactly (bitwise) as it does alone.
+#[test]
+fn a_scene_holds_several_independent_systems() {
+    use largestep::simulation::FrameData;
+    let head = "[scene]\ndt = 0.005\nduration = 0.05\nintegrator = \"linearized-backward-euler\"\ngravity = [0.0, -9.81, 0.0]\n";
+    let chain = "[mass_spring.chain]\ncount = 6\nanchor = [2.0, 1.0, 0.0]\nspacing = 0.1\nmass = 0.01\nstiffness = 100.0\ndamping = 0.01\n";
+    let cloth = "[cloth]\npinned = [0, 4]\n[[cloth.sphere]]\ncenter = [0.5, -0.2, 0.5]\nradius = 0.3\n[cloth.grid]\nnu = 5\nnv = 5\nsize = [1.0, 1.0]\n[cloth.material]\ndensity = 0.2\nstretch = 1000.0\nshear = 100.0\nbend = 0.01\n";
+    let positions = |r: &Runner| -> Vec<Vec<f64>> {
+        r.systems()
+            .iter()
+            .map(|s| match s.sim.frame() {
+                FrameData::Mesh(m) => m.positions.to_vec(),
+                _ => unreachable!("mechanical systems write meshes"),
+            })
+            .collect()
+    };
+    let run = |text: &str, name: &str| {
+        let scene = Scene::parse(&format!("{text}[output]\nevery = 1\n"), name).unwrap();
+        let mut runner = Runner::new(scene, &tmp(name));
+        runner.run(None, &mut |_| {}).unwrap();
+        runner
+    };
+    let frames = |r: &Runner| r.out_dir().join("frames");
+    let both = run(&format!("{head}{chain}{cloth}"), "both.toml");
+    let tables: Vec<&str> = both.systems().iter().map(|s| s.table).collect();
+    assert_eq!(tables, ["mass_spring", "cloth"]);
+    let alone_chain = run(&format!("{head}{chain}"), "chain-alone.toml");
+    let alone_cloth = run(&format!("{head}{cloth}"), "cloth-alone.toml");
+    let together = positions(&both);
+    assert_eq!(
+        together[0],
+        positions(&alone_chain)[0],
+        "the chain as alone"
+    );
+    assert_eq!(
+        together[1],
+        positions(&alone_cloth)[0],
+        "the cloth as alone"
+    );
+    // One frame file with both: 6 + 25 vertices, the cloth's triangles after the chain's
+    // segments' vertices (the chain writes segments, the cloth triangles).
+    let frame = std::fs::read_to_string(frames(&both).join("frame_00010.obj")).unwrap();
+    assert_eq!(frame.lines().filter(|l| l.starts_with("v ")).count(), 31);
+    assert_eq!(frame.lines().filter(|l| l.starts_with("f ")).count(), 32);
+    assert_eq!(frame.lines().filter(|l| l.starts_with("l ")).count(), 5);
+    assert!(
+        frame.contains("f 7 "),
+        "cloth indices shifted past the chain"
+    );
+    let text = both.explain();
+    assert!(
+        text.contains("[mass_spring]") && text.contains("[cloth]"),
+        "{text}"
+    );
+    assert!(text.contains("built     obstacle contacts"), "{text}");
+    // The energy log sums both systems.
+    let e = |r: &Runner| {
+        let last = r.records().last().unwrap();
+        last.kinetic + last.potential
+    };
+    let sum = e(&alone_chain) + e(&alone_cloth);
+    assert!((e(&both) - sum).abs() <= 1e-12 * sum.abs().max(1.0));
 }

@@ -16,12 +16,12 @@
 //! - Parallel drivers (suffix `_par`) split work into fixed ranges decided by the data,
 //!   never by the number of threads, so their results are bitwise independent of it.
 
-pub mod bsr3;
 pub mod cloth;
 pub mod interp;
+pub mod mass_spring;
 pub mod par;
-pub mod raster;
-pub mod spring;
+pub mod render;
+pub mod sparse;
 pub mod v3;
 pub mod vec;
 

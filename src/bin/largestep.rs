@@ -255,13 +255,7 @@ fn run(
         }
     };
     let out = out.unwrap_or_else(|| PathBuf::from("out").join(&scene.name));
-    let mut runner = match Runner::new(scene, &out) {
-        Ok(r) => r,
-        Err(e) => {
-            eprintln!("error: {e}");
-            return ExitCode::from(1);
-        }
-    };
+    let mut runner = Runner::new(scene, &out);
     if explain {
         print!("{}", runner.explain());
     }
@@ -298,11 +292,7 @@ fn run(
     if preview {
         let settings = runner.output().preview;
         let dir = runner.out_dir().join("preview");
-        let scenery = runner
-            .simulation()
-            .cloth()
-            .map(scenery_of)
-            .unwrap_or_default();
+        let scenery = runner.scenery();
         match write_preview_with_bar(&dir, runner.kept_frames(), &scenery, &settings) {
             Ok(s) => println!("{s}"),
             Err(e) => {
@@ -312,15 +302,6 @@ fn run(
         }
     }
     status
-}
-
-/// Meshes of a cloth's obstacles for previews.
-fn scenery_of(cloth: &largestep::cloth::Cloth) -> Vec<largestep::io::Mesh> {
-    cloth
-        .obstacles()
-        .iter()
-        .filter_map(|o| o.preview_mesh())
-        .collect()
 }
 
 fn write_preview_with_bar(
@@ -349,13 +330,7 @@ fn render(
 ) -> ExitCode {
     let (base, scenery) = match scene {
         Some(path) => match Scene::load(&path) {
-            Ok(s) => {
-                let scenery = match &s.system {
-                    largestep::scene::System::Cloth(c, _) => scenery_of(c),
-                    _ => Vec::new(),
-                };
-                (s.output.preview, scenery)
-            }
+            Ok(s) => (s.output.preview, s.scenery()),
             Err(e) => {
                 eprintln!("error: {e}");
                 return ExitCode::from(2);

@@ -20,7 +20,6 @@
 mod explicit;
 mod mechanical;
 mod ode;
-pub mod problems;
 
 pub use mechanical::{
     gravity_energy, gravity_forces, kinetic_energy, LinearSolverKind, MechSettings, MechState,

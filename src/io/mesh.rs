@@ -108,6 +108,32 @@ impl Mesh {
         }
     }
 
+    /// One mesh of several: their vertices one after the other, and their elements with
+    /// indices shifted to match.
+    pub fn concat<'a>(meshes: impl IntoIterator<Item = MeshRef<'a>>) -> Mesh {
+        let meshes: Vec<MeshRef<'a>> = meshes.into_iter().collect();
+        let total: usize = meshes.iter().map(|m| m.n()).sum();
+        let mut positions = vec![0.0; 3 * total];
+        let (mut triangles, mut segments) = (Vec::new(), Vec::new());
+        let mut first = 0;
+        for m in &meshes {
+            let n = m.n();
+            for c in 0..3 {
+                positions[c * total + first..c * total + first + n]
+                    .copy_from_slice(&m.positions[c * n..(c + 1) * n]);
+            }
+            let o = first as u32;
+            triangles.extend(m.triangles.iter().map(|t| t.map(|v| v + o)));
+            segments.extend(m.segments.iter().map(|s| s.map(|v| v + o)));
+            first += n;
+        }
+        Mesh {
+            positions,
+            triangles: triangles.into(),
+            segments: segments.into(),
+        }
+    }
+
     /// Makes this mesh share `other`'s topology when it is the same.
     pub fn share_topology(&mut self, other: &Mesh) {
         if self.triangles == other.triangles {

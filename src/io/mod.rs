@@ -9,7 +9,7 @@ pub use mesh::{
     parse_obj, parse_obj_uv, read_obj, read_obj_uv, write_obj, write_ply, Mesh, MeshRef, ReadError,
 };
 mod image;
-pub use image::{read_png, write_gif, write_png};
+pub use image::{read_png, write_gif, write_png, Image};
 
 use std::io::{BufWriter, Write};
 use std::path::Path;

@@ -1,27 +1,33 @@
 //! Generic mass-spring systems (course notes, section 4).
 //!
 //! Particles with lumped masses, springs with Hooke's force and damping along the spring,
-//! uniform gravity and pinned particles. An editable [`MassSpringDesc`] is validated into
-//! an immutable [`MassSpring`] (per-spring constants as SoA arrays) plus its initial
-//! [`MassSpringState`]. The model implements [`Mechanical`], so every integrator runs it.
+//! pinned particles, external loads (gravity, a force field: [`crate::loads`]) and penalty
+//! collisions with obstacles ([`crate::collide::Penalty`]). An editable [`MassSpringDesc`]
+//! is validated into an immutable [`MassSpring`] (per-spring constants as SoA arrays) plus
+//! its initial [`MassSpringState`]; forces and Jacobians take `&self` and write into a
+//! [`MassSpringWork`] of scratch buffers. The model implements [`MechModel`], so every
+//! integrator runs it through [`crate::simulation::MechSimulation`].
 //!
 //! What is built depends on what is used: forces need only the per-vertex gather of spring
 //! forces; the Jacobian pattern, element -> slot maps and element Jacobian buffers are
-//! built when an implicit stepper asks for them ([`Mechanical::prepare_jacobians`]); the
+//! built when an implicit stepper asks for them ([`MechModel::prepare_jacobians`]); the
 //! damping Jacobian only when some spring has damping.
 
-mod environment;
 mod generators;
+pub mod scene;
 pub mod world;
 
-pub use environment::{ForceField, HalfSpace, Penalty};
 pub use generators::{chain, grid, lattice, GridOptions, LatticeOptions};
 
-use crate::integrate::{IntegrateError, Mechanical};
+use crate::collide::{Obstacle, Penalty};
+use crate::integrate::{IntegrateError, MechState};
+use crate::loads::{Body, ForceField, Gravity, Loads};
+use crate::simulation::{MechModel, Stage, StepControl};
 use crate::soa::Vec3s;
 use crate::solve::Filter;
 use crate::sparse::{Bsr3, Bsr3Pattern, ElementAssembly, LocalLayout, SparseError, VectorGather};
-use largestep_kernels::spring::{self as ks, SpringParams, Springs};
+use crate::validate::{require, ModelError};
+use largestep_kernels::mass_spring::{self as ks, SpringParams, Springs};
 use std::sync::Arc;
 
 /// A spring as described by a user: endpoints, stiffness (N/m), damping (N s/m) and an
@@ -63,9 +69,13 @@ pub struct MassSpringDesc {
     pub force_field: Option<ForceField>,
     /// Penalty collisions, if any.
     pub collisions: Option<CollisionDesc>,
+    /// Step-size control, if wanted (see [`StepControl`]; the strain is each spring's
+    /// relative change of length).
+    pub step_control: Option<StepControl>,
 }
 
-/// Penalty collision surfaces as a user describes them.
+/// Penalty collisions as a user describes them: a container box, planes and any other
+/// obstacles, all with one collision spring stiffness and damping.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct CollisionDesc {
     /// A bounding box `(lo, hi)` the particles must stay inside.
@@ -73,87 +83,47 @@ pub struct CollisionDesc {
     /// Planes `a x + b y + c z + d = 0`. Particles must stay on the side where most of
     /// them start (the side `a x + b y + c z + d >= 0` when they start on the plane).
     pub planes: Vec<[f64; 4]>,
+    /// Further solid obstacles the particles stay out of.
+    pub obstacles: Vec<Obstacle>,
     /// Collision spring stiffness k_c (N/m), >= 0.
     pub stiffness: f64,
     /// Collision spring damping d_c (N s/m), >= 0.
     pub damping: f64,
 }
 
-/// Invalid model input, naming the item and its index.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[non_exhaustive]
-pub enum ModelError {
-    /// A model needs at least one particle.
-    #[error("the model has no particles")]
-    Empty,
-    /// Array lengths disagree.
-    #[error("{what} has {got} entries, expected {expected} (one per particle)")]
-    Length {
-        /// The array.
-        what: &'static str,
-        /// Its length.
-        got: usize,
-        /// The particle count.
-        expected: usize,
-    },
-    /// A value is out of its range.
-    #[error("{item} {index}: {field} = {value} is invalid ({why})")]
-    Value {
-        /// `particle`, `spring`, `pinned`, `gravity`.
-        item: &'static str,
-        /// Its index.
-        index: usize,
-        /// The field.
-        field: &'static str,
-        /// The value.
-        value: f64,
-        /// What is expected.
-        why: &'static str,
-    },
-    /// A spring or pin names a particle that does not exist.
-    #[error("{item} {index} names particle {particle}, but there are only {n} particles")]
-    MissingParticle {
-        /// `spring` or `pinned`.
-        item: &'static str,
-        /// Its index.
-        index: usize,
-        /// The particle named.
-        particle: usize,
-        /// Particle count.
-        n: usize,
-    },
-    /// A spring connects a particle to itself.
-    #[error("spring {index} connects particle {particle} to itself")]
-    SelfSpring {
-        /// Spring index.
-        index: usize,
-        /// The particle.
-        particle: usize,
-    },
-    /// The connectivity is too large to index.
-    #[error("{0}")]
-    Sparse(String),
-}
-
 /// Positions and velocities (m, m/s) of the particles.
-pub type MassSpringState = crate::integrate::MechState;
+pub type MassSpringState = MechState;
 
-/// A validated mass-spring system (immutable constants; see the module docs).
+/// A validated mass-spring system: everything its builder computed, never written again
+/// (see the module docs).
 #[derive(Clone, Debug)]
 pub struct MassSpring {
     n: usize,
     mass: Vec<f64>,
     springs: SpringSet,
-    gravity: [f64; 3],
+    loads: Loads,
     pinned: Vec<u32>,
     params: SpringParams,
     triangles: Vec<[u32; 3]>,
     has_damping: bool,
-    field: Option<ForceField>,
     penalty: Option<Penalty>,
+    step_control: Option<StepControl>,
     gather: VectorGather,
+}
+
+/// The mass-spring system's scratch buffers: per-spring forces, and the Jacobian
+/// structures and per-spring Jacobian blocks once an implicit integrator asked for them.
+#[derive(Clone, Debug)]
+pub struct MassSpringWork {
     elem_f: Vec<f64>,
     jac: Option<Jacobians>,
+}
+
+impl MassSpringWork {
+    /// Whether the Jacobian structures were built.
+    pub fn has_jacobians(&self) -> bool {
+        self.jac.is_some()
+    }
 }
 
 /// Per-spring constants (SoA), owned; borrowed as the kernels' `Springs`.
@@ -183,25 +153,15 @@ struct Jacobians {
     kv: Vec<f64>,
 }
 
-fn check(
+/// `Ok` if `value` is finite and >= 0 (`require` with the usual reason).
+fn non_negative(
     item: &'static str,
     index: usize,
     field: &'static str,
     value: f64,
-    ok: bool,
-    why: &'static str,
 ) -> Result<(), ModelError> {
-    if ok {
-        Ok(())
-    } else {
-        Err(ModelError::Value {
-            item,
-            index,
-            field,
-            value,
-            why,
-        })
-    }
+    let ok = value.is_finite() && value >= 0.0;
+    require(item, index, field, value, ok, "must be finite and >= 0")
 }
 
 impl MassSpringDesc {
@@ -209,13 +169,14 @@ impl MassSpringDesc {
     pub fn build(&self) -> Result<(MassSpring, MassSpringState), ModelError> {
         let n = self.positions.len();
         if n == 0 {
-            return Err(ModelError::Empty);
+            return Err(ModelError::Empty { what: "particles" });
         }
         if self.masses.len() != n {
             return Err(ModelError::Length {
                 what: "masses",
                 got: self.masses.len(),
                 expected: n,
+                per: "particle",
             });
         }
         if !self.velocities.is_empty() && self.velocities.len() != n {
@@ -223,17 +184,21 @@ impl MassSpringDesc {
                 what: "velocities",
                 got: self.velocities.len(),
                 expected: n,
+                per: "particle",
             });
         }
+        let missing = |item, index, named| ModelError::Missing {
+            item,
+            index,
+            target: "particle",
+            targets: "particles",
+            named,
+            n,
+        };
         let mut pinned = vec![false; n];
         for (k, &p) in self.pinned.iter().enumerate() {
             if p >= n {
-                return Err(ModelError::MissingParticle {
-                    item: "pinned",
-                    index: k,
-                    particle: p,
-                    n,
-                });
+                return Err(missing("pinned", k, p));
             }
             pinned[p] = true;
         }
@@ -244,20 +209,13 @@ impl MassSpringDesc {
         for (values, fields) in vectors {
             for (i, p) in values.iter().enumerate() {
                 for (&x, field) in p.iter().zip(fields) {
-                    check("particle", i, field, x, x.is_finite(), "must be finite")?;
+                    require("particle", i, field, x, x.is_finite(), "must be finite")?;
                 }
             }
         }
         for (i, &m) in self.masses.iter().enumerate() {
-            check(
-                "particle",
-                i,
-                "mass",
-                m,
-                m.is_finite() && m >= 0.0,
-                "must be finite and >= 0",
-            )?;
-            check(
+            non_negative("particle", i, "mass", m)?;
+            require(
                 "particle",
                 i,
                 "mass",
@@ -266,16 +224,12 @@ impl MassSpringDesc {
                 "only pinned particles may have zero mass",
             )?;
         }
-        for (c, &g) in self.gravity.iter().enumerate() {
-            check(
-                "gravity",
-                c,
-                "component",
-                g,
-                g.is_finite(),
-                "must be finite",
-            )?;
-        }
+        let loads = Loads {
+            gravity: Gravity(self.gravity),
+            wind: None,
+            field: self.force_field.clone(),
+        };
+        loads.validate()?;
         let m = self.springs.len();
         let (mut ends, mut k, mut kd, mut rest) = (
             Vec::with_capacity(m),
@@ -286,46 +240,21 @@ impl MassSpringDesc {
         for (e, s) in self.springs.iter().enumerate() {
             for p in [s.a, s.b] {
                 if p >= n {
-                    return Err(ModelError::MissingParticle {
-                        item: "spring",
-                        index: e,
-                        particle: p,
-                        n,
-                    });
+                    return Err(missing("spring", e, p));
                 }
             }
             if s.a == s.b {
-                return Err(ModelError::SelfSpring {
+                return Err(ModelError::Element {
+                    item: "spring",
                     index: e,
-                    particle: s.a,
+                    what: format!("connects particle {} to itself", s.a),
                 });
             }
-            check(
-                "spring",
-                e,
-                "stiffness",
-                s.stiffness,
-                s.stiffness.is_finite() && s.stiffness >= 0.0,
-                "must be finite and >= 0",
-            )?;
-            check(
-                "spring",
-                e,
-                "damping",
-                s.damping,
-                s.damping.is_finite() && s.damping >= 0.0,
-                "must be finite and >= 0",
-            )?;
+            non_negative("spring", e, "stiffness", s.stiffness)?;
+            non_negative("spring", e, "damping", s.damping)?;
             let r = match s.rest_length {
                 Some(r) => {
-                    check(
-                        "spring",
-                        e,
-                        "rest_length",
-                        r,
-                        r.is_finite() && r >= 0.0,
-                        "must be finite and >= 0",
-                    )?;
+                    non_negative("spring", e, "rest_length", r)?;
                     r
                 }
                 None => {
@@ -341,44 +270,36 @@ impl MassSpringDesc {
         }
         for (t, tri) in self.triangles.iter().enumerate() {
             if let Some(&p) = tri.iter().find(|&&p| p as usize >= n) {
-                return Err(ModelError::MissingParticle {
-                    item: "triangle",
-                    index: t,
-                    particle: p as usize,
-                    n,
-                });
+                return Err(missing("triangle", t, p as usize));
             }
         }
-        let field = match &self.force_field {
-            Some(f) => Some(validate_field(f)?),
-            None => None,
-        };
         let penalty = match &self.collisions {
             Some(c) => Some(build_penalty(c, &self.positions)?),
             None => None,
         };
+        if let Some(sc) = &self.step_control {
+            sc.validate()?;
+        }
         let mut pinned: Vec<u32> = self.pinned.iter().map(|&p| p as u32).collect();
         pinned.sort_unstable();
         pinned.dedup();
         let gather = VectorGather::new(n, &ends, &LocalLayout::pair())
-            .map_err(|e| ModelError::Sparse(e.to_string()))?;
+            .map_err(|e| ModelError::TooLarge(e.to_string()))?;
         let has_damping = kd.iter().any(|&d| d > 0.0);
         let model = MassSpring {
             n,
             mass: self.masses.clone(),
-            elem_f: vec![0.0; gather.vector_buffer_len()],
             gather,
             springs: SpringSet { ends, k, kd, rest },
-            gravity: self.gravity,
+            loads,
             pinned,
             params: SpringParams {
                 definiteness_fix: self.definiteness_fix,
             },
             triangles: self.triangles.clone(),
             has_damping,
-            field,
             penalty,
-            jac: None,
+            step_control: self.step_control,
         };
         let mut v = if self.velocities.is_empty() {
             Vec3s::zeros(n)
@@ -396,76 +317,15 @@ impl MassSpringDesc {
     }
 }
 
-fn validate_field(f: &ForceField) -> Result<ForceField, ModelError> {
-    let g = f.grid;
-    for a in 0..3 {
-        check(
-            "force_field",
-            a,
-            "resolution",
-            g.n[a] as f64,
-            g.n[a] >= 2,
-            "needs at least 2 nodes along each axis",
-        )?;
-        check(
-            "force_field",
-            a,
-            "spacing",
-            g.spacing[a],
-            g.spacing[a].is_finite() && g.spacing[a] > 0.0,
-            "must be finite and > 0",
-        )?;
-        check(
-            "force_field",
-            a,
-            "origin",
-            g.origin[a],
-            g.origin[a].is_finite(),
-            "must be finite",
-        )?;
-    }
-    for (c, comp) in f.force.iter().enumerate() {
-        if comp.len() != g.len() {
-            return Err(ModelError::Length {
-                what: ["force_field.fx", "force_field.fy", "force_field.fz"][c],
-                got: comp.len(),
-                expected: g.len(),
-            });
-        }
-        if let Some(i) = comp.iter().position(|v| !v.is_finite()) {
-            return Err(ModelError::Value {
-                item: "force_field node",
-                index: i,
-                field: ["fx", "fy", "fz"][c],
-                value: comp[i],
-                why: "must be finite",
-            });
-        }
-    }
-    Ok(f.clone())
-}
-
+/// The penalty obstacles: the box's six walls, the planes (each oriented so that most
+/// particles start on its free side), then the other obstacles.
 fn build_penalty(c: &CollisionDesc, positions: &[[f64; 3]]) -> Result<Penalty, ModelError> {
-    check(
-        "collisions",
-        0,
-        "stiffness",
-        c.stiffness,
-        c.stiffness.is_finite() && c.stiffness >= 0.0,
-        "must be finite and >= 0",
-    )?;
-    check(
-        "collisions",
-        0,
-        "damping",
-        c.damping,
-        c.damping.is_finite() && c.damping >= 0.0,
-        "must be finite and >= 0",
-    )?;
-    let mut surfaces = Vec::new();
+    non_negative("collisions", 0, "stiffness", c.stiffness)?;
+    non_negative("collisions", 0, "damping", c.damping)?;
+    let mut obstacles = Vec::new();
     if let Some((lo, hi)) = c.bounds {
         for a in 0..3 {
-            check(
+            require(
                 "collisions.box",
                 a,
                 "min",
@@ -473,7 +333,7 @@ fn build_penalty(c: &CollisionDesc, positions: &[[f64; 3]]) -> Result<Penalty, M
                 lo[a].is_finite(),
                 "must be finite",
             )?;
-            check(
+            require(
                 "collisions.box",
                 a,
                 "max",
@@ -482,10 +342,10 @@ fn build_penalty(c: &CollisionDesc, positions: &[[f64; 3]]) -> Result<Penalty, M
                 "must be finite and larger than min",
             )?;
         }
-        surfaces.extend(HalfSpace::box_walls(lo, hi));
+        obstacles.extend(Obstacle::container(lo, hi));
     }
     for (i, p) in c.planes.iter().enumerate() {
-        let Some(mut h) = HalfSpace::from_plane(*p) else {
+        let Some(mut h) = Obstacle::plane(*p) else {
             let bad = if p[3].is_finite() { 0.0 } else { p[3] };
             return Err(ModelError::Value {
                 item: "plane",
@@ -500,36 +360,39 @@ fn build_penalty(c: &CollisionDesc, positions: &[[f64; 3]]) -> Result<Penalty, M
             });
         };
         // The allowed side is where most particles start.
-        let behind = positions.iter().filter(|x| h.distance(**x) < 0.0).count();
+        let inside = |x: &[f64; 3]| h.distance(*x).is_some_and(|(d, _)| d < 0.0);
+        let behind = positions.iter().filter(|x| inside(x)).count();
         if 2 * behind > positions.len() {
-            h = HalfSpace {
-                normal: h.normal.map(|c| -c),
-                offset: -h.offset,
-            };
+            h = h.flipped();
         }
-        surfaces.push(h);
+        obstacles.push(h);
+    }
+    let first = obstacles.len();
+    for (k, o) in c.obstacles.iter().enumerate() {
+        o.validate(first + k)?;
+        obstacles.push(o.clone());
     }
     Ok(Penalty {
-        surfaces,
+        obstacles,
         stiffness: c.stiffness,
         damping: c.damping,
     })
 }
 
 impl MassSpring {
-    /// The force field, if any.
-    pub fn force_field(&self) -> Option<&ForceField> {
-        self.field.as_ref()
+    /// The external loads (gravity, force field).
+    pub fn loads(&self) -> &Loads {
+        &self.loads
+    }
+
+    /// The deepest penetration into a collision obstacle (m), 0 without collisions.
+    pub fn max_penetration(&self, x: &[f64]) -> f64 {
+        crate::collide::max_penetration(self.obstacles(), x)
     }
 
     /// The penalty collisions, if any.
     pub fn collisions(&self) -> Option<&Penalty> {
         self.penalty.as_ref()
-    }
-
-    /// The deepest penetration into a collision surface (m), 0 without collisions.
-    pub fn max_penetration(&self, x: &[f64]) -> f64 {
-        self.penalty.as_ref().map_or(0.0, |p| p.max_penetration(x))
     }
 
     /// Number of particles.
@@ -552,16 +415,6 @@ impl MassSpring {
         &self.springs.rest
     }
 
-    /// Surface triangles for output (may be empty).
-    pub fn triangles(&self) -> &[[u32; 3]] {
-        &self.triangles
-    }
-
-    /// Gravity (m/s^2).
-    pub fn gravity(&self) -> [f64; 3] {
-        self.gravity
-    }
-
     /// Whether any spring has damping (and so a damping Jacobian is assembled).
     pub fn has_damping(&self) -> bool {
         self.has_damping
@@ -572,26 +425,36 @@ impl MassSpring {
         self.pinned.len()
     }
 
-    /// Whether Jacobian structures have been built.
-    pub fn has_jacobians(&self) -> bool {
-        self.jac.is_some()
-    }
-
-    fn environment_forces(&self, x: &[f64], v: &[f64], f: &mut [f64]) {
-        if let Some(field) = &self.field {
-            field.add_forces(x, f);
-        }
-        if let Some(p) = &self.penalty {
-            p.add_forces(x, v, f);
+    /// What the loads act on.
+    fn body(&self) -> Body<'_> {
+        Body {
+            mass: &self.mass,
+            triangles: &self.triangles,
         }
     }
 
-    fn gravity_force(&self, f: &mut [f64]) {
-        crate::integrate::gravity_forces(&self.mass, self.gravity, f);
+    /// Spring `e`'s length at `x` (m).
+    fn length(&self, e: usize, x: &[f64]) -> f64 {
+        let [a, b] = self.springs.ends[e];
+        let (pa, pb) = (
+            largestep_kernels::get3(x, self.n, a as usize),
+            largestep_kernels::get3(x, self.n, b as usize),
+        );
+        let d = largestep_kernels::v3::sub(pa, pb);
+        largestep_kernels::v3::dot(d, d).sqrt()
     }
 }
 
-impl Mechanical for MassSpring {
+impl MechModel for MassSpring {
+    type Work = MassSpringWork;
+
+    fn work(&self) -> MassSpringWork {
+        MassSpringWork {
+            elem_f: vec![0.0; self.gather.vector_buffer_len()],
+            jac: None,
+        }
+    }
+
     fn vertex_count(&self) -> usize {
         self.n
     }
@@ -606,20 +469,22 @@ impl Mechanical for MassSpring {
         }
     }
 
-    fn force(&mut self, _t: f64, x: &[f64], v: &[f64], f: &mut [f64]) {
-        self.gravity_force(f);
+    fn force(&self, work: &mut MassSpringWork, t: f64, x: &[f64], v: &[f64], f: &mut [f64]) {
+        self.loads.forces(t, &self.body(), x, v, f);
         if !self.springs.ends.is_empty() {
-            ks::spring_forces(&mut self.elem_f, x, v, self.springs.view());
-            self.gather.gather_vectors_add(&self.elem_f, f);
+            ks::spring_forces(&mut work.elem_f, x, v, self.springs.view());
+            self.gather.gather_vectors_add(&work.elem_f, f);
         }
-        self.environment_forces(x, v, f);
+        if let Some(p) = &self.penalty {
+            p.add_forces(x, v, f);
+        }
     }
 
     fn potential_energy(&self, _t: f64, x: &[f64]) -> Option<f64> {
-        let gravity = crate::integrate::gravity_energy(&self.mass, self.gravity, x);
         // The force field is left out: a sampled field need not have a potential.
+        let loads = self.loads.potential(&self.body(), x);
         let penalty = self.penalty.as_ref().map_or(0.0, |p| p.energy(x));
-        Some(gravity + ks::springs_energy(x, self.springs.view()) + penalty)
+        Some(loads + ks::springs_energy(x, self.springs.view()) + penalty)
     }
 
     fn dissipation(&self, x: &[f64], v: &[f64]) -> f64 {
@@ -631,17 +496,20 @@ impl Mechanical for MassSpring {
         springs + self.penalty.as_ref().map_or(0.0, |p| p.dissipation(x, v))
     }
 
-    fn prepare_jacobians(&mut self) -> Result<Option<Arc<Bsr3Pattern>>, SparseError> {
-        if self.jac.is_none() {
+    fn prepare_jacobians(
+        &self,
+        work: &mut MassSpringWork,
+    ) -> Result<Option<Arc<Bsr3Pattern>>, SparseError> {
+        if work.jac.is_none() {
             let assembly = ElementAssembly::new(self.n, &self.springs.ends, LocalLayout::pair())?;
             let m = self.springs.ends.len();
-            self.jac = Some(Jacobians {
+            work.jac = Some(Jacobians {
                 assembly,
                 kx: vec![0.0; 9 * m],
                 kv: vec![0.0; if self.has_damping { 9 * m } else { 0 }],
             });
         }
-        Ok(self.jac.as_ref().map(|j| j.assembly.pattern().clone()))
+        Ok(work.jac.as_ref().map(|j| j.assembly.pattern().clone()))
     }
 
     fn has_velocity_jacobian(&self) -> bool {
@@ -649,21 +517,23 @@ impl Mechanical for MassSpring {
     }
 
     fn force_jacobians(
-        &mut self,
-        _t: f64,
+        &self,
+        work: &mut MassSpringWork,
+        t: f64,
         x: &[f64],
         v: &[f64],
         f: &mut [f64],
         dfdx: &mut Bsr3,
         dfdv: Option<&mut Bsr3>,
     ) -> Result<(), IntegrateError> {
-        self.prepare_jacobians().map_err(IntegrateError::Sparse)?;
-        self.gravity_force(f);
+        self.prepare_jacobians(work)
+            .map_err(IntegrateError::Sparse)?;
+        self.loads.forces(t, &self.body(), x, v, f);
         let springs = self.springs.view();
-        let jac = self.jac.as_mut().expect("prepared above");
+        let jac = work.jac.as_mut().expect("prepared above");
         let want_kv = dfdv.is_some() && self.has_damping;
         ks::spring_forces_jacobians(
-            &mut self.elem_f,
+            &mut work.elem_f,
             &mut jac.kx,
             want_kv.then_some(&mut jac.kv[..]),
             x,
@@ -671,7 +541,7 @@ impl Mechanical for MassSpring {
             springs,
             self.params,
         );
-        self.gather.gather_vectors_add(&self.elem_f, f);
+        self.gather.gather_vectors_add(&work.elem_f, f);
         jac.assembly.gather_blocks(&jac.kx, dfdx);
         let mut dfdv = dfdv;
         if let Some(d) = dfdv.as_deref_mut() {
@@ -681,11 +551,79 @@ impl Mechanical for MassSpring {
                 d.set_zero();
             }
         }
-        self.environment_forces(x, v, f);
         if let Some(p) = &self.penalty {
-            // The field's gradient is left out of the Jacobian: it is an external load.
+            // The loads' gradients are left out of the Jacobian: they are external.
+            p.add_forces(x, v, f);
             p.add_jacobians(x, dfdx, dfdv);
         }
         Ok(())
+    }
+
+    fn obstacles(&self) -> &[Obstacle] {
+        self.penalty.as_ref().map_or(&[], |p| &p.obstacles)
+    }
+
+    fn fixed_vertices(&self) -> &[u32] {
+        &self.pinned
+    }
+
+    /// The largest change of any spring's length relative to its rest length (absolute
+    /// for springs of zero rest length).
+    fn strain_change(&self, x0: &[f64], x: &[f64]) -> f64 {
+        let mut worst = 0.0f64;
+        for (e, &r) in self.springs.rest.iter().enumerate() {
+            let change = (self.length(e, x) - self.length(e, x0)).abs() / r.max(f64::MIN_POSITIVE);
+            if change.is_nan() {
+                return f64::NAN;
+            }
+            worst = worst.max(change);
+        }
+        worst
+    }
+
+    fn step_control(&self) -> Option<StepControl> {
+        self.step_control
+    }
+
+    fn stages(&self) -> Vec<Stage> {
+        let (n, m) = (self.n, self.springs.ends.len());
+        let mut stages = vec![
+            if m > 0 {
+                Stage::built("spring forces", format!("{n} particles, {m} springs"))
+            } else {
+                Stage::left_out("spring forces", format!("{n} particles and no springs"))
+            },
+            if self.has_damping {
+                Stage::built("spring damping", "damping along springs")
+            } else {
+                Stage::left_out("spring damping", "every damping coefficient is zero")
+            },
+        ];
+        stages.extend(self.loads.stages());
+        if self.loads.field.is_none() {
+            stages.push(Stage::left_out("force field", "the scene has none"));
+        }
+        stages.push(Stage::pinned(self.pinned.len()));
+        stages.push(match &self.penalty {
+            Some(p) => Stage::built(
+                "penalty collisions",
+                format!(
+                    "{} surfaces, k_c = {} N/m, d_c = {} N s/m",
+                    p.obstacles.len(),
+                    p.stiffness,
+                    p.damping
+                ),
+            ),
+            None => Stage::left_out("collision structures", "the scene has no colliders"),
+        });
+        stages
+    }
+
+    fn triangles(&self) -> &[[u32; 3]] {
+        &self.triangles
+    }
+
+    fn segments(&self) -> &[[u32; 2]] {
+        &self.springs.ends
     }
 }

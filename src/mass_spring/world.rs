@@ -19,10 +19,12 @@
 //! side 1 at rest; every spring gets kElastic and dElastic; the points must stay in the
 //! box (and on their side of the plane), by penalty springs of kCollision and dCollision.
 
-use super::{lattice, CollisionDesc, ForceField, LatticeOptions, MassSpringDesc};
-use crate::integrate::Method;
+use super::{lattice, CollisionDesc, LatticeOptions, MassSpringDesc};
+use crate::integrate::{MechSettings, Method};
 use crate::io::ReadError;
-use largestep_kernels::interp::Grid3;
+use crate::loads::ForceField;
+use crate::scene::{stem_name, FrameFormat, Output, Scene, SceneError, System};
+use crate::simulation::MechSimulation;
 use std::io::Write;
 
 /// Points along each side of the cube.
@@ -289,34 +291,8 @@ impl World {
     /// The force field on our grid layout (x fastest), if the world has one.
     pub fn force_field(&self) -> Option<ForceField> {
         (self.resolution >= 2).then(|| {
-            World::field_from_samples(self.resolution, [-BOX_HALF; 3], [BOX_HALF; 3], &self.field)
+            ForceField::from_samples(self.resolution, [-BOX_HALF; 3], [BOX_HALF; 3], &self.field)
         })
-    }
-
-    /// A force field from `r^3` samples in the world files' order (sample
-    /// `i r^2 + j r + k` at node (i, j, k), x outermost) over the box `[lo, hi]`,
-    /// reordered to the grid layout (x fastest). `samples.len()` must be `r^3`.
-    pub fn field_from_samples(
-        r: usize,
-        lo: [f64; 3],
-        hi: [f64; 3],
-        samples: &[[f64; 3]],
-    ) -> ForceField {
-        assert_eq!(samples.len(), r * r * r, "r^3 samples");
-        let grid = Grid3::spanning([r; 3], lo, hi);
-        let mut force = [
-            vec![0.0; r * r * r],
-            vec![0.0; r * r * r],
-            vec![0.0; r * r * r],
-        ];
-        for (line, f) in samples.iter().enumerate() {
-            let (i, j, k) = (line / (r * r), (line / r) % r, line % r);
-            let node = i + r * (j + r * k);
-            for c in 0..3 {
-                force[c][node] = f[c];
-            }
-        }
-        ForceField { grid, force }
     }
 
     /// The lattice of the assignment: 8 x 8 x 8 points, rest side 1 m, every spring
@@ -346,9 +322,52 @@ impl World {
         desc.collisions = Some(CollisionDesc {
             bounds: Some(([-BOX_HALF; 3], [BOX_HALF; 3])),
             planes: self.plane.into_iter().collect(),
+            obstacles: Vec::new(),
             stiffness: self.k_collision,
             damping: self.d_collision,
         });
         desc
     }
+
+    /// The scene of this world: its integrator, dt, springs, plane and force field in the
+    /// box `[-2, 2]^3`, run for [`WORLD_DURATION`] seconds with a frame every
+    /// `max(n, 1/30 s)` steps (the file's display interval n, but not more than 30 frames
+    /// per simulated second). `file` names it in errors and gives the scene its name.
+    pub fn to_scene(&self, file: &str) -> Result<Scene, SceneError> {
+        let whole = |message: String| SceneError {
+            file: file.to_string(),
+            line: 0,
+            column: 0,
+            field: String::new(),
+            message,
+            snippet: None,
+        };
+        let (model, state) = self.to_desc().build().map_err(|e| whole(e.to_string()))?;
+        let sim = MechSimulation::new(model, state, MechSettings::new(self.method))
+            .map_err(|e| whole(e.to_string()))?;
+        let every = self
+            .every
+            .max(((1.0 / 30.0) / self.dt).round() as usize)
+            .max(1);
+        Ok(Scene {
+            file: file.to_string(),
+            name: stem_name(file, "world"),
+            dt: self.dt,
+            duration: WORLD_DURATION,
+            systems: vec![System {
+                table: "mass_spring",
+                sim: Box::new(sim),
+            }],
+            output: Output::new(FrameFormat::Obj, every, self.dt),
+        })
+    }
+}
+
+/// Simulated time (s) of a run of a world file, which has no duration of its own.
+pub const WORLD_DURATION: f64 = 5.0;
+
+/// Reads a world file as a scene (the scene registry's loader for `.w` files).
+pub fn load_scene(path: &std::path::Path) -> Result<Scene, SceneError> {
+    let world = World::read(path).map_err(SceneError::from_read)?;
+    world.to_scene(&path.display().to_string())
 }

@@ -4,7 +4,7 @@
 //! 1. **Setup** (serial, O(vertices + primitives)): vertices go to camera space relative to
 //!    the eye (f64, then f32), smooth vertex normals are area-weighted face normals,
 //!    triangles are clipped against the near plane, projected and set up with exact
-//!    fixed-point edge functions (`kernels::raster`); springs become screen-aligned quads
+//!    fixed-point edge functions (`kernels::render`); springs become screen-aligned quads
 //!    (two triangles), particles become sphere impostors (discs). Each triangle's planar
 //!    shadow (projected along the key light onto the ground) is set up too.
 //! 2. **Binning**: every primitive goes into the list of each 32 x 32-pixel tile its bounding
@@ -28,18 +28,15 @@
 //! to the view, with a warning in [`RenderStats::warnings`].
 
 mod camera;
-mod image;
 pub mod preview;
-pub mod shapes;
 
 pub use camera::{
     Basis, Bounds, Camera, CameraSpec, DEFAULT_AZIMUTH_DEG, DEFAULT_ELEVATION_DEG, DEFAULT_FOV_DEG,
 };
-pub use image::Image;
 
-use crate::io::MeshRef;
+use crate::io::{Image, MeshRef};
 use camera::{cross, dot, normalize, sub};
-use largestep_kernels::raster::{
+use largestep_kernels::render::{
     pow32, raster_cover, raster_disc, raster_tri, Disc, FixedTri, ScreenTri, Tile, NO_PRIM,
 };
 use rayon::prelude::*;

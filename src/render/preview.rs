@@ -4,7 +4,8 @@
 //! every frame's bounds. Each PNG is written atomically as soon as it is rendered, so a
 //! failure later leaves the earlier frames valid.
 
-use super::{Bounds, Camera, CameraSpec, Image, Object, RenderError, Renderer, Settings, Style};
+use super::{Bounds, Camera, CameraSpec, Object, RenderError, Renderer, Settings, Style};
+use crate::io::Image;
 use crate::io::{read_obj, write_atomically, write_gif, write_png, Mesh};
 use std::path::{Path, PathBuf};
 

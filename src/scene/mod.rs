@@ -1,31 +1,44 @@
-//! Scenes: TOML files naming a system, an integrator and outputs.
+//! Scenes: TOML files naming an integrator, outputs and one or more systems.
 //!
-//! [`Scene::parse`] reads and validates a scene and builds its model, so every problem is
-//! reported before anything runs, as `file:line:column: field: message` followed by the
-//! offending line. Syntax and type errors come from toml's spans; range errors (NaN,
-//! negative mass, dt <= 0, springs naming missing particles) are found by the model's own
-//! validation and located by walking the span-preserving document along the field's path.
+//! [`Scene::parse`] reads and validates a scene and builds its simulations, so every
+//! problem is reported before anything runs, as `file:line:column: field: message`
+//! followed by the offending line. Syntax and type errors come from toml's spans; range
+//! errors (NaN, negative mass, dt <= 0, springs naming missing particles) are found by the
+//! models' own validation and located by walking the span-preserving document along the
+//! field's path.
 //!
-//! [`Simulation`] holds what a scene needs and nothing more (see [`Stage`]); [`Runner`]
-//! steps it frame by frame, writing frames and an energy log.
+//! This module knows no domain by name. It parses `[scene]`, `[solver]` and `[output]`
+//! and hands every other top-level table to the domain registered for it
+//! ([`registry::DOMAINS`]), with a [`Context`] holding the scene-wide settings and the
+//! means to report located errors; the domain returns a [`Simulation`]. Other file formats
+//! (the jello world files) are registered the same way ([`registry::FORMATS`]).
+//!
+//! A scene may hold several systems (a cloth and a jello), one per domain table. They are
+//! independent: stepped one after the other with the scene's dt, each with its own
+//! obstacles and loads, and none sees the others (no coupling, not even one-way). Their
+//! frames are written as one mesh.
+//!
+//! [`Runner`] steps a scene frame by frame, writing frames and an energy log.
 
-mod build;
+pub mod registry;
 mod run;
 pub mod schema;
+pub mod shared;
 
-pub use build::{Simulation, Stage};
 pub use run::{FrameFormat, FrameRecord, Output, Progress, RunError, Runner, Summary};
 
 use crate::integrate::{LinearSolverKind, MechSettings, Method};
-use crate::mass_spring::world::World;
-use crate::mass_spring::{self as ms, MassSpringDesc, ModelError, SpringDesc};
 use crate::render::preview::PreviewSettings;
 use crate::render::{
     Camera, CameraSpec, DEFAULT_AZIMUTH_DEG, DEFAULT_ELEVATION_DEG, DEFAULT_FOV_DEG,
 };
+use crate::simulation::Simulation;
 use crate::solve::{PcgParams, Preconditioner};
+use serde::de::DeserializeOwned;
 use std::fmt;
 use std::path::Path;
+use toml::de::{DeTable, DeValue, ValueDeserializer};
+use toml::Spanned;
 
 /// A located scene error.
 #[derive(Debug, Clone, PartialEq)]
@@ -79,14 +92,11 @@ impl SceneError {
 }
 
 /// A scene's default name: its file name without the extension, or `default`.
-fn stem_name(file: &str, default: &str) -> String {
+pub fn stem_name(file: &str, default: &str) -> String {
     Path::new(file)
         .file_stem()
         .map_or(default.into(), |x| x.to_string_lossy().into_owned())
 }
-
-/// Simulated time (s) of a run of a world file, which has no duration of its own.
-pub const WORLD_DURATION: f64 = 5.0;
 
 /// One step of a path into the TOML document.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -97,11 +107,15 @@ pub enum Key {
     Index(usize),
 }
 
-fn path(keys: &[&dyn PathPart]) -> Vec<Key> {
+/// A key path from its parts: `path(&[&"cloth", &"sphere", &0, &"radius"])` is
+/// `cloth.sphere[0].radius`.
+pub fn path(keys: &[&dyn PathPart]) -> Vec<Key> {
     keys.iter().map(|k| k.key()).collect()
 }
 
-trait PathPart {
+/// A part of a key path: a table key (`&str`) or an array index (`usize`).
+pub trait PathPart {
+    /// The key.
     fn key(&self) -> Key;
 }
 impl PathPart for &str {
@@ -178,7 +192,24 @@ fn located(file: &str, src: &str, p: &[Key], message: String) -> SceneError {
     }
 }
 
-/// A validated scene with its model built.
+/// One system of a scene: the table it came from and its simulation.
+pub struct System {
+    /// The scene table (`cloth`, `mass_spring`).
+    pub table: &'static str,
+    /// The simulation.
+    pub sim: Box<dyn Simulation>,
+}
+
+impl fmt::Debug for System {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("System")
+            .field("table", &self.table)
+            .field("method", &self.sim.method())
+            .finish_non_exhaustive()
+    }
+}
+
+/// A validated scene with its simulations built.
 #[derive(Debug)]
 pub struct Scene {
     /// File name.
@@ -189,34 +220,122 @@ pub struct Scene {
     pub dt: f64,
     /// Simulated time (s).
     pub duration: f64,
-    /// Integrator and solver settings.
-    pub settings: MechSettings,
-    /// The system.
-    pub system: System,
+    /// The systems, in registry order.
+    pub systems: Vec<System>,
     /// Outputs.
     pub output: Output,
 }
 
-/// The systems a scene can hold.
-#[derive(Debug)]
-#[allow(clippy::large_enum_variant)] // one per scene
-pub enum System {
-    /// A mass-spring system.
-    MassSpring(ms::MassSpring, ms::MassSpringState),
-    /// A Baraff-Witkin cloth.
-    Cloth(crate::cloth::Cloth, crate::cloth::ClothState),
+/// What a domain's scene converter gets (see [`registry::Domain`]): its table, the
+/// scene-wide settings, and the means to report errors at a key.
+pub struct Context<'a> {
+    /// The scene file's name, as given.
+    pub file: &'a str,
+    /// The folder files named in the scene are relative to.
+    pub base: &'a Path,
+    /// Gravity (m/s^2), from `[scene]`.
+    pub gravity: [f64; 3],
+    /// Time step (s).
+    pub dt: f64,
+    /// Integrator and solver settings, from `[scene]` and `[solver]`.
+    pub settings: MechSettings,
+    src: &'a str,
+    table: &'a str,
+    value: Spanned<DeValue<'a>>,
+}
+
+impl Context<'_> {
+    /// The domain's table, deserialized (type errors located at their key).
+    pub fn table<T: DeserializeOwned>(&self) -> Result<T, SceneError> {
+        T::deserialize(ValueDeserializer::from(self.value.clone()))
+            .map_err(|e| syntax_error(self.file, self.src, &e))
+    }
+
+    /// The error `message` at the key `rest` below the domain's table.
+    pub fn error(&self, rest: &[Key], message: impl Into<String>) -> SceneError {
+        let mut p = vec![Key::Field(self.table.to_string())];
+        p.extend_from_slice(rest);
+        located(self.file, self.src, &p, message.into())
+    }
+
+    /// The error `message` at an absolute key path (`[scene] gravity`, say).
+    pub fn error_at(&self, p: &[Key], message: impl Into<String>) -> SceneError {
+        located(self.file, self.src, p, message.into())
+    }
+
+    /// A model's validation error, at `key` below the domain's table; gravity's at
+    /// `[scene] gravity`, where it came from.
+    pub fn model_error(&self, e: &crate::validate::ModelError, key: &[Key]) -> SceneError {
+        match e {
+            crate::validate::ModelError::Value {
+                item: "gravity",
+                index,
+                ..
+            } => self.error_at(&path(&[&"scene", &"gravity", index]), e.to_string()),
+            _ => self.error(key, e.to_string()),
+        }
+    }
+
+    /// `v` if it is finite and > 0, else the error at `at` naming `what`.
+    pub fn positive(&self, v: f64, at: &[Key], what: &str) -> Result<f64, SceneError> {
+        if v.is_finite() && v > 0.0 {
+            Ok(v)
+        } else {
+            Err(self.error(at, format!("{what} must be a finite number > 0, not {v}")))
+        }
+    }
+
+    /// `v` if it is finite and >= 0, else the error at `at` naming `what`.
+    pub fn non_negative(&self, v: f64, at: &[Key], what: &str) -> Result<f64, SceneError> {
+        if v.is_finite() && v >= 0.0 {
+            Ok(v)
+        } else {
+            Err(self.error(at, format!("{what} must be a finite number >= 0, not {v}")))
+        }
+    }
+
+    /// `v` as an index, or the error at `at` for a negative one.
+    pub fn index(&self, v: i64, at: &[Key], what: &str) -> Result<usize, SceneError> {
+        usize::try_from(v)
+            .map_err(|_| self.error(at, format!("a {what} index must be >= 0, not {v}")))
+    }
+}
+
+/// A syntax or type error from toml, at its span.
+fn syntax_error(file: &str, src: &str, e: &toml::de::Error) -> SceneError {
+    let (line, column) = e.span().map_or((0, 0), |s| line_col(src, s.start));
+    SceneError {
+        file: file.to_string(),
+        line,
+        column,
+        field: String::new(),
+        message: e.message().trim().to_string(),
+        snippet: (line > 0).then(|| src.lines().nth(line - 1).unwrap_or("").to_string()),
+    }
+}
+
+/// Deserializes one top-level table of the document.
+fn table<T: DeserializeOwned>(
+    file: &str,
+    src: &str,
+    value: &Spanned<DeValue<'_>>,
+) -> Result<T, SceneError> {
+    T::deserialize(ValueDeserializer::from(value.clone())).map_err(|e| syntax_error(file, src, &e))
 }
 
 impl Scene {
-    /// Reads and validates a scene file.
+    /// Reads and validates a scene file: TOML, or a format of [`registry::FORMATS`] by
+    /// its extension.
     pub fn load(path: &Path) -> Result<Scene, SceneError> {
         let file = path.display().to_string();
-        if path
+        let ext = path
             .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("w"))
+            .map(|e| e.to_string_lossy().to_ascii_lowercase());
+        if let Some(format) = registry::FORMATS
+            .iter()
+            .find(|f| ext.as_deref() == Some(f.extension))
         {
-            let world = World::read(path).map_err(SceneError::from_read)?;
-            return Self::from_world(&world, &file);
+            return (format.load)(path);
         }
         let src = std::fs::read_to_string(path).map_err(|e| SceneError {
             file: file.clone(),
@@ -229,56 +348,36 @@ impl Scene {
         Self::parse(&src, &file)
     }
 
-    /// The scene of a jello world file: its integrator, dt, springs, plane and force
-    /// field in the box `[-2, 2]^3`, run for [`WORLD_DURATION`] seconds with a frame every
-    /// `max(n, 1/30 s)` steps (the file's display interval n, but not more than 30 frames
-    /// per simulated second).
-    pub fn from_world(world: &World, file: &str) -> Result<Scene, SceneError> {
-        let (model, state) = world.to_desc().build().map_err(|e| SceneError {
-            file: file.to_string(),
-            line: 0,
-            column: 0,
-            field: String::new(),
-            message: e.to_string(),
-            snippet: None,
-        })?;
-        let every = world
-            .every
-            .max(((1.0 / 30.0) / world.dt).round() as usize)
-            .max(1);
-        Ok(Scene {
-            file: file.to_string(),
-            name: stem_name(file, "world"),
-            dt: world.dt,
-            duration: WORLD_DURATION,
-            settings: MechSettings::new(world.method),
-            system: System::MassSpring(model, state),
-            output: Output {
-                frames: FrameFormat::Obj,
-                every,
-                preview: PreviewSettings {
-                    frame_interval: every as f64 * world.dt,
-                    ..PreviewSettings::default()
-                },
-            },
-        })
-    }
-
-    /// Parses and validates scene text; `file` names it in errors.
+    /// Parses and validates scene text; `file` names it in errors and its folder is where
+    /// files named in the scene are looked for.
     pub fn parse(src: &str, file: &str) -> Result<Scene, SceneError> {
-        let raw: schema::File = toml::from_str(src).map_err(|e| {
-            let (line, column) = e.span().map_or((0, 0), |s| line_col(src, s.start));
-            SceneError {
-                file: file.to_string(),
-                line,
-                column,
-                field: String::new(),
-                message: e.message().trim().to_string(),
-                snippet: (line > 0).then(|| src.lines().nth(line - 1).unwrap_or("").to_string()),
-            }
-        })?;
+        let root = DeTable::parse(src).map_err(|e| syntax_error(file, src, &e))?;
         let err = |p: Vec<Key>, m: String| located(file, src, &p, m);
-        let s = &raw.scene;
+        let domains: Vec<&str> = registry::DOMAINS.iter().map(|d| d.table).collect();
+        for (key, _) in root.get_ref().iter() {
+            let k = key.get_ref().as_ref();
+            if !(["scene", "solver", "output"].contains(&k) || domains.contains(&k)) {
+                return Err(err(
+                    path(&[&k]),
+                    format!(
+                        "unknown table `{k}`; expected scene, solver, output or a system: {}",
+                        domains.join(", ")
+                    ),
+                ));
+            }
+        }
+        let get = |k: &str| root.get_ref().get(k);
+        let Some(scene_value) = get("scene") else {
+            return Err(err(
+                Vec::new(),
+                "missing [scene] table (dt, duration, integrator)".into(),
+            ));
+        };
+        let s: schema::SceneTable = table(file, src, scene_value)?;
+        let solver: Option<schema::SolverTable> =
+            get("solver").map(|v| table(file, src, v)).transpose()?;
+        let output: Option<schema::OutputTable> =
+            get("output").map(|v| table(file, src, v)).transpose()?;
         let positive = |v: f64, name: &str| -> Result<f64, SceneError> {
             if v.is_finite() && v > 0.0 {
                 Ok(v)
@@ -302,317 +401,61 @@ impl Scene {
             )
         })?;
         let gravity = s.gravity.unwrap_or([0.0; 3]);
-        let settings = solver_settings(method, raw.solver.as_ref(), &err)?;
-        let output = output_settings(raw.output.as_ref(), dt, gravity, &err)?;
-
-        let system = match (&raw.mass_spring, &raw.cloth) {
-            (Some(table), None) => {
-                let (desc, pinned_from_table) = mass_spring_desc(table, gravity, &err)?;
-                let (model, state) = desc.build().map_err(|e| {
-                    let p = model_error_path(&e, table, pinned_from_table);
-                    err(p, e.to_string())
-                })?;
-                System::MassSpring(model, state)
-            }
-            (None, Some(table)) => {
-                let base = Path::new(file).parent().unwrap_or(Path::new(""));
-                let (desc, obstacle_paths) = cloth_desc(table, gravity, base, &err)?;
-                let (cloth, state) = desc
-                    .build()
-                    .map_err(|e| err(cloth_error_path(&e, &obstacle_paths), e.to_string()))?;
-                System::Cloth(cloth, state)
-            }
-            (Some(_), Some(_)) => {
-                return Err(err(
-                    path(&[&"cloth"]),
-                    "a scene holds one system: [mass_spring] or [cloth], not both".into(),
-                ))
-            }
-            (None, None) => {
-                return Err(err(
-                    path(&[&"scene"]),
-                    "the scene has no system: add a [mass_spring] or [cloth] table".into(),
-                ))
-            }
-        };
+        let settings = solver_settings(method, solver.as_ref(), &err)?;
+        let output = output_settings(output.as_ref(), dt, gravity, &err)?;
+        let base = Path::new(file).parent().unwrap_or(Path::new(""));
+        let mut systems = Vec::new();
+        for domain in registry::DOMAINS {
+            let Some(value) = get(domain.table) else {
+                continue;
+            };
+            let ctx = Context {
+                file,
+                base,
+                gravity,
+                dt,
+                settings,
+                src,
+                table: domain.table,
+                value: value.clone(),
+            };
+            systems.push(System {
+                table: domain.table,
+                sim: (domain.build)(&ctx)?,
+            });
+        }
+        if systems.is_empty() {
+            return Err(err(
+                path(&[&"scene"]),
+                format!(
+                    "the scene has no system: add a table of one of {}",
+                    domains
+                        .iter()
+                        .map(|d| format!("[{d}]"))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            ));
+        }
         Ok(Scene {
             file: file.to_string(),
             name: s.name.clone().unwrap_or_else(|| stem_name(file, "scene")),
             dt,
             duration,
-            settings,
-            system,
+            systems,
             output,
         })
     }
-}
 
-/// The cloth of a `[cloth]` table: a grid generator or an OBJ mesh, a material,
-/// obstacles, wind, paths and step control, and the TOML path of each obstacle (for
-/// [`cloth_error_path`]). Files are relative to `base` (the scene's folder).
-fn cloth_desc(
-    t: &schema::ClothTable,
-    gravity: [f64; 3],
-    base: &Path,
-    err: &ErrFn<'_>,
-) -> Result<(crate::cloth::ClothDesc, Vec<Vec<Key>>), SceneError> {
-    use crate::cloth::{Obstacle, SdfGrid, StepControl, VertexPath, Wind};
-    let at = |f: &[&dyn PathPart]| {
-        let mut p = path(&[&"cloth"]);
-        p.extend(path(f));
-        p
-    };
-    let m = &t.material;
-    let material = crate::cloth::ClothMaterial {
-        density: finite_positive(m.density, at(&[&"material", &"density"]), "density", err)?,
-        stretch: finite_nonneg(m.stretch, at(&[&"material", &"stretch"]), "stiffness", err)?,
-        shear: finite_nonneg(m.shear, at(&[&"material", &"shear"]), "stiffness", err)?,
-        bend: finite_nonneg(m.bend, at(&[&"material", &"bend"]), "stiffness", err)?,
-        stretch_damping: finite_nonneg(
-            m.stretch_damping,
-            at(&[&"material", &"stretch_damping"]),
-            "damping",
-            err,
-        )?,
-        shear_damping: finite_nonneg(
-            m.shear_damping,
-            at(&[&"material", &"shear_damping"]),
-            "damping",
-            err,
-        )?,
-        bend_damping: finite_nonneg(
-            m.bend_damping,
-            at(&[&"material", &"bend_damping"]),
-            "damping",
-            err,
-        )?,
-        rest_stretch: [1.0, 1.0],
-    };
-    let mut desc = match (&t.grid, &t.mesh) {
-        (Some(g), None) => {
-            for (name, v) in [("nu", g.nu), ("nv", g.nv)] {
-                if !(2..=4096).contains(&v) {
-                    return Err(err(
-                        at(&[&"grid", &name]),
-                        format!("a cloth grid needs 2..=4096 vertices per side, not {v}"),
-                    ));
-                }
-            }
-            for (i, &s) in g.size.iter().enumerate() {
-                finite_positive(s, at(&[&"grid", &"size", &i]), "size", err)?;
-            }
-            let desc = crate::cloth::cloth_grid(&crate::cloth::ClothGridOptions {
-                nu: g.nu as usize,
-                nv: g.nv as usize,
-                size: g.size,
-                origin: g.origin.unwrap_or([0.0; 3]),
-                u_axis: g.u_axis.unwrap_or([1.0, 0.0, 0.0]),
-                v_axis: g.v_axis.unwrap_or([0.0, 0.0, 1.0]),
-                material,
-            });
-            if !desc.positions.iter().flatten().all(|v| v.is_finite()) {
-                return Err(err(at(&[&"grid"]), "origin and axes must be finite".into()));
-            }
-            desc
-        }
-        (None, Some(mt)) => {
-            let file = base.join(&mt.file);
-            let (mesh, uv) = crate::io::read_obj_uv(&file)
-                .map_err(|e| err(at(&[&"mesh", &"file"]), e.to_string()))?;
-            let uv_scale = finite_positive(
-                mt.uv_scale.unwrap_or(1.0),
-                at(&[&"mesh", &"uv_scale"]),
-                "uv_scale",
-                err,
-            )?;
-            let scale = finite_positive(
-                mt.scale.unwrap_or(1.0),
-                at(&[&"mesh", &"scale"]),
-                "scale",
-                err,
-            )?;
-            let offset = mt.offset.unwrap_or([0.0; 3]);
-            if !offset.iter().all(|c| c.is_finite()) {
-                return Err(err(at(&[&"mesh", &"offset"]), "must be finite".into()));
-            }
-            let nv = mesh.positions.len() / 3;
-            let positions = (0..nv)
-                .map(|i| {
-                    let p = largestep_kernels::get3(&mesh.positions, nv, i);
-                    std::array::from_fn(|c| scale * p[c] + offset[c])
-                })
-                .collect();
-            let mut desc = crate::cloth::cloth_grid(&crate::cloth::ClothGridOptions {
-                nu: 2,
-                nv: 2,
-                size: [1.0, 1.0],
-                origin: [0.0; 3],
-                u_axis: [1.0, 0.0, 0.0],
-                v_axis: [0.0, 0.0, 1.0],
-                material,
-            });
-            desc.positions = positions;
-            desc.uv = uv
-                .iter()
-                .map(|t| [uv_scale * t[0], uv_scale * t[1]])
-                .collect();
-            desc.triangles = mesh.triangles.to_vec();
-            desc.velocities = Vec::new();
-            desc
-        }
-        _ => {
-            return Err(err(
-                at(&[]),
-                "give exactly one of [cloth.grid] or [cloth.mesh]".into(),
-            ))
-        }
-    };
-    let n = desc.positions.len();
-    let vertex = |v: i64, p: Vec<Key>| -> Result<usize, SceneError> {
-        let i = index(v, p.clone(), err)?;
-        if i >= n {
-            return Err(err(
-                p,
-                format!("vertex {i} does not exist: the cloth has {n} vertices"),
-            ));
-        }
-        Ok(i)
-    };
-    let mut pinned = Vec::with_capacity(t.pinned.len());
-    for (k, &p) in t.pinned.iter().enumerate() {
-        pinned.push(vertex(p, at(&[&"pinned", &k]))?);
+    /// Meshes of every system's fixed scenery (obstacles), for previews.
+    pub fn scenery(&self) -> Vec<crate::io::Mesh> {
+        self.systems.iter().flat_map(|s| s.sim.scenery()).collect()
     }
-    desc.pinned = pinned;
-    // Obstacles, each validated where it is written.
-    let mut obstacles: Vec<(Vec<Key>, Obstacle)> = Vec::new();
-    for (k, s) in t.sphere.iter().enumerate() {
-        obstacles.push((
-            at(&[&"sphere", &k]),
-            Obstacle::Sphere {
-                center: s.center,
-                radius: s.radius,
-            },
-        ));
-    }
-    for (k, s) in t.plane.iter().enumerate() {
-        obstacles.push((
-            at(&[&"plane", &k]),
-            Obstacle::Plane {
-                point: s.point,
-                normal: s.normal,
-            },
-        ));
-    }
-    for (k, s) in t.boxes.iter().enumerate() {
-        obstacles.push((
-            at(&[&"box", &k]),
-            Obstacle::Box {
-                min: s.min,
-                max: s.max,
-            },
-        ));
-    }
-    for (k, s) in t.capsule.iter().enumerate() {
-        obstacles.push((
-            at(&[&"capsule", &k]),
-            Obstacle::Capsule {
-                a: s.a,
-                b: s.b,
-                radius: s.radius,
-            },
-        ));
-    }
-    for (k, s) in t.sdf.iter().enumerate() {
-        let grid = SdfGrid::read(&base.join(&s.file))
-            .map_err(|e| err(at(&[&"sdf", &k, &"file"]), e.to_string()))?;
-        obstacles.push((at(&[&"sdf", &k]), Obstacle::Sdf(std::sync::Arc::new(grid))));
-    }
-    // Obstacles, wind and paths are validated by `ClothDesc::build`; its errors are
-    // located by `cloth_error_path` (obstacles by the table each came from).
-    let obstacle_paths = obstacles.iter().map(|(p, _)| p.clone()).collect();
-    desc.obstacles = obstacles.into_iter().map(|(_, o)| o).collect();
-    desc.wind = t.wind.as_ref().map(|w| Wind {
-        velocity: w.velocity,
-        drag: w.drag,
-        gust: w.gust,
-        frequency: w.frequency,
-    });
-    for (k, pt) in t.path.iter().enumerate() {
-        let mut vertices = Vec::with_capacity(pt.vertices.len());
-        for (j, &v) in pt.vertices.iter().enumerate() {
-            vertices.push(vertex(v, at(&[&"path", &k, &"vertices", &j]))?);
-        }
-        desc.paths.push(VertexPath {
-            vertices,
-            times: pt.times.clone(),
-            offsets: pt.offsets.clone(),
-        });
-    }
-    if let Some(sc) = &t.step_control {
-        let d = StepControl::default();
-        let max_strain_change = finite_positive(
-            sc.max_strain_change.unwrap_or(d.max_strain_change),
-            at(&[&"step_control", &"max_strain_change"]),
-            "max_strain_change",
-            err,
-        )?;
-        let halvings = sc.max_halvings.unwrap_or(d.max_halvings as i64);
-        if !(0..=30).contains(&halvings) {
-            return Err(err(
-                at(&[&"step_control", &"max_halvings"]),
-                format!("must lie in 0..=30, not {halvings}"),
-            ));
-        }
-        desc.step_control = StepControl {
-            max_strain_change,
-            max_halvings: halvings as u32,
-        };
-    }
-    desc.friction = finite_nonneg(t.friction, at(&[&"friction"]), "friction", err)?;
-    desc.gravity = gravity;
-    desc.definiteness_fix = t.definiteness_fix.unwrap_or(true);
-    Ok((desc, obstacle_paths))
-}
 
-/// The TOML path a cloth validation error refers to: the key where the table has it,
-/// else its table. `obstacle_paths`: each obstacle's table, in the description's order.
-fn cloth_error_path(e: &crate::cloth::ClothError, obstacle_paths: &[Vec<Key>]) -> Vec<Key> {
-    let cloth = |rest: &[&dyn PathPart]| {
-        let mut p = path(&[&"cloth"]);
-        p.extend(path(rest));
-        p
-    };
-    let crate::cloth::ClothError::Value {
-        item, index, field, ..
-    } = e
-    else {
-        return cloth(&[]);
-    };
-    // `velocity.x` is the key `velocity`.
-    let key = field.split('.').next().unwrap_or(field);
-    match *item {
-        "obstacle" => {
-            let mut p = obstacle_paths
-                .get(*index)
-                .cloned()
-                .unwrap_or_else(|| cloth(&[]));
-            if [
-                "point", "normal", "center", "radius", "min", "max", "a", "b",
-            ]
-            .contains(&key)
-            {
-                p.extend(path(&[&key]));
-            }
-            p
-        }
-        "wind" => cloth(&[&"wind", &key]),
-        "path" => cloth(&[&"path", index, &key]),
-        "step_control" => cloth(&[&"step_control", &key]),
-        "material" if key == "friction" => cloth(&[&"friction"]),
-        "material" if key != "rest_stretch" => cloth(&[&"material", &key]),
-        "gravity" => path(&[&"scene", &"gravity", index]),
-        "pinned" => cloth(&[&"pinned", index]),
-        _ => cloth(&[]),
+    /// The simulation of a scene with one system (`None` with several).
+    pub fn into_simulation(self) -> Option<Box<dyn Simulation>> {
+        let mut systems = self.systems;
+        (systems.len() == 1).then(|| systems.remove(0).sim)
     }
 }
 
@@ -829,331 +672,5 @@ fn camera_spec(
                 up,
             })
         }
-    }
-}
-
-fn finite_positive(v: f64, p: Vec<Key>, what: &str, err: &ErrFn<'_>) -> Result<f64, SceneError> {
-    if v.is_finite() && v > 0.0 {
-        Ok(v)
-    } else {
-        Err(err(
-            p,
-            format!("{what} must be a finite number > 0, not {v}"),
-        ))
-    }
-}
-
-fn finite_nonneg(v: f64, p: Vec<Key>, what: &str, err: &ErrFn<'_>) -> Result<f64, SceneError> {
-    if v.is_finite() && v >= 0.0 {
-        Ok(v)
-    } else {
-        Err(err(
-            p,
-            format!("{what} must be a finite number >= 0, not {v}"),
-        ))
-    }
-}
-
-fn index(v: i64, p: Vec<Key>, err: &ErrFn<'_>) -> Result<usize, SceneError> {
-    usize::try_from(v).map_err(|_| err(p, format!("a particle index must be >= 0, not {v}")))
-}
-
-/// The mass-spring description, and how many of its pinned entries come from the
-/// `pinned` list (the rest come from `particle.pinned` flags).
-fn mass_spring_desc(
-    t: &schema::MassSpringTable,
-    gravity: [f64; 3],
-    err: &ErrFn<'_>,
-) -> Result<(MassSpringDesc, usize), SceneError> {
-    let at = |f: &[&dyn PathPart]| {
-        let mut p = path(&[&"mass_spring"]);
-        p.extend(path(f));
-        p
-    };
-    let sources = t.chain.is_some() as usize
-        + t.grid.is_some() as usize
-        + t.lattice.is_some() as usize
-        + (!t.particle.is_empty()) as usize;
-    if sources != 1 {
-        return Err(err(
-            at(&[]),
-            "give exactly one of [mass_spring.chain], [mass_spring.grid], [mass_spring.lattice] or [[mass_spring.particle]] lists".into(),
-        ));
-    }
-    let mut desc = if let Some(c) = &t.chain {
-        if c.count < 2 {
-            return Err(err(
-                at(&[&"chain", &"count"]),
-                format!("a chain needs at least 2 particles, not {}", c.count),
-            ));
-        }
-        let spacing = finite_positive(c.spacing, at(&[&"chain", &"spacing"]), "spacing", err)?;
-        let mass = finite_positive(c.mass, at(&[&"chain", &"mass"]), "mass", err)?;
-        let k = finite_nonneg(c.stiffness, at(&[&"chain", &"stiffness"]), "stiffness", err)?;
-        let kd = finite_nonneg(c.damping, at(&[&"chain", &"damping"]), "damping", err)?;
-        let dir = c.direction.unwrap_or([1.0, 0.0, 0.0]);
-        if !dir.iter().all(|v| v.is_finite()) || dir.iter().all(|&v| v == 0.0) {
-            return Err(err(
-                at(&[&"chain", &"direction"]),
-                "must be a finite, non-zero vector".into(),
-            ));
-        }
-        ms::chain(
-            c.count as usize,
-            c.anchor.unwrap_or([0.0; 3]),
-            dir,
-            spacing,
-            mass,
-            k,
-            kd,
-        )
-    } else if let Some(g) = &t.grid {
-        for (name, v) in [("nu", g.nu), ("nv", g.nv)] {
-            if v < 2 {
-                return Err(err(
-                    at(&[&"grid", &name]),
-                    format!("a grid needs at least 2 particles per side, not {v}"),
-                ));
-            }
-        }
-        for (i, &s) in g.size.iter().enumerate() {
-            finite_positive(s, at(&[&"grid", &"size", &i]), "size", err)?;
-        }
-        let mass = finite_positive(g.mass, at(&[&"grid", &"mass"]), "mass", err)?;
-        let structural = finite_nonneg(
-            g.structural,
-            at(&[&"grid", &"structural"]),
-            "stiffness",
-            err,
-        )?;
-        let shear = finite_nonneg(g.shear, at(&[&"grid", &"shear"]), "stiffness", err)?;
-        let bend = finite_nonneg(g.bend, at(&[&"grid", &"bend"]), "stiffness", err)?;
-        let damping = finite_nonneg(g.damping, at(&[&"grid", &"damping"]), "damping", err)?;
-        let d = ms::grid(&ms::GridOptions {
-            nu: g.nu as usize,
-            nv: g.nv as usize,
-            size: g.size,
-            origin: g.origin.unwrap_or([0.0; 3]),
-            u_axis: g.u_axis.unwrap_or([1.0, 0.0, 0.0]),
-            v_axis: g.v_axis.unwrap_or([0.0, -1.0, 0.0]),
-            total_mass: mass,
-            structural,
-            shear,
-            bend,
-            damping,
-        });
-        if !d.positions.iter().flatten().all(|v| v.is_finite()) {
-            return Err(err(at(&[&"grid"]), "origin and axes must be finite".into()));
-        }
-        d
-    } else if let Some(l) = &t.lattice {
-        for (a, &v) in l.n.iter().enumerate() {
-            if !(2..=1024).contains(&v) {
-                return Err(err(
-                    at(&[&"lattice", &"n", &a]),
-                    format!("a lattice needs 2..=1024 particles per side, not {v}"),
-                ));
-            }
-        }
-        for (i, &s) in l.size.iter().enumerate() {
-            finite_positive(s, at(&[&"lattice", &"size", &i]), "size", err)?;
-        }
-        let mass = finite_positive(l.mass, at(&[&"lattice", &"mass"]), "mass", err)?;
-        let k = |name: &str, v: f64| finite_nonneg(v, at(&[&"lattice", &name]), "stiffness", err);
-        let (structural, shear, bend) = (
-            k("structural", l.structural)?,
-            k("shear", l.shear)?,
-            k("bend", l.bend)?,
-        );
-        let damping = finite_nonneg(l.damping, at(&[&"lattice", &"damping"]), "damping", err)?;
-        let origin = l.origin.unwrap_or([0.0; 3]);
-        if !origin.iter().all(|v| v.is_finite()) {
-            return Err(err(at(&[&"lattice", &"origin"]), "must be finite".into()));
-        }
-        let mut d = ms::lattice(&ms::LatticeOptions {
-            n: l.n.map(|v| v as usize),
-            origin,
-            size: l.size,
-            mass,
-            structural,
-            shear,
-            bend,
-            damping,
-        });
-        if let Some(v) = l.velocity {
-            d.velocities = vec![v; d.positions.len()];
-        }
-        d
-    } else {
-        let mut d = MassSpringDesc::default();
-        for p in &t.particle {
-            d.positions.push(p.position);
-            d.velocities.push(p.velocity.unwrap_or([0.0; 3]));
-            d.masses.push(p.mass);
-        }
-        d
-    };
-    if (t.chain.is_some() || t.grid.is_some() || t.lattice.is_some()) && !t.spring.is_empty() {
-        return Err(err(
-            at(&[&"spring"]),
-            "springs come from the generator; list springs only with explicit particles".into(),
-        ));
-    }
-    for (k, s) in t.spring.iter().enumerate() {
-        let a = index(s.a, at(&[&"spring", &k, &"a"]), err)?;
-        let b = index(s.b, at(&[&"spring", &k, &"b"]), err)?;
-        desc.springs.push(SpringDesc {
-            a,
-            b,
-            stiffness: s.stiffness,
-            damping: s.damping,
-            rest_length: s.rest_length,
-        });
-    }
-    let mut pinned = Vec::new();
-    for (k, &p) in t.pinned.iter().enumerate() {
-        pinned.push(index(p, at(&[&"pinned", &k]), err)?);
-    }
-    let from_table = pinned.len();
-    pinned.extend(
-        t.particle
-            .iter()
-            .enumerate()
-            .filter(|(_, p)| p.pinned)
-            .map(|(i, _)| i),
-    );
-    // An explicit list wins; otherwise the generator's default stands (a chain pins its
-    // first particle, a grid nothing).
-    if !pinned.is_empty() {
-        desc.pinned = pinned;
-    }
-    if let Some(c) = &t.collisions {
-        let bounds = match (c.box_min, c.box_max) {
-            (Some(lo), Some(hi)) => Some((lo, hi)),
-            (None, None) => None,
-            (Some(_), None) => {
-                return Err(err(
-                    at(&[&"collisions", &"box_min"]),
-                    "needs box_max as well".into(),
-                ))
-            }
-            (None, Some(_)) => {
-                return Err(err(
-                    at(&[&"collisions", &"box_max"]),
-                    "needs box_min as well".into(),
-                ))
-            }
-        };
-        desc.collisions = Some(ms::CollisionDesc {
-            bounds,
-            planes: c.planes.clone(),
-            stiffness: c.stiffness,
-            damping: c.damping,
-        });
-    }
-    if let Some(f) = &t.force_field {
-        let r = f.resolution;
-        if !(2..=1000).contains(&r) {
-            return Err(err(
-                at(&[&"force_field", &"resolution"]),
-                format!("must be an integer in 2..=1000, not {r}"),
-            ));
-        }
-        let r = r as usize;
-        if f.forces.len() != r * r * r {
-            return Err(err(
-                at(&[&"force_field", &"forces"]),
-                format!(
-                    "resolution {r} needs {} forces (r^3), found {}",
-                    r * r * r,
-                    f.forces.len()
-                ),
-            ));
-        }
-        let world = ms::world::World::field_from_samples(r, f.min, f.max, &f.forces);
-        desc.force_field = Some(world);
-    }
-    desc.gravity = gravity;
-    desc.definiteness_fix = t.definiteness_fix.unwrap_or(true);
-    Ok((desc, from_table))
-}
-
-/// The TOML path a model validation error refers to.
-fn model_error_path(
-    e: &ModelError,
-    t: &schema::MassSpringTable,
-    pinned_from_table: usize,
-) -> Vec<Key> {
-    let ms = |rest: &[&dyn PathPart]| {
-        let mut p = path(&[&"mass_spring"]);
-        p.extend(path(rest));
-        p
-    };
-    match e {
-        ModelError::Value {
-            item: "particle",
-            index,
-            field,
-            ..
-        } => {
-            let f = field.split('.').next().unwrap_or(field);
-            ms(&[&"particle", index, &f])
-        }
-        ModelError::Value {
-            item: "spring",
-            index,
-            field,
-            ..
-        } => ms(&[&"spring", index, field]),
-        ModelError::Value {
-            item: "gravity",
-            index,
-            ..
-        } => path(&[&"scene", &"gravity", index]),
-        ModelError::MissingParticle {
-            item: "spring",
-            index,
-            particle,
-            ..
-        } => {
-            let end = if t
-                .spring
-                .get(*index)
-                .is_some_and(|s| s.a == *particle as i64)
-            {
-                "a"
-            } else {
-                "b"
-            };
-            ms(&[&"spring", index, &end])
-        }
-        ModelError::SelfSpring { index, .. } => ms(&[&"spring", index, &"b"]),
-        ModelError::Value {
-            item: "plane",
-            index,
-            ..
-        } => ms(&[&"collisions", &"planes", index]),
-        ModelError::Value {
-            item: "collisions",
-            field,
-            ..
-        } => ms(&[&"collisions", field]),
-        ModelError::Value {
-            item: "collisions.box",
-            index,
-            field,
-            ..
-        } => ms(&[&"collisions", &format!("box_{field}").as_str(), index]),
-        ModelError::Value { item, .. } | ModelError::Length { what: item, .. }
-            if item.starts_with("force_field") =>
-        {
-            ms(&[&"force_field"])
-        }
-        ModelError::MissingParticle {
-            item: "pinned",
-            index,
-            ..
-        } if *index < pinned_from_table => ms(&[&"pinned", index]),
-        _ => ms(&[]),
     }
 }

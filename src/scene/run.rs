@@ -5,10 +5,11 @@
 //! flushed as it is written. A failure (a blow-up, an I/O error) stops the run with an
 //! error naming the step; every frame and log line written before it stays valid.
 
-use super::{Scene, Simulation};
-use crate::integrate::IntegrateError;
-use crate::io::{write_atomically, write_obj, write_ply, Mesh};
+use super::{Scene, System};
+use crate::integrate::{IntegrateError, StepInfo};
+use crate::io::{write_atomically, write_obj, write_ply, Mesh, MeshRef};
 use crate::render::preview::PreviewSettings;
+use crate::simulation::{Energy, FrameData, Simulation};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -34,6 +35,21 @@ pub struct Output {
     /// Preview images, camera and animation timing (used when frames are kept, see
     /// [`Runner::keep_frames`]).
     pub preview: PreviewSettings,
+}
+
+impl Output {
+    /// `frames` every `every` steps of `dt` (s), previews with the default camera and
+    /// size at that frame rate.
+    pub fn new(frames: FrameFormat, every: usize, dt: f64) -> Output {
+        Output {
+            frames,
+            every,
+            preview: PreviewSettings {
+                frame_interval: every as f64 * dt,
+                ..PreviewSettings::default()
+            },
+        }
+    }
 }
 
 /// Progress of a run, reported after every frame.
@@ -202,7 +218,7 @@ fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> RunError + '_ {
 
 /// Runs a scene into an output folder.
 pub struct Runner {
-    sim: Simulation,
+    systems: Vec<System>,
     name: String,
     duration: f64,
     dt: f64,
@@ -213,25 +229,94 @@ pub struct Runner {
 }
 
 impl Runner {
-    /// Builds the simulation of `scene`; output goes to `out_dir` (created on run).
-    pub fn new(scene: Scene, out_dir: &Path) -> Result<Self, RunError> {
-        let (name, duration, dt, output) =
-            (scene.name.clone(), scene.duration, scene.dt, scene.output);
-        let sim = Simulation::new(scene).map_err(|source| RunError::Integrate {
-            source,
-            frames_written: 0,
-            out: out_dir.to_path_buf(),
-        })?;
-        Ok(Self {
-            sim,
-            name,
-            duration,
-            dt,
-            output,
+    /// A run of `scene`; output goes to `out_dir` (created on run).
+    pub fn new(scene: Scene, out_dir: &Path) -> Self {
+        Self {
+            systems: scene.systems,
+            name: scene.name,
+            duration: scene.duration,
+            dt: scene.dt,
+            output: scene.output,
             out_dir: out_dir.to_path_buf(),
             records: Vec::new(),
             kept: None,
+        }
+    }
+
+    /// The scene's systems.
+    pub fn systems(&self) -> &[System] {
+        &self.systems
+    }
+
+    /// Meshes of every system's fixed scenery (obstacles), for previews.
+    pub fn scenery(&self) -> Vec<Mesh> {
+        self.systems.iter().flat_map(|s| s.sim.scenery()).collect()
+    }
+
+    /// The simulation of the first system (the only one in most scenes).
+    pub fn simulation(&self) -> &dyn Simulation {
+        &*self.systems[0].sim
+    }
+
+    /// Simulated time (s).
+    fn time(&self) -> f64 {
+        self.systems[0].sim.time()
+    }
+
+    /// Integrator steps taken (sub-steps included; the most of any system).
+    fn steps(&self) -> u64 {
+        self.systems
+            .iter()
+            .map(|s| s.sim.steps())
+            .max()
+            .unwrap_or(0)
+    }
+
+    /// Energy summed over the systems.
+    fn energy(&self) -> Energy {
+        self.systems.iter().fold(Energy::default(), |e, s| {
+            let x = s.sim.energy();
+            Energy {
+                kinetic: e.kinetic + x.kinetic,
+                potential: e.potential + x.potential,
+            }
         })
+    }
+
+    /// The deepest penetration of any system (m).
+    fn max_penetration(&self) -> f64 {
+        self.systems
+            .iter()
+            .map(|s| s.sim.max_penetration())
+            .fold(0.0, f64::max)
+    }
+
+    /// One step of every system.
+    fn step(&mut self) -> Result<StepInfo, IntegrateError> {
+        let mut total = StepInfo::default();
+        for s in &mut self.systems {
+            let info = s.sim.step(self.dt)?;
+            total.newton_iterations += info.newton_iterations;
+            total.linear_iterations += info.linear_iterations;
+            total.residual = total.residual.max(info.residual);
+            total.solve_seconds += info.solve_seconds;
+        }
+        Ok(total)
+    }
+
+    /// Calls `f` with the frame's mesh: the system's own, or all systems' meshes as one
+    /// (vertices and elements concatenated) when the scene has several.
+    fn with_frame<R>(&self, f: impl FnOnce(MeshRef<'_>) -> R) -> R {
+        fn mesh(s: &System) -> MeshRef<'_> {
+            match s.sim.frame() {
+                FrameData::Mesh(m) => m,
+            }
+        }
+        if let [one] = &self.systems[..] {
+            return f(mesh(one));
+        }
+        let merged = Mesh::concat(self.systems.iter().map(mesh));
+        f(merged.as_ref())
     }
 
     /// Keeps a copy of every frame's mesh in memory (for a preview after the run; 24 bytes
@@ -260,21 +345,22 @@ impl Runner {
         &self.out_dir
     }
 
-    /// The simulation.
-    pub fn simulation(&self) -> &Simulation {
-        &self.sim
-    }
-
-    /// The stages built and left out, one per line.
+    /// The stages built and left out, one per line (each system's under its table's
+    /// name when the scene has several).
     pub fn explain(&self) -> String {
         let mut s = format!("{}: stages\n", self.name);
-        for st in self.sim.stages() {
-            s.push_str(&format!(
-                "  {} {:<50} {}\n",
-                if st.built { "built    " } else { "left out " },
-                st.name,
-                st.detail
-            ));
+        for system in &self.systems {
+            if self.systems.len() > 1 {
+                s.push_str(&format!("  [{}]\n", system.table));
+            }
+            for st in system.sim.stages() {
+                s.push_str(&format!(
+                    "  {} {:<50} {}\n",
+                    if st.built { "built    " } else { "left out " },
+                    st.name,
+                    st.detail
+                ));
+            }
         }
         s.push_str(&format!(
             "  output: {:?} frames every {} steps ({} s)\n",
@@ -299,8 +385,8 @@ impl Runner {
     }
 
     fn write_frame(&mut self, k: usize) -> Result<bool, RunError> {
-        if let Some(kept) = &mut self.kept {
-            let mut m = Mesh::from_ref(self.sim.mesh());
+        let copy = self.kept.is_some().then(|| self.with_frame(Mesh::from_ref));
+        if let (Some(kept), Some(mut m)) = (&mut self.kept, copy) {
             if let Some(prev) = kept.last() {
                 m.share_topology(prev);
             }
@@ -315,14 +401,23 @@ impl Runner {
             .out_dir
             .join("frames")
             .join(format!("frame_{k:05}.{ext}"));
-        let mesh = self.sim.mesh();
-        let comment = format!("largestep {} frame {k} t = {}", self.name, self.sim.time());
-        write_atomically(&path, |w| match self.output.frames {
-            FrameFormat::Ply => write_ply(w, mesh, &comment),
-            _ => write_obj(w, mesh, &comment),
+        let comment = format!("largestep {} frame {k} t = {}", self.name, self.time());
+        let format = self.output.frames;
+        self.with_frame(|mesh| {
+            write_atomically(&path, |w| match format {
+                FrameFormat::Ply => write_ply(w, mesh, &comment),
+                _ => write_obj(w, mesh, &comment),
+            })
         })
         .map_err(io_err(&path))?;
         Ok(true)
+    }
+
+    /// The integrators' names (one, unless systems differ).
+    fn method(&self) -> String {
+        let mut names: Vec<String> = self.systems.iter().map(|s| s.sim.method()).collect();
+        names.dedup();
+        names.join(", ")
     }
 
     /// Runs `frames` frames (default: the scene's duration), calling `progress` after each.
@@ -341,19 +436,19 @@ impl Runner {
             std::io::BufWriter::new(std::fs::File::create(&csv_path).map_err(io_err(&csv_path))?);
         writeln!(csv, "{}", FrameRecord::CSV_HEADER).map_err(io_err(&csv_path))?;
 
-        let (k0, p0) = self.sim.energy();
-        let e_start = k0 + p0;
-        let mut max_kinetic = k0;
+        let e0 = self.energy();
+        let e_start = e0.total();
+        let mut max_kinetic = e0.kinetic;
         self.records.clear();
         let mut written = self.write_frame(0)? as usize;
-        let record = |frame: usize, sim: &Simulation, newton, linear, steps, secs| {
-            let (kinetic, potential) = sim.energy();
+        let record = |frame: usize, run: &Runner, newton, linear, steps, secs| {
+            let e = run.energy();
             FrameRecord {
                 frame,
-                time: sim.time(),
-                kinetic,
-                potential,
-                penetration: sim.max_penetration(),
+                time: run.time(),
+                kinetic: e.kinetic,
+                potential: e.potential,
+                penetration: run.max_penetration(),
                 newton_iterations: newton,
                 linear_iterations: linear,
                 steps,
@@ -364,11 +459,12 @@ impl Runner {
             records.push(r);
             r.write_csv(&mut csv).and_then(|_| csv.flush())
         };
-        log(record(0, &self.sim, 0, 0, 0, 0.0), &mut self.records).map_err(io_err(&csv_path))?;
+        let r = record(0, self, 0, 0, 0, 0.0);
+        log(r, &mut self.records).map_err(io_err(&csv_path))?;
         let mut summary = Summary {
             name: self.name.clone(),
-            method: self.sim.method().to_string(),
-            linear_solver: self.sim.linear_solver(),
+            method: self.method(),
+            linear_solver: self.systems.iter().find_map(|s| s.sim.linear_solver()),
             steps: 0,
             frames_written: 0,
             sim_time: 0.0,
@@ -387,7 +483,7 @@ impl Runner {
             let t0 = Instant::now();
             let n = self.output.every.min(total_steps - steps_done);
             for _ in 0..n {
-                let info = self.sim.step().map_err(|source| RunError::Integrate {
+                let info = self.step().map_err(|source| RunError::Integrate {
                     source,
                     frames_written: written,
                     out: self.out_dir.clone(),
@@ -402,27 +498,24 @@ impl Runner {
             summary.step_seconds += secs;
             summary.newton_iterations += newton;
             summary.linear_iterations += linear;
-            max_kinetic = max_kinetic.max(self.sim.energy().0);
+            max_kinetic = max_kinetic.max(self.energy().kinetic);
             written += self.write_frame(frame)? as usize;
-            log(
-                record(frame, &self.sim, newton, linear, n, secs),
-                &mut self.records,
-            )
-            .map_err(io_err(&csv_path))?;
+            let r = record(frame, self, newton, linear, n, secs);
+            log(r, &mut self.records).map_err(io_err(&csv_path))?;
             progress(&Progress {
                 frame,
                 frames: total_frames,
-                steps: self.sim.steps(),
-                time: self.sim.time(),
+                steps: self.steps(),
+                time: self.time(),
             });
         }
-        let (k1, p1) = self.sim.energy();
-        summary.steps = self.sim.steps();
+        let e1 = self.energy().total();
+        summary.steps = self.steps();
         summary.frames_written = written;
-        summary.sim_time = self.sim.time();
-        summary.energy = (e_start, k1 + p1);
+        summary.sim_time = self.time();
+        summary.energy = (e_start, e1);
         let scale = e_start.abs().max(max_kinetic).max(f64::MIN_POSITIVE);
-        summary.energy_drift = (k1 + p1 - e_start) / scale;
+        summary.energy_drift = (e1 - e_start) / scale;
         summary.wall_seconds = start.elapsed().as_secs_f64();
         Ok(summary)
     }

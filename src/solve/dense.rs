@@ -1,4 +1,6 @@
-//! Small dense LU with partial pivoting, in buffers allocated once.
+//! Small dense solvers: LU with partial pivoting in buffers allocated once, and the
+//! inverse of a symmetric positive definite 3x3 block (the block-Jacobi and multigrid
+//! smoothers' diagonal).
 //!
 //! For the Jacobians of small first-order systems (studies, tests, control problems);
 //! mechanical systems use the sparse solvers. A pivot below `eps * max|A|` counts as zero
@@ -86,4 +88,51 @@ impl DenseLu {
             b[i] = (b[i] - s) / a[i * n + i];
         }
     }
+}
+
+/// Inverse of the symmetric part of a 3x3 block, as `[b00, b01, b02, b11, b12, b22]`, or
+/// `None` if it is not positive definite (a Cholesky pivot <= 0 or not finite).
+pub(crate) fn inverse_spd3(b: &[f64]) -> Option<[f64; 6]> {
+    let a00 = b[0];
+    let a01 = 0.5 * (b[1] + b[3]);
+    let a02 = 0.5 * (b[2] + b[6]);
+    let a11 = b[4];
+    let a12 = 0.5 * (b[5] + b[7]);
+    let a22 = b[8];
+    // Cholesky pivots decide definiteness robustly; the adjugate gives the inverse.
+    let l00 = a00;
+    if !positive(l00) {
+        return None;
+    }
+    let p1 = a11 - a01 * a01 / l00;
+    if !positive(p1) {
+        return None;
+    }
+    let l21 = a12 - a01 * a02 / l00;
+    let p2 = a22 - a02 * a02 / l00 - l21 * l21 / p1;
+    if !positive(p2) {
+        return None;
+    }
+    let c00 = a11 * a22 - a12 * a12;
+    let c01 = a02 * a12 - a01 * a22;
+    let c02 = a01 * a12 - a02 * a11;
+    let c11 = a00 * a22 - a02 * a02;
+    let c12 = a01 * a02 - a00 * a12;
+    let c22 = a00 * a11 - a01 * a01;
+    let det = a00 * c00 + a01 * c01 + a02 * c02;
+    let inv = 1.0 / det;
+    let out = [
+        c00 * inv,
+        c01 * inv,
+        c02 * inv,
+        c11 * inv,
+        c12 * inv,
+        c22 * inv,
+    ];
+    out.iter().all(|v| v.is_finite()).then_some(out)
+}
+
+/// `v > 0`: false for zero, negative and NaN pivots.
+pub(crate) fn positive(v: f64) -> bool {
+    v > 0.0
 }

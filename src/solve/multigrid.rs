@@ -46,9 +46,13 @@
 //! matrix is a sum. Multicolour block Gauss-Seidel smoothing saved iterations (15
 //! instead of 18) but each sweep cost twice as much (solve 13.5 against 10.5 ms).
 
-use super::{dense::DenseLu, filter::Filter, pcg::inverse_spd3, SolveError};
+use super::{
+    dense::{inverse_spd3, DenseLu},
+    filter::Filter,
+    SolveError,
+};
 use crate::sparse::{csr, Bsr3, Bsr3Pattern};
-use largestep_kernels::bsr3::{bsr3_residual_par, Bsr3Ref};
+use largestep_kernels::sparse::{bsr3_residual_par, Bsr3Ref};
 use rayon::prelude::*;
 use std::sync::Arc;
 

@@ -16,7 +16,7 @@ pub use assembly::{ElementAssembly, LocalLayout, RankOneAssembly, Src, VectorGat
 pub use bridge::{to_csr, FaerCsc, Triangle};
 pub use mm::{read_matrix_market, write_matrix_market, MatrixMarket};
 
-use largestep_kernels::bsr3::{bsr3_residual_par, bsr3_spmv_dot_par, Bsr3Ref};
+use largestep_kernels::sparse::{bsr3_residual_par, bsr3_spmv_dot_par, Bsr3Ref};
 use std::sync::Arc;
 
 /// Errors of the sparse layer: malformed connectivity and malformed matrix files.

@@ -2,7 +2,7 @@
 //! problems, observed orders of convergence, and the largest stable step on stiff problems
 //! against the theoretical bound.
 //!
-//! Problems (see `integrate::problems`):
+//! Problems (see `study/problems.rs`):
 //! - undamped oscillator, w = 2 pi, x0 = 1, T = 10 (exact solution);
 //! - damped oscillator, w = 2 pi, zeta = 0.1, T = 5 (exact);
 //! - stiff scalar ODE y' = -1000 (y - cos t), y0 = 0, T = 1 (exact; first-order methods);
@@ -21,8 +21,8 @@
 //! non-normal step matrix of the critically damped oscillator); bounds from linear
 //! stability analysis (see `theory`).
 
+use super::problems::{Oscillator, Pendulum, StiffScalar};
 use super::{write_file, StudyError};
-use crate::integrate::problems::{Oscillator, Pendulum, StiffScalar};
 use crate::integrate::{
     LinearSolverKind, MechSettings, MechStepper, Mechanical, Method, OdeStepper,
 };

@@ -24,9 +24,10 @@
 //! end metres apart.) Run time: wall time of the whole run on this machine.
 
 use super::{log_slope, max_distance, write_file, StudyError};
-use crate::integrate::{MechSettings, MechStepper, Mechanical, Method};
+use crate::integrate::{MechSettings, Method};
 use crate::mass_spring::{lattice, CollisionDesc, LatticeOptions, MassSpringDesc};
 use crate::plot::{write_panels, Curve, Panel, Scale};
+use crate::simulation::{MechModel, MechSimulation};
 use crate::sparse::Bsr3;
 use serde::Serialize;
 use std::fmt::Write as _;
@@ -73,6 +74,7 @@ fn stability_scene(k: f64, mass: f64) -> MassSpringDesc {
     d.collisions = Some(CollisionDesc {
         bounds: Some(([-2.0; 3], [2.0; 3])),
         planes: vec![],
+        obstacles: Vec::new(),
         stiffness: k,
         damping: DAMPING,
     });
@@ -82,16 +84,17 @@ fn stability_scene(k: f64, mass: f64) -> MassSpringDesc {
 /// Highest eigenvalue of `M^-1 K` (1/s^2), K = -df/dx at the start, by power iteration on
 /// the symmetric `M^-1/2 K M^-1/2`.
 fn highest_mu(desc: &MassSpringDesc) -> f64 {
-    let (mut m, st) = desc.build().expect("valid study scene");
+    let (m, st) = desc.build().expect("valid study scene");
     let n = m.particle_count();
+    let mut work = m.work();
     let pattern = m
-        .prepare_jacobians()
+        .prepare_jacobians(&mut work)
         .expect("pattern")
         .expect("springs have Jacobians");
     let mut kx = Bsr3::zeros(pattern);
     let mut f = vec![0.0; 3 * n];
     let (x, v) = (st.x.as_slice().to_vec(), st.v.as_slice().to_vec());
-    m.force_jacobians(0.0, &x, &v, &mut f, &mut kx, None)
+    m.force_jacobians(&mut work, 0.0, &x, &v, &mut f, &mut kx, None)
         .expect("Jacobians");
     let inv_sqrt_m: Vec<f64> = (0..3 * n).map(|i| 1.0 / m.mass()[i % n].sqrt()).collect();
     let mut y: Vec<f64> = (0..3 * n).map(|i| 1.0 + (i % 7) as f64 * 0.1).collect();
@@ -168,33 +171,20 @@ fn predicted(method: Method, mu: f64, a: f64) -> Option<f64> {
 
 /// Whether a run at step h stays bounded (see the module docs).
 fn stable(method: Method, desc: &MassSpringDesc, h: f64, max_steps: usize) -> bool {
-    let (mut m, mut st) = desc.build().expect("valid study scene");
-    let Ok(mut stepper) = MechStepper::new(MechSettings::new(method), &mut m) else {
+    let (m, st) = desc.build().expect("valid study scene");
+    let Ok(mut sim) = MechSimulation::new(m, st, MechSettings::new(method)) else {
         return false;
     };
-    let energy = |m: &crate::mass_spring::MassSpring, st: &crate::mass_spring::MassSpringState| {
-        crate::integrate::kinetic_energy(m.mass(), st.v.as_slice())
-            + m.potential_energy(0.0, st.x.as_slice()).unwrap_or(0.0)
-    };
-    let e0 = energy(&m, &st);
+    let e0 = sim.energy().total();
     let steps = ((0.5 / h).ceil() as usize).clamp(1, max_steps);
     for k in 0..steps {
-        if stepper
-            .step(
-                &mut m,
-                k as f64 * h,
-                st.x.as_mut_slice(),
-                st.v.as_mut_slice(),
-                h,
-            )
-            .is_err()
-        {
+        if sim.step(h).is_err() {
             return false;
         }
         if k % 50 == 49 || k + 1 == steps {
             // NaN counts as escaped / grown.
-            let inside = st.x.as_slice().iter().all(|c| c.abs() <= 2.5);
-            let bounded = energy(&m, &st) <= 2.0 * e0;
+            let inside = sim.state().x.as_slice().iter().all(|c| c.abs() <= 2.5);
+            let bounded = sim.energy().total() <= 2.0 * e0;
             if !inside || !bounded {
                 return false;
             }
@@ -424,6 +414,7 @@ fn accuracy_scene() -> MassSpringDesc {
     d.collisions = Some(CollisionDesc {
         bounds: Some(([-2.0; 3], [2.0; 3])),
         planes: vec![],
+        obstacles: Vec::new(),
         stiffness: 400.0,
         damping: DAMPING,
     });
@@ -438,28 +429,19 @@ fn run_world(
     dt: f64,
     t_end: f64,
 ) -> (Option<Vec<f64>>, f64) {
-    let (mut m, mut st) = desc.build().expect("valid scene");
+    let (m, st) = desc.build().expect("valid scene");
     let t0 = Instant::now();
-    let Ok(mut stepper) = MechStepper::new(MechSettings::new(method), &mut m) else {
+    let Ok(mut sim) = MechSimulation::new(m, st, MechSettings::new(method)) else {
         return (None, 0.0);
     };
     let steps = (t_end / dt).round() as usize;
-    for k in 0..steps {
-        if stepper
-            .step(
-                &mut m,
-                k as f64 * dt,
-                st.x.as_mut_slice(),
-                st.v.as_mut_slice(),
-                dt,
-            )
-            .is_err()
-        {
+    for _ in 0..steps {
+        if sim.step(dt).is_err() {
             return (None, t0.elapsed().as_secs_f64());
         }
     }
     let secs = t0.elapsed().as_secs_f64();
-    let x = st.x.as_slice();
+    let x = sim.state().x.as_slice();
     let ok = x.iter().all(|c| c.abs() <= 2.5);
     (ok.then(|| x.to_vec()), secs)
 }

@@ -2,9 +2,12 @@
 //! `NAME.md` (tables, the error measure and the reference stated), `NAME.svg` and `NAME.png`
 //! (log-log error against run time, one curve per method) and `NAME.json` (all numbers).
 
+#[cfg(feature = "cloth")]
 mod cloth;
 mod integrators;
+#[cfg(feature = "mass-spring")]
 mod jello;
+mod problems;
 
 use std::path::Path;
 
@@ -13,7 +16,7 @@ use std::path::Path;
 #[non_exhaustive]
 pub enum StudyError {
     /// No study of that name.
-    #[error("unknown study `{0}`; available: {names}", names = NAMES.join(", "))]
+    #[error("unknown study `{0}`; available: {names}", names = names().join(", "))]
     Unknown(String),
     /// Writing the report failed.
     #[error("{path}: {message}")]
@@ -25,14 +28,26 @@ pub enum StudyError {
     },
 }
 
-/// Study names.
-pub const NAMES: [&str; 5] = [
-    "integrators",
-    "jello-stability",
-    "jello-accuracy",
-    "cloth-accuracy",
-    "cloth-stability",
+/// A study: its name and what runs it (into a folder, quick or not).
+type Study = (&'static str, fn(&Path, bool) -> Result<String, StudyError>);
+
+/// The studies of the domains built in.
+const STUDIES: &[Study] = &[
+    ("integrators", integrators::run),
+    #[cfg(feature = "mass-spring")]
+    ("jello-stability", jello::stability),
+    #[cfg(feature = "mass-spring")]
+    ("jello-accuracy", jello::accuracy),
+    #[cfg(feature = "cloth")]
+    ("cloth-accuracy", cloth::accuracy),
+    #[cfg(feature = "cloth")]
+    ("cloth-stability", cloth::stability),
 ];
+
+/// The names of the studies built in.
+pub fn names() -> Vec<&'static str> {
+    STUDIES.iter().map(|(name, _)| *name).collect()
+}
 
 /// Runs the study `name`, writing its report into `out`; returns a short text summary.
 pub fn run(name: &str, out: &Path, quick: bool) -> Result<String, StudyError> {
@@ -40,13 +55,9 @@ pub fn run(name: &str, out: &Path, quick: bool) -> Result<String, StudyError> {
         path: out.display().to_string(),
         message: e.to_string(),
     })?;
-    match name {
-        "integrators" => integrators::run(out, quick),
-        "jello-stability" => jello::stability(out, quick),
-        "jello-accuracy" => jello::accuracy(out, quick),
-        "cloth-accuracy" => cloth::accuracy(out, quick),
-        "cloth-stability" => cloth::stability(out, quick),
-        other => Err(StudyError::Unknown(other.to_string())),
+    match STUDIES.iter().find(|(n, _)| *n == name) {
+        Some((_, study)) => study(out, quick),
+        None => Err(StudyError::Unknown(name.to_string())),
     }
 }
 
@@ -61,6 +72,7 @@ pub(crate) fn write_file(path: &Path, text: &str) -> Result<(), StudyError> {
 
 /// The largest distance between corresponding points of two component-major position
 /// arrays (m).
+#[cfg(any(feature = "mass-spring", feature = "cloth"))]
 pub(crate) fn max_distance(a: &[f64], b: &[f64]) -> f64 {
     let n = a.len() / 3;
     (0..n)
@@ -75,6 +87,7 @@ pub(crate) fn max_distance(a: &[f64], b: &[f64]) -> f64 {
 
 /// Least-squares slope of log error against log dt over `(dt, error)` points: the
 /// observed order; `None` with fewer than three points.
+#[cfg(any(feature = "mass-spring", feature = "cloth"))]
 pub(crate) fn log_slope(points: &[(f64, f64)]) -> Option<f64> {
     let fit: Vec<(f64, f64)> = points.iter().map(|&(d, e)| (d.ln(), e.ln())).collect();
     (fit.len() >= 3).then(|| {

@@ -1,4 +1,7 @@
-//! Model problems with exact solutions, for validating and studying integrators.
+//! Model problems with exact solutions, for validating and studying integrators: the
+//! integrator study's problem set, and the fixtures of `tests/integrate.rs`, which includes
+//! this file by path (so it names the crate `largestep` and allows items one of the two
+//! does not use). Not public API.
 //!
 //! The mechanical ones are one-vertex [`Mechanical`] systems that move along x only (the
 //! y and z components stay at zero), with unit mass; their Jacobians are exact.
@@ -12,8 +15,10 @@
 //!   `B = lambda/(1+lambda^2)`.
 //! - [`Quadratic`]: `y' = c y^2` (the course notes' sample problem, c = 4).
 
-use super::{IntegrateError, Mechanical, OdeSystem};
-use crate::sparse::{Bsr3, Bsr3Pattern, SparseError};
+#![allow(dead_code)]
+
+use largestep::integrate::{IntegrateError, Mechanical, OdeSystem};
+use largestep::sparse::{Bsr3, Bsr3Pattern, SparseError};
 use std::sync::Arc;
 
 /// The damped, optionally driven, harmonic oscillator of unit mass (see the module docs).

@@ -1,7 +1,9 @@
-//! Small procedural meshes for tests, benchmarks and examples.
+//! Small procedural meshes: obstacle surfaces (sphere, box, capsule) for previews, and
+//! test scenes for the renderer and its benchmarks. Geometry only: physics and the
+//! renderer both use it, neither through the other.
 
-use super::camera::{cross, normalize, sub};
 use crate::io::Mesh;
+use largestep_kernels::v3::{cross, length_and_unit, sub};
 
 fn mesh(points: &[[f64; 3]], triangles: Vec<[u32; 3]>, segments: Vec<[u32; 2]>) -> Mesh {
     Mesh {
@@ -128,14 +130,14 @@ pub fn capsule(a: [f64; 3], b: [f64; 3], radius: f64, sectors: usize) -> Mesh {
     append(&uv_sphere(a, radius, sectors / 2 + 1, sectors));
     append(&uv_sphere(b, radius, sectors / 2 + 1, sectors));
     // Two unit vectors across the axis (none for a zero-length capsule: two spheres).
-    let axis = normalize(d);
+    let axis = unit(d);
     let across = axis.and_then(|axis| {
         let helper = if axis[0].abs() < 0.9 {
             [1.0, 0.0, 0.0]
         } else {
             [0.0, 1.0, 0.0]
         };
-        normalize(cross(axis, helper)).map(|e1| (e1, cross(axis, e1)))
+        unit(cross(axis, helper)).map(|e1| (e1, cross(axis, e1)))
     });
     if let Some((e1, e2)) = across {
         let base = points.len() as u32;
@@ -159,4 +161,9 @@ pub fn capsule(a: [f64; 3], b: [f64; 3], radius: f64, sectors: usize) -> Mesh {
         }
     }
     mesh(&points, tris, Vec::new())
+}
+
+/// `a / |a|`, `None` for a zero or non-finite vector.
+fn unit(a: [f64; 3]) -> Option<[f64; 3]> {
+    length_and_unit(a).map(|(_, u)| u)
 }

@@ -1,0 +1,279 @@
+//! Collisions, shared by every domain: fixed obstacles and the two ways a model responds
+//! to them.
+//!
+//! - [`Obstacle`]: analytic shapes (plane, sphere, box, capsule) and signed-distance grids
+//!   ([`SdfGrid`]). Every shape answers one question, the signed distance of a point
+//!   (m, negative inside) and the outward unit normal there ([`Obstacle::distance`]);
+//!   nothing downstream depends on the shape.
+//! - [`VertexContacts`]: contacts as constraints (Baraff and Witkin 1998, section 5): after
+//!   a step every vertex closer than [`CONTACT_THICKNESS`] is moved out, loses its inward
+//!   velocity, gets Coulomb friction, and is held in the tangent plane by the constraint
+//!   filter of the next implicit solve. The cloth uses them; the generic mechanical
+//!   simulation ([`crate::simulation::MechSimulation`]) runs them for any model that names
+//!   contact obstacles.
+//! - [`Penalty`]: contacts as forces (course notes, section 4): a vertex inside an
+//!   obstacle gets a spring of rest length zero to the surface, with its Jacobian and
+//!   energy, inside the model's force. The jello uses them.
+//!
+//! Both are vertex-against-surface tests over every vertex and obstacle (no broad phase
+//! yet: scenes hold a handful of obstacles).
+
+mod contacts;
+mod penalty;
+mod sdf;
+
+pub use contacts::{VertexContacts, CONTACT_THICKNESS};
+pub use penalty::Penalty;
+pub use sdf::SdfGrid;
+
+use crate::io::Mesh;
+use crate::validate::{check, require, ModelError, Rule};
+use largestep_kernels::interp::sample3_grad;
+use largestep_kernels::v3::{dot, length_and_unit as unit, sub};
+use std::sync::Arc;
+
+/// A rigid, fixed collision obstacle: a solid the model stays out of.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Obstacle {
+    /// The solid half-space behind a plane, `normal . x + offset < 0`, its outward normal a
+    /// unit vector ([`Obstacle::plane_through`] and [`Obstacle::plane`] make one).
+    Plane {
+        /// Outward unit normal.
+        normal: [f64; 3],
+        /// Offset (m): the signed distance of the origin.
+        offset: f64,
+    },
+    /// A solid ball.
+    Sphere {
+        /// Centre (m).
+        center: [f64; 3],
+        /// Radius (m), > 0.
+        radius: f64,
+    },
+    /// A solid axis-aligned box.
+    Box {
+        /// Lower corner (m).
+        min: [f64; 3],
+        /// Upper corner (m), above `min` on every axis.
+        max: [f64; 3],
+    },
+    /// A solid capsule: the points within `radius` of the segment `a`-`b`.
+    Capsule {
+        /// Segment start (m).
+        a: [f64; 3],
+        /// Segment end (m).
+        b: [f64; 3],
+        /// Radius (m), > 0.
+        radius: f64,
+    },
+    /// A signed-distance grid (trilinear); points outside the grid are free.
+    Sdf(Arc<SdfGrid>),
+}
+
+impl Obstacle {
+    /// The solid behind the plane through `point` with outward normal `normal` (any
+    /// length); `None` when the normal is zero or either is not finite.
+    pub fn plane_through(point: [f64; 3], normal: [f64; 3]) -> Option<Obstacle> {
+        let (_, n) = unit(normal)?;
+        let offset = -dot(n, point);
+        offset
+            .is_finite()
+            .then_some(Obstacle::Plane { normal: n, offset })
+    }
+
+    /// The solid `a x + b y + c z + d < 0` of the plane `[a, b, c, d]`; `None` for a zero
+    /// or non-finite normal or a non-finite `d`.
+    pub fn plane(p: [f64; 4]) -> Option<Obstacle> {
+        let (len, n) = unit([p[0], p[1], p[2]])?;
+        p[3].is_finite().then(|| Obstacle::Plane {
+            normal: n,
+            offset: p[3] / len,
+        })
+    }
+
+    /// The six walls of a container `[lo, hi]`: planes whose solid sides lie outside the
+    /// box, so that what is inside stays inside.
+    pub fn container(lo: [f64; 3], hi: [f64; 3]) -> [Obstacle; 6] {
+        std::array::from_fn(|w| {
+            let axis = w / 2;
+            let mut normal = [0.0; 3];
+            if w % 2 == 0 {
+                normal[axis] = 1.0;
+                Obstacle::Plane {
+                    normal,
+                    offset: -lo[axis],
+                }
+            } else {
+                normal[axis] = -1.0;
+                Obstacle::Plane {
+                    normal,
+                    offset: hi[axis],
+                }
+            }
+        })
+    }
+
+    /// The same plane with its solid side flipped (planes only; others are returned as
+    /// they are).
+    pub fn flipped(&self) -> Obstacle {
+        match self {
+            Obstacle::Plane { normal, offset } => Obstacle::Plane {
+                normal: normal.map(|c| -c),
+                offset: -offset,
+            },
+            other => other.clone(),
+        }
+    }
+
+    /// The kind, for messages.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Obstacle::Plane { .. } => "plane",
+            Obstacle::Sphere { .. } => "sphere",
+            Obstacle::Box { .. } => "box",
+            Obstacle::Capsule { .. } => "capsule",
+            Obstacle::Sdf(_) => "sdf",
+        }
+    }
+
+    /// Checks the parameters; errors are `obstacle` errors naming `index` (the obstacle's
+    /// position in its model's list) and the field.
+    pub fn validate(&self, index: usize) -> Result<(), ModelError> {
+        use Rule::{Finite, Positive};
+        let (item, k) = ("obstacle", index);
+        let check = |field, value, rule| check(item, k, field, value, rule);
+        let require = |field, value, ok, why| require(item, k, field, value, ok, why);
+        let finite3 = |field, v: [f64; 3]| v.iter().try_for_each(|&c| check(field, c, Finite));
+        match self {
+            Obstacle::Plane { normal, offset } => {
+                finite3("normal", *normal)?;
+                check("offset", *offset, Finite)?;
+                let len = dot(*normal, *normal).sqrt();
+                let why = "must be a unit vector (Obstacle::plane_through normalises one)";
+                require("normal", len, (len - 1.0).abs() < 1e-9, why)?;
+            }
+            Obstacle::Sphere { center, radius } => {
+                finite3("center", *center)?;
+                check("radius", *radius, Positive)?;
+            }
+            Obstacle::Box { min, max } => {
+                finite3("min", *min)?;
+                finite3("max", *max)?;
+                for a in 0..3 {
+                    require(
+                        "max",
+                        max[a],
+                        max[a] > min[a],
+                        "must be above min on every axis",
+                    )?;
+                }
+            }
+            Obstacle::Capsule { a, b, radius } => {
+                finite3("a", *a)?;
+                finite3("b", *b)?;
+                check("radius", *radius, Positive)?;
+            }
+            Obstacle::Sdf(s) => {
+                let g = &s.grid;
+                let shape_ok = g.n.iter().all(|&n| n >= 2) && s.phi.len() == g.len();
+                let why = "needs at least 2 nodes per axis and one distance per node";
+                require("grid", s.phi.len() as f64, shape_ok, why)?;
+                finite3("origin", g.origin)?;
+                g.spacing
+                    .iter()
+                    .try_for_each(|&h| check("spacing", h, Positive))?;
+                s.phi
+                    .iter()
+                    .try_for_each(|&d| check("distance", d, Finite))?;
+            }
+        }
+        Ok(())
+    }
+
+    /// A mesh to draw the obstacle in previews: spheres, boxes and capsules. Planes (the
+    /// preview's ground stands in for a floor) and distance grids (that would need an
+    /// isosurface) give `None`.
+    pub fn preview_mesh(&self) -> Option<Mesh> {
+        use crate::shapes;
+        match self {
+            Obstacle::Sphere { center, radius } => {
+                Some(shapes::uv_sphere(*center, *radius, 24, 48))
+            }
+            Obstacle::Box { min, max } => Some(shapes::cuboid(*min, *max)),
+            Obstacle::Capsule { a, b, radius } => Some(shapes::capsule(*a, *b, *radius, 32)),
+            Obstacle::Plane { .. } | Obstacle::Sdf(_) => None,
+        }
+    }
+
+    /// Signed distance of `p` (m, negative inside) and the outward unit normal there, or
+    /// `None` where there is no normal (the centre of a sphere, the axis of a capsule, a
+    /// flat spot of a distance grid, outside a grid, NaN).
+    #[inline]
+    pub fn distance(&self, p: [f64; 3]) -> Option<(f64, [f64; 3])> {
+        match self {
+            Obstacle::Plane { normal, offset } => {
+                let d = dot(*normal, p) + offset;
+                d.is_finite().then_some((d, *normal))
+            }
+            Obstacle::Sphere { center, radius } => {
+                let (l, n) = unit(sub(p, *center))?;
+                Some((l - radius, n))
+            }
+            Obstacle::Box { min, max } => {
+                let q: [f64; 3] = std::array::from_fn(|a| p[a].clamp(min[a], max[a]));
+                if q != p {
+                    // Outside: distance to the closest point of the box.
+                    return unit(sub(p, q));
+                }
+                // Inside: the nearest face.
+                let mut best = (f64::INFINITY, [0.0; 3]);
+                for a in 0..3 {
+                    for (depth, s) in [(p[a] - min[a], -1.0), (max[a] - p[a], 1.0)] {
+                        if depth < best.0 {
+                            let mut n = [0.0; 3];
+                            n[a] = s;
+                            best = (depth, n);
+                        }
+                    }
+                }
+                best.0.is_finite().then_some((-best.0, best.1))
+            }
+            Obstacle::Capsule { a, b, radius } => {
+                let ab = sub(*b, *a);
+                let len2 = dot(ab, ab);
+                let t = if len2 > 0.0 {
+                    (dot(sub(p, *a), ab) / len2).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                let q: [f64; 3] = std::array::from_fn(|k| a[k] + t * ab[k]);
+                let (l, n) = unit(sub(p, q))?;
+                Some((l - radius, n))
+            }
+            Obstacle::Sdf(s) => {
+                if !s.grid.contains(p) {
+                    return None;
+                }
+                let (d, g) = sample3_grad(&s.phi, s.grid, p);
+                let (_, n) = unit(g)?;
+                Some((d, n))
+            }
+        }
+    }
+}
+
+/// The deepest penetration (m, >= 0) of any vertex of component-major positions `x` into
+/// any of `obstacles`; 0 without obstacles.
+pub fn max_penetration(obstacles: &[Obstacle], x: &[f64]) -> f64 {
+    let n = x.len() / 3;
+    let mut worst = 0.0f64;
+    for i in 0..n {
+        let p = largestep_kernels::get3(x, n, i);
+        for o in obstacles {
+            if let Some((d, _)) = o.distance(p) {
+                worst = worst.max(-d);
+            }
+        }
+    }
+    worst
+}

@@ -1,0 +1,596 @@
+//! The generic simulation of a mechanical model: model + integrator + state + contacts +
+//! step-size control.
+//!
+//! [`MechModel`] is what a mechanical domain implements: the immutable data its builder
+//! computed, with evaluation methods taking `&self` and a separate `Work` of scratch
+//! buffers. An integrator steps a [`Mechanical`] system; [`MechSimulation`] binds the
+//! model, its work and its contacts into one for each step (`Bound`), so that the model
+//! itself is never written and can be shared (`Arc`) between threads and between
+//! several simulations of one asset.
+//!
+//! Each step of [`MechSimulation::step`]:
+//! 1. saves `(x, v)` when step-size control is on;
+//! 2. steps the integrator; the model's constraints (pins) and the current contacts go
+//!    into the constraint filter, and every force evaluation records the force pulling
+//!    on each contact (what releases it);
+//! 3. with step-size control, rejects a step that failed or changed some element's strain
+//!    by more than [`StepControl::max_strain_change`]: the state is restored and the step
+//!    retried at half the size, down to `dt / 2^max_halvings` (Baraff and Witkin 1998,
+//!    section 5.3); after two good sub-steps the size doubles back towards `dt`;
+//! 4. places prescribed vertices ([`MechModel::prescribe`]) and resolves contacts with
+//!    the model's contact obstacles ([`VertexContacts::resolve`]).
+
+use super::{Energy, FrameData, Simulation, Stage};
+use crate::collide::{max_penetration, Obstacle, VertexContacts};
+use crate::integrate::{
+    kinetic_energy, IntegrateError, MechSettings, MechState, MechStepper, Mechanical, Method,
+    StepInfo,
+};
+use crate::io::{Mesh, MeshRef};
+use crate::solve::Filter;
+use crate::sparse::{Bsr3, Bsr3Pattern, SparseError};
+use std::sync::Arc;
+
+/// Step-size control (Baraff and Witkin 1998, section 5.3): a step that fails (the solve
+/// does not converge, the state is not finite) or stretches or compresses some element by
+/// more than `max_strain_change` in one step ([`MechModel::strain_change`]: the
+/// large-step artifact of a linearised step turning a rotation into stretch) is undone and
+/// retried as two half steps, down to `dt / 2^max_halvings`; after two good steps the step
+/// doubles back towards dt. The limit is on the change, not the strain itself, so a model
+/// that is strained where it hangs from a pin is not rejected for it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepControl {
+    /// Largest change of any element's strain in one step (0.25: 25%), > 0.
+    pub max_strain_change: f64,
+    /// Halvings allowed before the run fails.
+    pub max_halvings: u32,
+}
+
+impl Default for StepControl {
+    fn default() -> Self {
+        StepControl {
+            max_strain_change: 0.25,
+            max_halvings: 6,
+        }
+    }
+}
+
+impl StepControl {
+    /// Checks the settings (a `step_control` error naming the field).
+    pub fn validate(&self) -> Result<(), crate::validate::ModelError> {
+        let sc = self.max_strain_change;
+        crate::validate::check(
+            "step_control",
+            0,
+            "max_strain_change",
+            sc,
+            crate::validate::Rule::Positive,
+        )
+    }
+}
+
+/// An immutable mechanical model `M x'' = f(t, x, v)` with lumped masses (see the module
+/// docs). Positions, velocities and forces are component-major Vec3s data of its n
+/// vertices. The evaluation methods mirror [`Mechanical`]'s, with the scratch buffers
+/// passed in.
+pub trait MechModel: Send + Sync + 'static {
+    /// Scratch buffers of force and Jacobian evaluation.
+    type Work: Send;
+    /// Fresh scratch buffers for force evaluation (Jacobian buffers are added by
+    /// [`MechModel::prepare_jacobians`], for implicit integrators only).
+    fn work(&self) -> Self::Work;
+    /// Number of vertices n.
+    fn vertex_count(&self) -> usize;
+    /// Mass per vertex (kg), length n: > 0, or 0 for vertices the filter fixes.
+    fn mass(&self) -> &[f64];
+    /// Writes the model's own constraints (pinned and prescribed vertices) into `filter`.
+    fn constraints(&self, filter: &mut Filter) {
+        let _ = filter;
+    }
+    /// `f = total force` (N) at time t, positions x (m) and velocities v (m/s).
+    fn force(&self, work: &mut Self::Work, t: f64, x: &[f64], v: &[f64], f: &mut [f64]);
+    /// Potential energy (J) of the non-damping forces, if they have one (see
+    /// [`Mechanical::potential_energy`]).
+    fn potential_energy(&self, t: f64, x: &[f64]) -> Option<f64> {
+        let _ = (t, x);
+        None
+    }
+    /// Rayleigh dissipation function (W) of the damping forces.
+    fn dissipation(&self, x: &[f64], v: &[f64]) -> f64 {
+        let _ = (x, v);
+        0.0
+    }
+    /// Builds the Jacobian structures into `work` (once) and returns their block pattern,
+    /// or `None` if the model provides no Jacobians.
+    fn prepare_jacobians(
+        &self,
+        work: &mut Self::Work,
+    ) -> Result<Option<Arc<Bsr3Pattern>>, SparseError> {
+        let _ = work;
+        Ok(None)
+    }
+    /// Whether `df/dv` can be non-zero.
+    fn has_velocity_jacobian(&self) -> bool {
+        false
+    }
+    /// `f`, `dfdx = df/dx` and, when asked, `dfdv = df/dv` (values overwritten).
+    #[allow(clippy::too_many_arguments)]
+    fn force_jacobians(
+        &self,
+        work: &mut Self::Work,
+        t: f64,
+        x: &[f64],
+        v: &[f64],
+        f: &mut [f64],
+        dfdx: &mut Bsr3,
+        dfdv: Option<&mut Bsr3>,
+    ) -> Result<(), IntegrateError> {
+        let _ = (work, t, x, v, f, dfdx, dfdv);
+        Err(IntegrateError::Unsupported {
+            method: Method::BackwardEuler,
+            reason: "the system provides no Jacobians",
+        })
+    }
+
+    /// Every obstacle the model collides with (for penetration reports and scenery).
+    fn obstacles(&self) -> &[Obstacle] {
+        &[]
+    }
+    /// `Some(friction)` when the simulation resolves [`MechModel::obstacles`] as
+    /// constraint contacts after each step ([`VertexContacts`]); `None` when the model
+    /// handles them inside its force (penalties) or has none.
+    fn contact_friction(&self) -> Option<f64> {
+        None
+    }
+    /// Vertices that contacts never move, sorted: pinned and prescribed ones.
+    fn fixed_vertices(&self) -> &[u32] {
+        &[]
+    }
+    /// Places prescribed vertices (position and velocity) at time `t`, after each step.
+    fn prescribe(&self, t: f64, x: &mut [f64], v: &mut [f64]) {
+        let _ = (t, x, v);
+    }
+    /// The largest change of any element's strain between positions `x0` and `x` (NaN if
+    /// any is NaN): what [`StepControl`] limits.
+    fn strain_change(&self, x0: &[f64], x: &[f64]) -> f64 {
+        let _ = (x0, x);
+        0.0
+    }
+    /// Step-size control, if the model asks for it.
+    fn step_control(&self) -> Option<StepControl> {
+        None
+    }
+    /// The model's stages for `--explain`: elements, damping, loads, pins, collisions.
+    fn stages(&self) -> Vec<Stage>;
+    /// Surface triangles written per frame (may be empty).
+    fn triangles(&self) -> &[[u32; 3]] {
+        &[]
+    }
+    /// Segments (springs) written per frame when there are no triangles.
+    fn segments(&self) -> &[[u32; 2]] {
+        &[]
+    }
+}
+
+/// A model, its scratch and its contacts, bound for one step: what the integrator sees.
+struct Bound<'a, M: MechModel> {
+    model: &'a M,
+    work: &'a mut M::Work,
+    contacts: &'a mut VertexContacts,
+}
+
+impl<M: MechModel> Mechanical for Bound<'_, M> {
+    fn vertex_count(&self) -> usize {
+        self.model.vertex_count()
+    }
+    fn mass(&self) -> &[f64] {
+        self.model.mass()
+    }
+    fn constraints(&self, filter: &mut Filter) {
+        // Contacts first, then the model's own: a pinned vertex in contact stays fixed.
+        self.contacts.constraints(filter);
+        self.model.constraints(filter);
+    }
+    fn force(&mut self, t: f64, x: &[f64], v: &[f64], f: &mut [f64]) {
+        self.model.force(self.work, t, x, v, f);
+        self.contacts.record_pull(f);
+    }
+    fn potential_energy(&self, t: f64, x: &[f64]) -> Option<f64> {
+        self.model.potential_energy(t, x)
+    }
+    fn dissipation(&self, x: &[f64], v: &[f64]) -> f64 {
+        self.model.dissipation(x, v)
+    }
+    fn prepare_jacobians(&mut self) -> Result<Option<Arc<Bsr3Pattern>>, SparseError> {
+        self.model.prepare_jacobians(self.work)
+    }
+    fn has_velocity_jacobian(&self) -> bool {
+        self.model.has_velocity_jacobian()
+    }
+    fn force_jacobians(
+        &mut self,
+        t: f64,
+        x: &[f64],
+        v: &[f64],
+        f: &mut [f64],
+        dfdx: &mut Bsr3,
+        dfdv: Option<&mut Bsr3>,
+    ) -> Result<(), IntegrateError> {
+        self.model
+            .force_jacobians(self.work, t, x, v, f, dfdx, dfdv)?;
+        self.contacts.record_pull(f);
+        Ok(())
+    }
+}
+
+/// The simulation of a mechanical model (see the module docs).
+///
+/// ```
+/// use largestep::integrate::{MechSettings, Method};
+/// use largestep::mass_spring::chain;
+/// use largestep::simulation::{MechSimulation, Simulation};
+///
+/// let mut desc = chain(10, [0.0; 3], [1.0, 0.0, 0.0], 0.1, 0.01, 200.0, 0.01);
+/// desc.gravity = [0.0, -9.81, 0.0];
+/// let (model, state) = desc.build()?;
+/// let settings = MechSettings::new(Method::BackwardEuler);
+/// let mut sim = MechSimulation::new(model, state, settings)?;
+/// for _ in 0..100 {
+///     sim.step(0.01)?;
+/// }
+/// assert!(sim.state().x.get(9)[1] < 0.0); // the free end has swung down
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub struct MechSimulation<M: MechModel> {
+    model: Arc<M>,
+    state: MechState,
+    contacts: VertexContacts,
+    work: M::Work,
+    stepper: MechStepper,
+    control: Option<StepControl>,
+    /// Step-size control: the current sub-step (NaN until the first step), good
+    /// sub-steps in a row, and the state saved before each attempt.
+    sub_dt: f64,
+    good_steps: u32,
+    saved: (Vec<f64>, Vec<f64>),
+    t: f64,
+}
+
+impl<M: MechModel> MechSimulation<M> {
+    /// A simulation of `model` from `state` with the integrator of `settings` (implicit
+    /// methods build the Jacobian structures here). `model` may be shared: pass an
+    /// `Arc<M>` to step several simulations of one model.
+    pub fn new(
+        model: impl Into<Arc<M>>,
+        state: MechState,
+        settings: MechSettings,
+    ) -> Result<Self, IntegrateError> {
+        let model = model.into();
+        let n = model.vertex_count();
+        assert!(
+            state.x.len() == n && state.v.len() == n,
+            "state of {} vertices for a model of {n}",
+            state.x.len()
+        );
+        let mut work = model.work();
+        let mut contacts = VertexContacts::new();
+        let stepper = MechStepper::new(
+            settings,
+            &mut Bound {
+                model: &*model,
+                work: &mut work,
+                contacts: &mut contacts,
+            },
+        )?;
+        let control = model.step_control();
+        let saved = match control {
+            Some(_) => (vec![0.0; 3 * n], vec![0.0; 3 * n]),
+            None => (Vec::new(), Vec::new()),
+        };
+        Ok(Self {
+            model,
+            state,
+            contacts,
+            work,
+            stepper,
+            control,
+            sub_dt: f64::NAN,
+            good_steps: 0,
+            saved,
+            t: 0.0,
+        })
+    }
+
+    /// A second simulation of the same (shared) model from this one's state, contacts and
+    /// time, with its own integrator settings (a comparison of solvers from one state).
+    pub fn fork(&self, settings: MechSettings) -> Result<Self, IntegrateError>
+    where
+        M::Work: Send,
+    {
+        let mut sim = Self::new(self.model.clone(), self.state.clone(), settings)?;
+        sim.contacts = self.contacts.clone();
+        sim.control = self.control;
+        sim.saved = self.saved.clone();
+        sim.t = self.t;
+        Ok(sim)
+    }
+
+    /// Simulated time (s).
+    pub fn time(&self) -> f64 {
+        self.t
+    }
+
+    /// The model.
+    pub fn model(&self) -> &M {
+        &self.model
+    }
+
+    /// The shared model (to start another simulation of it).
+    pub fn shared_model(&self) -> Arc<M> {
+        self.model.clone()
+    }
+
+    /// The state: positions and velocities.
+    pub fn state(&self) -> &MechState {
+        &self.state
+    }
+
+    /// The state, to change between steps (an engine moving vertices by hand).
+    pub fn state_mut(&mut self) -> &mut MechState {
+        &mut self.state
+    }
+
+    /// The scratch buffers.
+    pub fn work(&self) -> &M::Work {
+        &self.work
+    }
+
+    /// The stepper (integrator settings, matrices built).
+    pub fn stepper(&self) -> &MechStepper {
+        &self.stepper
+    }
+
+    /// Replaces the model's step-size control (`None`: every step at the dt asked for).
+    pub fn set_step_control(&mut self, control: Option<StepControl>) {
+        let n = self.model.vertex_count();
+        if control.is_some() && self.saved.0.len() != 3 * n {
+            self.saved = (vec![0.0; 3 * n], vec![0.0; 3 * n]);
+        }
+        self.control = control;
+    }
+
+    /// Writes the constraints the next step solves under: the current contacts, then the
+    /// model's own (pins).
+    pub fn constraints(&self, filter: &mut Filter) {
+        self.contacts.constraints(filter);
+        self.model.constraints(filter);
+    }
+
+    /// Vertices in contact after the last step.
+    pub fn contact_count(&self) -> usize {
+        self.contacts.count()
+    }
+
+    /// The current sub-step of step-size control (s): the last dt unless steps were
+    /// halved recently (NaN before the first step).
+    pub fn sub_step(&self) -> f64 {
+        self.sub_dt
+    }
+
+    /// One integrator step of size h from the current time, then prescribed motion and
+    /// contacts.
+    fn integrate(&mut self, h: f64) -> Result<StepInfo, IntegrateError> {
+        let (x, v) = (self.state.x.as_mut_slice(), self.state.v.as_mut_slice());
+        let info = self.stepper.step(
+            &mut Bound {
+                model: &*self.model,
+                work: &mut self.work,
+                contacts: &mut self.contacts,
+            },
+            self.t,
+            x,
+            v,
+            h,
+        )?;
+        Ok(info)
+    }
+
+    /// What follows every accepted step ending at `self.t`: prescribed vertices, then
+    /// contacts.
+    fn after_step(&mut self, h: f64) {
+        let (x, v) = (self.state.x.as_mut_slice(), self.state.v.as_mut_slice());
+        self.model.prescribe(self.t, x, v);
+        if let Some(friction) = self.model.contact_friction() {
+            let m = &*self.model;
+            self.contacts.resolve(
+                m.obstacles(),
+                m.fixed_vertices(),
+                m.mass(),
+                friction,
+                x,
+                v,
+                h,
+            );
+        }
+    }
+
+    /// Advances by `dt` (s); see the module docs.
+    pub fn step(&mut self, dt: f64) -> Result<StepInfo, IntegrateError> {
+        let Some(control) = self.control else {
+            let info = self.integrate(dt)?;
+            self.t += dt;
+            self.after_step(dt);
+            return Ok(info);
+        };
+        // First step (NaN), or a dt smaller than the current sub-step: start at dt.
+        if self.sub_dt.is_nan() || self.sub_dt > dt {
+            self.sub_dt = dt;
+        }
+        let end = self.t + dt;
+        let mut total = StepInfo::default();
+        while self.t < end - 1e-12 * dt {
+            let h = self.sub_dt.min(end - self.t);
+            self.saved.0.copy_from_slice(self.state.x.as_slice());
+            self.saved.1.copy_from_slice(self.state.v.as_slice());
+            let why = match self.integrate(h) {
+                Ok(info) => {
+                    let change = self
+                        .model
+                        .strain_change(&self.saved.0, self.state.x.as_slice());
+                    if change <= control.max_strain_change {
+                        total.newton_iterations += info.newton_iterations;
+                        total.linear_iterations += info.linear_iterations;
+                        total.residual = info.residual;
+                        total.solve_seconds += info.solve_seconds;
+                        self.t += h;
+                        self.after_step(h);
+                        self.good_steps += 1;
+                        if self.good_steps >= 2 && self.sub_dt < dt {
+                            self.sub_dt = (2.0 * self.sub_dt).min(dt);
+                            self.good_steps = 0;
+                        }
+                        continue;
+                    }
+                    format!(
+                        "an element's strain changed by {change:.3} in one step, above max_strain_change = {}",
+                        control.max_strain_change
+                    )
+                }
+                Err(e) => e.to_string(),
+            };
+            // Undo and halve.
+            self.state.x.as_mut_slice().copy_from_slice(&self.saved.0);
+            self.state.v.as_mut_slice().copy_from_slice(&self.saved.1);
+            self.good_steps = 0;
+            // Give up when the step that failed was already the smallest allowed.
+            let smallest = dt / 2f64.powi(control.max_halvings as i32);
+            if h <= smallest * (1.0 + 1e-9) {
+                return Err(IntegrateError::StepControl {
+                    step: self.stepper.steps(),
+                    halvings: control.max_halvings,
+                    dt: h,
+                    why,
+                });
+            }
+            self.sub_dt = h / 2.0;
+        }
+        self.t = end;
+        Ok(total)
+    }
+
+    /// Kinetic and potential energy (J).
+    pub fn energy(&self) -> Energy {
+        Energy {
+            kinetic: kinetic_energy(self.model.mass(), self.state.v.as_slice()),
+            potential: self
+                .model
+                .potential_energy(self.t, self.state.x.as_slice())
+                .unwrap_or(0.0),
+        }
+    }
+
+    /// The stepper's stages: matrices, linear solver and Newton iteration, or why they are
+    /// left out; and step-size control.
+    fn solver_stages(&self) -> Vec<Stage> {
+        let s = &self.stepper;
+        let method = s.settings().method;
+        let mut stages = Vec::new();
+        if s.has_matrix() {
+            stages.push(Stage::built(
+                "Jacobian assembly (Bsr3 pattern, element maps)",
+                format!("for {method}"),
+            ));
+            stages.push(if s.has_damping_matrix() {
+                Stage::built("damping Jacobian", "df/dv")
+            } else {
+                Stage::left_out("damping Jacobian", "no damping")
+            });
+            stages.push(Stage::built(
+                "linear solver",
+                s.linear_solver_name().unwrap_or("none"),
+            ));
+            stages.push(if method == Method::LinearizedBackwardEuler {
+                Stage::left_out("Newton iteration", "one linearised step")
+            } else {
+                Stage::built("Newton iteration", "with backtracking line search")
+            });
+        } else {
+            stages.push(Stage::left_out(
+                "Jacobian assembly, system matrix and linear solver",
+                format!("{method} is explicit"),
+            ));
+        }
+        stages.push(match self.control {
+            Some(sc) => Stage::built(
+                "step-size control",
+                format!(
+                    "halve dt when a step fails or changes a strain by more than {} (at most {} times)",
+                    sc.max_strain_change, sc.max_halvings
+                ),
+            ),
+            None => Stage::left_out("step-size control", "not asked for"),
+        });
+        stages
+    }
+}
+
+impl<M: MechModel> Simulation for MechSimulation<M> {
+    fn step(&mut self, dt: f64) -> Result<StepInfo, IntegrateError> {
+        MechSimulation::step(self, dt)
+    }
+
+    fn time(&self) -> f64 {
+        MechSimulation::time(self)
+    }
+
+    fn steps(&self) -> u64 {
+        self.stepper.steps()
+    }
+
+    fn energy(&self) -> Energy {
+        MechSimulation::energy(self)
+    }
+
+    fn max_penetration(&self) -> f64 {
+        max_penetration(self.model.obstacles(), self.state.x.as_slice())
+    }
+
+    fn frame(&self) -> FrameData<'_> {
+        let triangles = self.model.triangles();
+        FrameData::Mesh(MeshRef {
+            positions: self.state.x.as_slice(),
+            triangles,
+            segments: if triangles.is_empty() {
+                self.model.segments()
+            } else {
+                &[]
+            },
+        })
+    }
+
+    fn stages(&self) -> Vec<Stage> {
+        let mut stages = self.model.stages();
+        stages.extend(self.solver_stages());
+        stages
+    }
+
+    fn scenery(&self) -> Vec<Mesh> {
+        self.model
+            .obstacles()
+            .iter()
+            .filter_map(|o| o.preview_mesh())
+            .collect()
+    }
+
+    fn method(&self) -> String {
+        self.stepper.settings().method.to_string()
+    }
+
+    fn linear_solver(&self) -> Option<&'static str> {
+        self.stepper.linear_solver_name()
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+}

@@ -1,0 +1,140 @@
+//! One door for every domain: the [`Simulation`] interface that scenes, the CLI, studies
+//! and embedding engines talk to, and [`MechSimulation`], the generic simulation of any
+//! mechanical model.
+//!
+//! A simulation owns its model (shared, immutable), its state and its scratch buffers,
+//! and steps itself: a model's own contacts, constraints, prescribed motion and step-size
+//! control happen *inside* [`Simulation::step`], so an embedder never has to know to call
+//! something after it. Around the step it reports energy and solver statistics, says what
+//! a frame writes ([`FrameData`]), lists the stages it built and left out (`largestep run
+//! --explain`) and gives the scenery to draw.
+//!
+//! Mechanical domains (mass-spring, cloth, and FEM next) implement [`MechModel`]: the
+//! model's data computed once by its builder, with forces and Jacobians taking `&self`
+//! and a separate `Work` of scratch buffers. [`MechSimulation`] composes such a model with
+//! an integrator ([`crate::integrate::MechStepper`]), its state, its contacts
+//! ([`crate::collide::VertexContacts`]) and step-size control ([`StepControl`]).
+
+mod mech;
+
+pub use mech::{MechModel, MechSimulation, StepControl};
+
+use crate::integrate::{IntegrateError, StepInfo};
+use crate::io::{Mesh, MeshRef};
+
+/// One stage of a simulation: built or left out, and why.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Stage {
+    /// What it is.
+    pub name: &'static str,
+    /// Whether it was built.
+    pub built: bool,
+    /// Size when built, reason when left out.
+    pub detail: String,
+}
+
+impl Stage {
+    /// A stage built, with what it holds.
+    pub fn built(name: &'static str, detail: impl Into<String>) -> Stage {
+        Stage {
+            name,
+            built: true,
+            detail: detail.into(),
+        }
+    }
+
+    /// A stage left out, with why.
+    pub fn left_out(name: &'static str, why: impl Into<String>) -> Stage {
+        Stage {
+            name,
+            built: false,
+            detail: why.into(),
+        }
+    }
+
+    /// The constraint filter's fixed vertices: pinned, prescribed, massless.
+    pub fn pinned(count: usize) -> Stage {
+        if count > 0 {
+            Stage::built(
+                "pinned-particle filter",
+                format!("{count} pinned particles"),
+            )
+        } else {
+            Stage::left_out("pinned-particle filter", "nothing is pinned")
+        }
+    }
+
+    /// [`Stage::built`] when `built`, else [`Stage::left_out`].
+    pub fn new(name: &'static str, built: bool, detail: impl Into<String>) -> Stage {
+        Stage {
+            name,
+            built,
+            detail: detail.into(),
+        }
+    }
+}
+
+/// Kinetic and potential energy (J).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Energy {
+    /// Kinetic energy (J).
+    pub kinetic: f64,
+    /// Potential energy of the conservative forces (J); 0 when the model has none.
+    pub potential: f64,
+}
+
+impl Energy {
+    /// Kinetic plus potential (J).
+    pub fn total(&self) -> f64 {
+        self.kinetic + self.potential
+    }
+}
+
+/// What a simulation writes per frame.
+///
+/// Meshes are what the mechanical domains write today; volumes (fluids), skeletons
+/// (characters) and audio (modal sound) will be variants of their own.
+#[derive(Clone, Copy, Debug)]
+#[non_exhaustive]
+pub enum FrameData<'a> {
+    /// Vertices with surface triangles, segments (springs, chains), both, or neither
+    /// (points).
+    Mesh(MeshRef<'a>),
+}
+
+/// A running simulation of one system (see the module docs).
+pub trait Simulation: Send {
+    /// Advances by `dt` (s): one step, or several smaller ones when step-size control
+    /// halves it, each followed by the model's prescribed motion and contacts. The counts
+    /// returned sum over the sub-steps.
+    fn step(&mut self, dt: f64) -> Result<StepInfo, IntegrateError>;
+    /// Simulated time (s).
+    fn time(&self) -> f64;
+    /// Integrator steps taken, sub-steps included.
+    fn steps(&self) -> u64;
+    /// Kinetic and potential energy now.
+    fn energy(&self) -> Energy;
+    /// The deepest penetration of the model into an obstacle (m), 0 without obstacles.
+    fn max_penetration(&self) -> f64;
+    /// What a frame writes now.
+    fn frame(&self) -> FrameData<'_>;
+    /// The stages built and left out.
+    fn stages(&self) -> Vec<Stage>;
+    /// Meshes of the fixed scenery (obstacles) for previews.
+    fn scenery(&self) -> Vec<Mesh>;
+    /// The integrator's name.
+    fn method(&self) -> String;
+    /// The linear solver of implicit steps, if any.
+    fn linear_solver(&self) -> Option<&'static str>;
+    /// `self` as `Any`, to reach the concrete simulation (see
+    /// `<dyn Simulation>::downcast_ref`).
+    fn as_any(&self) -> &dyn std::any::Any;
+}
+
+impl dyn Simulation + '_ {
+    /// The concrete simulation, when it is a `T` (for example
+    /// `MechSimulation<largestep::cloth::Cloth>`).
+    pub fn downcast_ref<T: 'static>(&self) -> Option<&T> {
+        self.as_any().downcast_ref()
+    }
+}
