@@ -1849,3 +1849,68 @@ fn multigrid_matches_cholesky_on_a_stiff_light_sheet_at_large_steps() {
     // The sheet swings by about a metre; 1e-6 m is the solve tolerance's reach.
     assert!(diff < 1e-6, "positions differ by {diff} m");
 }
+
+/// The model is immutable data: one `Arc<Cloth>` serves two simulations stepped at the
+/// same time on two threads, and each moves bitwise as a simulation of its own copy.
+#[test]
+fn one_shared_model_serves_simultaneous_simulations() {
+    use largestep::cloth::{cloth_grid, Cloth, ClothGridOptions, ClothMaterial};
+    use largestep::collide::Obstacle;
+    use largestep::integrate::{MechSettings, Method};
+    use largestep::simulation::MechSimulation;
+    use std::sync::Arc;
+    fn shareable<T: Send + Sync>() {}
+    shareable::<Cloth>();
+    let mut d = cloth_grid(&ClothGridOptions {
+        nu: 12,
+        nv: 12,
+        size: [1.0, 1.0],
+        origin: [-0.5, 0.3, -0.5],
+        u_axis: [1.0, 0.0, 0.0],
+        v_axis: [0.0, 0.0, 1.0],
+        material: ClothMaterial {
+            density: 0.2,
+            stretch: 1000.0,
+            shear: 100.0,
+            bend: 1e-3,
+            stretch_damping: 0.1,
+            shear_damping: 0.01,
+            bend_damping: 0.0,
+            rest_stretch: [1.0, 1.0],
+        },
+    });
+    d.gravity = [0.0, -9.81, 0.0];
+    d.obstacles = vec![Obstacle::Sphere {
+        center: [0.0; 3],
+        radius: 0.25,
+    }];
+    d.friction = 0.3;
+    let (cloth, st) = d.build().unwrap();
+    let settings = MechSettings::new(Method::LinearizedBackwardEuler);
+    let run = |mut sim: MechSimulation<Cloth>, dt: f64| {
+        for _ in 0..30 {
+            sim.step(dt).unwrap();
+        }
+        (sim.state().x.as_slice().to_vec(), sim.contact_count())
+    };
+    let shared = Arc::new(cloth.clone());
+    let (a, b) = std::thread::scope(|s| {
+        let a = MechSimulation::new(shared.clone(), st.clone(), settings).unwrap();
+        let b = MechSimulation::new(shared.clone(), st.clone(), settings).unwrap();
+        let ha = s.spawn(move || run(a, 1.0 / 60.0));
+        let hb = s.spawn(move || run(b, 1.0 / 120.0));
+        (ha.join().unwrap(), hb.join().unwrap())
+    });
+    let own_a = run(
+        MechSimulation::new(cloth.clone(), st.clone(), settings).unwrap(),
+        1.0 / 60.0,
+    );
+    let own_b = run(
+        MechSimulation::new(cloth, st, settings).unwrap(),
+        1.0 / 120.0,
+    );
+    assert!(a.1 > 0, "the sheet reached the sphere");
+    assert_eq!(a, own_a, "dt = 1/60 from the shared model");
+    assert_eq!(b, own_b, "dt = 1/120 from the shared model");
+    assert_eq!(Arc::strong_count(&shared), 1);
+}

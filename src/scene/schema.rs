@@ -1,7 +1,7 @@
 //! The scene-wide TOML tables (serde), exactly as users write them: `[scene]`, `[solver]`
-//! and `[output]`. Unknown fields are errors. Each system's table is its domain's
-//! (`mass_spring::scene`, `cloth::scene`), with the obstacle and load tables of
-//! `collide::scene` and `loads::scene` inside it.
+//! and `[output]`. Unknown fields are errors. Each system's table belongs to its domain
+//! (the `scene.rs` of the domain's folder), with the shared obstacle, load and step
+//! control tables of [`super::shared`] inside it.
 //!
 //! ```toml
 //! [scene]

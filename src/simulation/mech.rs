@@ -320,6 +320,11 @@ impl<M: MechModel> MechSimulation<M> {
         self.t
     }
 
+    /// Integrator steps taken, sub-steps included.
+    pub fn steps(&self) -> u64 {
+        self.stepper.steps()
+    }
+
     /// The model.
     pub fn model(&self) -> &M {
         &self.model
@@ -544,7 +549,7 @@ impl<M: MechModel> Simulation for MechSimulation<M> {
     }
 
     fn steps(&self) -> u64 {
-        self.stepper.steps()
+        MechSimulation::steps(self)
     }
 
     fn energy(&self) -> Energy {
