@@ -337,3 +337,16 @@ fn step_size_control_limits_the_strain_change_of_springs() {
     );
     assert!(steps > 3, "{steps} sub-steps: no halving happened");
 }
+
+#[test]
+fn a_state_of_the_wrong_size_is_an_error_not_a_panic() {
+    let (m, _) = hanging_chain().build().unwrap();
+    let (_, other) = chain(5, [0.0; 3], [1.0, 0.0, 0.0], 0.1, 0.01, 200.0, 0.01)
+        .build()
+        .unwrap();
+    let e = MechSimulation::new(m, other, MechSettings::new(Method::Rk4))
+        .err()
+        .expect("a 5-particle state for a 12-particle chain")
+        .to_string();
+    assert!(e.contains("5 vertices") && e.contains("12"), "{e}");
+}

@@ -72,6 +72,7 @@ pub struct ClothTable {
     /// `[cloth.material]`
     pub material: ClothMaterialTable,
 }
+
 /// `[cloth.grid]`
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -92,6 +93,7 @@ pub struct ClothGridTable {
     #[serde(default)]
     pub v_axis: Option<[f64; 3]>,
 }
+
 /// `[cloth.mesh]`
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -108,6 +110,7 @@ pub struct ClothMeshTable {
     #[serde(default)]
     pub offset: Option<[f64; 3]>,
 }
+
 /// `[cloth.material]`
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -132,6 +135,7 @@ pub struct ClothMaterialTable {
     #[serde(default)]
     pub bend_damping: f64,
 }
+
 /// `[[cloth.path]]`
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]

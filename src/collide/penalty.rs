@@ -27,14 +27,33 @@ impl Penalty {
     /// Calls `f(i, n, g)` for every vertex i inside an obstacle at signed distance g < 0
     /// with outward normal n, obstacle by obstacle, vertices in order within each (the
     /// order forces are summed in).
+    ///
+    /// Planes (the jello's box walls) take their own loop, `n . x + d` with the plane's
+    /// constants hoisted: the same value as [`Obstacle::distance`], but a loop the
+    /// compiler vectorizes; through the general `distance` (a match and an `Option` per
+    /// vertex) the 7 planes of the 32^3 jello made an RK4 step 1.6x slower.
     #[inline]
     fn for_each_contact(&self, x: &[f64], mut f: impl FnMut(usize, [f64; 3], f64)) {
         let n = x.len() / 3;
+        let (xs, ys, zs) = (&x[..n], &x[n..2 * n], &x[2 * n..3 * n]);
         for o in &self.obstacles {
-            for i in 0..n {
-                if let Some((g, nrm)) = o.distance(get3(x, n, i)) {
-                    if g < 0.0 {
-                        f(i, nrm, g);
+            match o {
+                Obstacle::Plane { normal, offset } => {
+                    let [a, b, c] = *normal;
+                    for i in 0..n {
+                        let g = a * xs[i] + b * ys[i] + c * zs[i] + offset;
+                        if g < 0.0 {
+                            f(i, *normal, g);
+                        }
+                    }
+                }
+                _ => {
+                    for i in 0..n {
+                        if let Some((g, nrm)) = o.distance(get3(x, n, i)) {
+                            if g < 0.0 {
+                                f(i, nrm, g);
+                            }
+                        }
                     }
                 }
             }

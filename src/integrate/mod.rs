@@ -200,6 +200,14 @@ pub enum IntegrateError {
         /// Why.
         reason: &'static str,
     },
+    /// A state whose size does not match the model's.
+    #[error("the state has {got} vertices, the model {expected}")]
+    StateSize {
+        /// Vertices in the model.
+        expected: usize,
+        /// Vertices in the positions or velocities given.
+        got: usize,
+    },
 }
 
 /// Wraps a solver error with the step and method it happened in, and a hint for

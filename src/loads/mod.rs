@@ -54,15 +54,30 @@ pub trait Load: std::fmt::Debug + Send + Sync {
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Gravity(pub [f64; 3]);
 
-impl Load for Gravity {
-    fn add_forces(&self, _t: f64, body: &Body<'_>, _x: &[f64], _v: &[f64], f: &mut [f64]) {
+impl Gravity {
+    /// `f_i = m_i g` (N), overwriting `f`.
+    pub fn write_forces(&self, body: &Body<'_>, f: &mut [f64]) {
+        self.apply(body, f, false);
+    }
+
+    /// `f_i = m_i g`, written or added.
+    fn apply(&self, body: &Body<'_>, f: &mut [f64], add: bool) {
         let n = body.mass.len();
         assert_eq!(f.len(), 3 * n);
         for (c, gc) in self.0.iter().enumerate() {
-            for (fi, m) in f[c * n..(c + 1) * n].iter_mut().zip(body.mass) {
-                *fi += m * gc;
+            let fc = f[c * n..(c + 1) * n].iter_mut().zip(body.mass);
+            if add {
+                fc.for_each(|(fi, m)| *fi += m * gc);
+            } else {
+                fc.for_each(|(fi, m)| *fi = m * gc);
             }
         }
+    }
+}
+
+impl Load for Gravity {
+    fn add_forces(&self, _t: f64, body: &Body<'_>, _x: &[f64], _v: &[f64], f: &mut [f64]) {
+        self.apply(body, f, true);
     }
 
     fn potential(&self, body: &Body<'_>, x: &[f64]) -> Option<f64> {
@@ -114,10 +129,11 @@ impl Loads {
             .chain(field)
     }
 
-    /// `f` = the sum of the loads' forces (N) at time `t`, overwriting `f`.
+    /// `f` = the sum of the loads' forces (N) at time `t`, overwriting `f`: gravity
+    /// writes it (one pass, not a zeroing and an addition), the others add to it.
     pub fn forces(&self, t: f64, body: &Body<'_>, x: &[f64], v: &[f64], f: &mut [f64]) {
-        f.fill(0.0);
-        for load in self.terms() {
+        self.gravity.write_forces(body, f);
+        for load in self.terms().skip(1) {
             load.add_forces(t, body, x, v, f);
         }
     }

@@ -75,6 +75,7 @@ pub struct MassSpringTable {
     #[serde(default)]
     pub spring: Vec<SpringTable>,
 }
+
 /// `[mass_spring.chain]`
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -97,6 +98,7 @@ pub struct ChainTable {
     #[serde(default)]
     pub damping: f64,
 }
+
 /// `[mass_spring.grid]`
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -130,6 +132,7 @@ pub struct GridTable {
     #[serde(default)]
     pub damping: f64,
 }
+
 /// `[mass_spring.lattice]`
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -158,6 +161,7 @@ pub struct LatticeTable {
     #[serde(default)]
     pub velocity: Option<[f64; 3]>,
 }
+
 /// `[mass_spring.collisions]`
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -177,6 +181,7 @@ pub struct CollisionsTable {
     #[serde(default)]
     pub damping: f64,
 }
+
 /// `[[mass_spring.particle]]`
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -192,6 +197,7 @@ pub struct ParticleTable {
     #[serde(default)]
     pub pinned: bool,
 }
+
 /// `[[mass_spring.spring]]`
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -276,14 +282,11 @@ pub fn desc(ctx: &Context<'_>, t: &MassSpringTable) -> Result<(MassSpringDesc, u
         for (i, &s) in g.size.iter().enumerate() {
             ctx.positive(s, &at(&[&"grid", &"size", &i]), "size")?;
         }
-        let mass = ctx.positive(g.mass, &at(&[&"grid", &"mass"]), "mass")?;
-        let k = |name: &str, v: f64| ctx.non_negative(v, &at(&[&"grid", &name]), "stiffness");
-        let (structural, shear, bend) = (
-            k("structural", g.structural)?,
-            k("shear", g.shear)?,
-            k("bend", g.bend)?,
-        );
-        let damping = ctx.non_negative(g.damping, &at(&[&"grid", &"damping"]), "damping")?;
+        let [mass, structural, shear, bend, damping] = constants(
+            ctx,
+            "grid",
+            [g.mass, g.structural, g.shear, g.bend, g.damping],
+        )?;
         let d = grid(&GridOptions {
             nu: g.nu as usize,
             nv: g.nv as usize,
@@ -313,14 +316,11 @@ pub fn desc(ctx: &Context<'_>, t: &MassSpringTable) -> Result<(MassSpringDesc, u
         for (i, &s) in l.size.iter().enumerate() {
             ctx.positive(s, &at(&[&"lattice", &"size", &i]), "size")?;
         }
-        let mass = ctx.positive(l.mass, &at(&[&"lattice", &"mass"]), "mass")?;
-        let k = |name: &str, v: f64| ctx.non_negative(v, &at(&[&"lattice", &name]), "stiffness");
-        let (structural, shear, bend) = (
-            k("structural", l.structural)?,
-            k("shear", l.shear)?,
-            k("bend", l.bend)?,
-        );
-        let damping = ctx.non_negative(l.damping, &at(&[&"lattice", &"damping"]), "damping")?;
+        let [mass, structural, shear, bend, damping] = constants(
+            ctx,
+            "lattice",
+            [l.mass, l.structural, l.shear, l.bend, l.damping],
+        )?;
         let origin = l.origin.unwrap_or([0.0; 3]);
         if !origin.iter().all(|v| v.is_finite()) {
             return Err(ctx.error(&at(&[&"lattice", &"origin"]), "must be finite"));
@@ -410,6 +410,22 @@ pub fn desc(ctx: &Context<'_>, t: &MassSpringTable) -> Result<(MassSpringDesc, u
     desc.gravity = ctx.gravity;
     desc.definiteness_fix = t.definiteness_fix.unwrap_or(true);
     Ok((desc, from_table))
+}
+
+/// A grid's or lattice's `[mass, structural, shear, bend, damping]`, checked at their keys
+/// in `[mass_spring.<generator>]`: the mass > 0, the stiffnesses and damping >= 0.
+fn constants(ctx: &Context<'_>, generator: &str, v: [f64; 5]) -> Result<[f64; 5], SceneError> {
+    let names = ["mass", "structural", "shear", "bend", "damping"];
+    let mut out = [0.0; 5];
+    for (k, (&x, name)) in v.iter().zip(names).enumerate() {
+        let at = path(&[&generator, &name]);
+        out[k] = match name {
+            "mass" => ctx.positive(x, &at, "mass")?,
+            "damping" => ctx.non_negative(x, &at, "damping")?,
+            _ => ctx.non_negative(x, &at, "stiffness")?,
+        };
+    }
+    Ok(out)
 }
 
 /// The key below `[mass_spring]` a model validation error refers to.

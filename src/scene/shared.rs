@@ -29,6 +29,7 @@ pub struct SphereTable {
     /// Radius (m).
     pub radius: f64,
 }
+
 /// `[[<domain>.plane]]`: the half-space behind a plane.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -38,6 +39,7 @@ pub struct PlaneTable {
     /// Outward normal.
     pub normal: [f64; 3],
 }
+
 /// `[[<domain>.box]]`: a solid axis-aligned box.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -47,6 +49,7 @@ pub struct BoxTable {
     /// Upper corner (m).
     pub max: [f64; 3],
 }
+
 /// `[[<domain>.capsule]]`
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -58,6 +61,7 @@ pub struct CapsuleTable {
     /// Radius (m).
     pub radius: f64,
 }
+
 /// `[[<domain>.sdf]]`
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -65,6 +69,7 @@ pub struct SdfTable {
     /// An SDFGen text file (relative to the scene file).
     pub file: String,
 }
+
 /// `[<domain>.wind]`
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -80,6 +85,7 @@ pub struct WindTable {
     #[serde(default)]
     pub frequency: f64,
 }
+
 /// `[<domain>.step_control]`
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -92,6 +98,7 @@ pub struct StepControlTable {
     #[serde(default)]
     pub max_halvings: Option<i64>,
 }
+
 /// `[<domain>.force_field]`
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -267,11 +267,11 @@ impl<M: MechModel> MechSimulation<M> {
     ) -> Result<Self, IntegrateError> {
         let model = model.into();
         let n = model.vertex_count();
-        assert!(
-            state.x.len() == n && state.v.len() == n,
-            "state of {} vertices for a model of {n}",
-            state.x.len()
-        );
+        for got in [state.x.len(), state.v.len()] {
+            if got != n {
+                return Err(IntegrateError::StateSize { expected: n, got });
+            }
+        }
         let mut work = model.work();
         let mut contacts = VertexContacts::new();
         let stepper = MechStepper::new(
@@ -303,10 +303,7 @@ impl<M: MechModel> MechSimulation<M> {
 
     /// A second simulation of the same (shared) model from this one's state, contacts and
     /// time, with its own integrator settings (a comparison of solvers from one state).
-    pub fn fork(&self, settings: MechSettings) -> Result<Self, IntegrateError>
-    where
-        M::Work: Send,
-    {
+    pub fn fork(&self, settings: MechSettings) -> Result<Self, IntegrateError> {
         let mut sim = Self::new(self.model.clone(), self.state.clone(), settings)?;
         sim.contacts = self.contacts.clone();
         sim.control = self.control;
