@@ -18,6 +18,7 @@ pub mod cloth;
 pub mod collide;
 pub mod integrate;
 pub mod io;
+pub mod limits;
 pub mod loads;
 #[cfg(feature = "mass-spring")]
 pub mod mass_spring;

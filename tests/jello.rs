@@ -205,7 +205,7 @@ fn momentum_is_conserved_without_external_forces() {
 #[test]
 fn shipped_worlds_run_two_seconds_inside_the_box() {
     for name in ["jello.w", "rotate.w"] {
-        let world = World::read(&world_path(name)).unwrap();
+        let world = World::read(&world_path(name), u64::MAX).unwrap();
         let desc = world.to_desc();
         let (st, worst, speed) = simulate(world.method, &desc, world.dt, 2.0).unwrap();
         assert!(st
@@ -360,7 +360,7 @@ fn undamped_penalty_jacobian_in_x_matches_finite_differences() {
 
 #[test]
 fn world_files_round_trip_and_run_from_the_cli_layer() {
-    let world = World::read(&world_path("rotate.w")).unwrap();
+    let world = World::read(&world_path("rotate.w"), u64::MAX).unwrap();
     assert_eq!(world.method, Method::Rk4);
     assert_eq!(world.resolution, 30);
     assert_eq!(world.positions.len(), 512);
@@ -469,7 +469,7 @@ fn toml_scene_reproduces_the_world_file() {
     assert_eq!(lines[27518], "1.142857 1.142857 1.142857");
     lines[27518] = "1.000000 1.000000 1.000000";
     let w = World::parse(&lines.join("\n"), "jello-rest.w").unwrap();
-    let mut world = w.to_scene("jello-rest.w").unwrap();
+    let mut world = w.to_scene("jello-rest.w", &Default::default()).unwrap();
     world.duration = 0.05;
     let a = run(world);
     let b = run(Scene::parse(JELLO_TOML, "jello-equivalent.toml").unwrap());

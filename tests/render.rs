@@ -463,7 +463,7 @@ fn preview_writes_frames_animation_and_sheet() {
         largestep::io::write_atomically(&path, |w| largestep::io::write_obj(w, f.as_ref(), "t"))
             .unwrap();
     }
-    let back = load_frames(&objdir).unwrap();
+    let back = load_frames(&objdir, u64::MAX).unwrap();
     assert_eq!(back.len(), 5);
     assert!(
         std::sync::Arc::ptr_eq(&back[0].triangles, &back[4].triangles),
@@ -477,10 +477,12 @@ fn preview_writes_frames_animation_and_sheet() {
     );
     // A malformed frame: the file and the line.
     std::fs::write(objdir.join("frame_00002.obj"), "v 0 0 0\nv 1 1\n").unwrap();
-    let e = load_frames(&objdir).unwrap_err().to_string();
+    let e = load_frames(&objdir, u64::MAX).unwrap_err().to_string();
     assert!(e.contains("frame_00002.obj") && e.contains("line 2"), "{e}");
     // An empty folder.
-    let e = load_frames(&temp_dir("empty")).unwrap_err().to_string();
+    let e = load_frames(&temp_dir("empty"), u64::MAX)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("no .obj files"), "{e}");
 }
 

@@ -5,6 +5,7 @@
 
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
+use largestep::limits::Limits;
 use largestep::render::preview::{load_frames, write_preview, PreviewSettings};
 use largestep::render::{
     Camera, CameraSpec, RenderError, DEFAULT_AZIMUTH_DEG, DEFAULT_ELEVATION_DEG,
@@ -23,8 +24,55 @@ struct Cli {
     /// Worker threads (default: all cores).
     #[arg(long, global = true)]
     threads: Option<usize>,
+    /// Memory a scene may ask for, in bytes or with a unit: 512M, 4G (default: half of
+    /// what this process may use). Input files may be a quarter of it, at most 1 GiB.
+    #[arg(long, global = true, value_parser = parse_bytes)]
+    max_memory: Option<u64>,
+    /// Steps a run may take (default: 100000000).
+    #[arg(long, global = true)]
+    max_steps: Option<u64>,
     #[command(subcommand)]
     command: Command,
+}
+
+impl Cli {
+    /// The limits inputs are checked against: the defaults of this machine, changed by
+    /// `--max-memory` and `--max-steps`.
+    fn limits(&self) -> Limits {
+        let mut l = match self.max_memory {
+            Some(m) => Limits::with_memory(m),
+            None => Limits::default(),
+        };
+        if let Some(s) = self.max_steps {
+            l.max_steps = s;
+        }
+        l
+    }
+}
+
+/// `4096`, `512k`, `512M`, `4G`, `1T` (powers of 1024; a trailing `B` or `iB` is allowed).
+fn parse_bytes(s: &str) -> Result<u64, String> {
+    let t = s.trim();
+    let t = t
+        .strip_suffix("iB")
+        .or_else(|| t.strip_suffix('B'))
+        .unwrap_or(t);
+    let (num, shift) = match t.chars().last() {
+        Some('k' | 'K') => (&t[..t.len() - 1], 10),
+        Some('m' | 'M') => (&t[..t.len() - 1], 20),
+        Some('g' | 'G') => (&t[..t.len() - 1], 30),
+        Some('t' | 'T') => (&t[..t.len() - 1], 40),
+        _ => (t, 0),
+    };
+    let v: f64 = num
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}`: expected a size such as 4096, 512M or 4G"))?;
+    let bytes = v * (1u64 << shift) as f64;
+    if !(1.0..1.8e19).contains(&bytes) {
+        return Err(format!("`{s}`: a size must be at least 1 byte"));
+    }
+    Ok(bytes as u64)
 }
 
 #[derive(Subcommand)]
@@ -208,6 +256,7 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     }
+    let limits = cli.limits();
     match cli.command {
         Command::Run {
             scene,
@@ -215,13 +264,13 @@ fn main() -> ExitCode {
             frames,
             explain,
             preview,
-        } => run(scene, out, frames, explain, preview),
+        } => run(scene, out, frames, explain, preview, &limits),
         Command::Render {
             frames,
             out,
             scene,
             view,
-        } => render(&frames, out, scene, &view),
+        } => render(&frames, out, scene, &view, &limits),
         Command::Study { name, out, quick } => study(&name, &out, quick),
         Command::Machine { triad_mib } => {
             let l = largestep::machine::measure(triad_mib);
@@ -246,8 +295,9 @@ fn run(
     frames: Option<usize>,
     explain: bool,
     preview: bool,
+    limits: &Limits,
 ) -> ExitCode {
-    let scene = match Scene::load(&scene_path) {
+    let scene = match Scene::load_with(&scene_path, limits) {
         Ok(s) => s,
         Err(e) => {
             eprintln!("error: {e}");
@@ -279,8 +329,18 @@ fn run(
         Ok(summary) => println!("{summary}"),
         Err(e) => {
             eprintln!("error: {e}");
-            status = ExitCode::from(1);
+            // A limit, or an energy that is not finite from the start, refuses the input
+            // before anything runs: bad input, like a bad scene.
+            use largestep::scene::RunError;
+            let code = match e {
+                RunError::Limit(_) | RunError::NonFiniteEnergy { frame: 0, .. } => 2,
+                _ => 1,
+            };
+            status = ExitCode::from(code);
         }
+    }
+    if runner.records().is_empty() {
+        return status; // refused before the first frame: nothing to plot or preview
     }
     match runner.write_plot() {
         Ok(path) => println!("  plot           {}", path.display()),
@@ -327,9 +387,10 @@ fn render(
     out: Option<PathBuf>,
     scene: Option<PathBuf>,
     view: &ViewArgs,
+    limits: &Limits,
 ) -> ExitCode {
     let (base, scenery) = match scene {
-        Some(path) => match Scene::load(&path) {
+        Some(path) => match Scene::load_with(&path, limits) {
             Ok(s) => (s.output.preview, s.scenery()),
             Err(e) => {
                 eprintln!("error: {e}");
@@ -345,7 +406,7 @@ fn render(
             return ExitCode::from(2);
         }
     };
-    let frames = match load_frames(frames_dir) {
+    let frames = match load_frames(frames_dir, limits.max_file_bytes) {
         Ok(f) => f,
         Err(e) => {
             eprintln!("error: {e}");

@@ -19,7 +19,7 @@
 //! stretch = 500.0             # shear, bend, *_damping optional
 //! ```
 
-use super::{cloth_grid, ClothDesc, ClothGridOptions, ClothMaterial, VertexPath};
+use super::{cloth_grid, estimated_bytes, ClothDesc, ClothGridOptions, ClothMaterial, VertexPath};
 use crate::scene::shared::{self, ObstacleTables};
 use crate::scene::{path, Context, Key, PathPart, SceneError};
 use crate::simulation::{MechSimulation, Simulation};
@@ -188,6 +188,12 @@ pub fn desc(ctx: &Context<'_>, t: &ClothTable) -> Result<ClothDesc, SceneError> 
             for (i, &s) in g.size.iter().enumerate() {
                 ctx.positive(s, &at(&[&"grid", &"size", &i]), "size")?;
             }
+            let n = g.nu as f64 * g.nv as f64;
+            ctx.memory(
+                &at(&[&"grid"]),
+                &format!("a {} x {} cloth", g.nu, g.nv),
+                estimated_bytes(n, ctx.implicit(), ctx.cholesky(n)),
+            )?;
             let desc = cloth_grid(&ClothGridOptions {
                 nu: g.nu as usize,
                 nv: g.nv as usize,
@@ -204,7 +210,7 @@ pub fn desc(ctx: &Context<'_>, t: &ClothTable) -> Result<ClothDesc, SceneError> 
         }
         (None, Some(mt)) => {
             let file = ctx.base.join(&mt.file);
-            let (mesh, uv) = crate::io::read_obj_uv(&file)
+            let (mesh, uv) = crate::io::read_obj_uv(&file, ctx.limits.max_file_bytes)
                 .map_err(|e| ctx.error(&at(&[&"mesh", &"file"]), e.to_string()))?;
             let uv_scale = ctx.positive(
                 mt.uv_scale.unwrap_or(1.0),
@@ -218,6 +224,11 @@ pub fn desc(ctx: &Context<'_>, t: &ClothTable) -> Result<ClothDesc, SceneError> 
                 return Err(ctx.error(&at(&[&"mesh", &"offset"]), "must be finite"));
             }
             let nv = mesh.positions.len() / 3;
+            ctx.memory(
+                &at(&[&"mesh", &"file"]),
+                &format!("a cloth of {nv} vertices"),
+                estimated_bytes(nv as f64, ctx.implicit(), ctx.cholesky(nv as f64)),
+            )?;
             let positions = (0..nv)
                 .map(|i| {
                     let p = largestep_kernels::get3(&mesh.positions, nv, i);

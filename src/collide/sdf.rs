@@ -59,8 +59,10 @@ impl SdfGrid {
             }
         };
         let mut n = [0usize; 3];
+        let mut header_line = 1;
         for (a, na) in n.iter_mut().enumerate() {
             let (l, v) = next("grid size")?;
+            header_line = l;
             if !(v >= 2.0 && v.fract() == 0.0 && v <= 4096.0) {
                 return Err(err(
                     l,
@@ -89,6 +91,22 @@ impl SdfGrid {
             origin,
             spacing: [dx; 3],
         };
+        // What the file can hold before anything is allocated: every distance takes at
+        // least a digit and a separator.
+        let room = text.len().div_ceil(2);
+        if grid.len() > room {
+            return Err(err(
+                header_line,
+                format!(
+                    "the header asks for {} x {} x {} = {} distances, but the file's {} bytes hold at most {room}",
+                    n[0],
+                    n[1],
+                    n[2],
+                    grid.len(),
+                    text.len()
+                ),
+            ));
+        }
         let mut phi = Vec::with_capacity(grid.len());
         for k in 0..grid.len() {
             let (l, v) = next("distance")?;
@@ -106,13 +124,10 @@ impl SdfGrid {
         Ok(SdfGrid { grid, phi })
     }
 
-    /// Reads an SDFGen file (see [`SdfGrid::parse`]).
-    pub fn read(path: &std::path::Path) -> Result<SdfGrid, crate::io::ReadError> {
-        let text = std::fs::read_to_string(path).map_err(|e| crate::io::ReadError {
-            path: path.display().to_string(),
-            line: 0,
-            message: e.to_string(),
-        })?;
+    /// Reads an SDFGen file (see [`SdfGrid::parse`]) of at most `max_bytes` bytes through
+    /// [`crate::io::read_text`].
+    pub fn read(path: &std::path::Path, max_bytes: u64) -> Result<SdfGrid, crate::io::ReadError> {
+        let text = crate::io::read_text(path, max_bytes)?;
         Self::parse(&text, &path.display().to_string())
     }
 }

@@ -200,6 +200,20 @@ pub enum IntegrateError {
         /// Why.
         reason: &'static str,
     },
+    /// The state grew out of all proportion (a blow-up caught before it is not finite).
+    #[error("step {step}: a vertex moves at {speed:.3e} m/s, {:.3e} m in one step of {dt:e} s, more than ten times the model's size ({size:.3} m): the simulation is blowing up; {hint}", speed * dt)]
+    Diverged {
+        /// Step number (1-based, sub-steps included).
+        step: u64,
+        /// The largest speed (m/s).
+        speed: f64,
+        /// The step (s).
+        dt: f64,
+        /// The model's initial size: the diagonal of its bounding box, at least 1 m.
+        size: f64,
+        /// What to try.
+        hint: &'static str,
+    },
     /// A state whose size does not match the model's.
     #[error("the state has {got} vertices, the model {expected}")]
     StateSize {
@@ -242,12 +256,15 @@ pub(crate) const HINT_NEWTON: &str = "Newton converges slowly where the definite
      loosen [solver] newton_tolerance or raise newton_max_iterations, reduce dt, or use \
      linearized-backward-euler (one solve per step)";
 
-pub(crate) const HINT_EXPLICIT: &str =
+/// What to try when an explicit method blows up.
+pub const HINT_EXPLICIT: &str =
     "reduce dt, or use an implicit integrator (backward-euler, implicit-midpoint, newmark)";
-pub(crate) const HINT_IMPLICIT: &str =
+/// What to try when an implicit method blows up.
+pub const HINT_IMPLICIT: &str =
     "reduce dt, or check the inputs for extreme values (stiffness, mass)";
 
-pub(crate) fn hint(method: Method) -> &'static str {
+/// What to try when `method` blows up.
+pub fn hint(method: Method) -> &'static str {
     if method.is_implicit() {
         HINT_IMPLICIT
     } else {

@@ -163,12 +163,9 @@ pub struct ReadError {
 /// become fans) and `l` (polylines become segments). `vt`, `vn`, `vp`, `o`, `g`, `s`,
 /// `usemtl`, `mtllib` and comments are ignored; any other statement is an error.
 /// Non-finite coordinates are kept (a renderer skips what uses them).
-pub fn read_obj(path: &std::path::Path) -> Result<Mesh, ReadError> {
-    let text = std::fs::read_to_string(path).map_err(|e| ReadError {
-        path: path.display().to_string(),
-        line: 0,
-        message: e.to_string(),
-    })?;
+/// The file is read through [`super::read_text`], at most `max_bytes` bytes.
+pub fn read_obj(path: &std::path::Path, max_bytes: u64) -> Result<Mesh, ReadError> {
+    let text = super::read_text(path, max_bytes)?;
     parse_obj(&text, &path.display().to_string())
 }
 
@@ -181,12 +178,11 @@ pub fn parse_obj(text: &str, name: &str) -> Result<Mesh, ReadError> {
 /// cloth takes as rest coordinates): every face corner must name one (`i/t` or `i/t/n`),
 /// and a vertex named with two different ones (a texture seam) is an error naming the
 /// line; the mesh must be split at the seam. Otherwise as [`read_obj`].
-pub fn read_obj_uv(path: &std::path::Path) -> Result<(Mesh, Vec<[f64; 2]>), ReadError> {
-    let text = std::fs::read_to_string(path).map_err(|e| ReadError {
-        path: path.display().to_string(),
-        line: 0,
-        message: e.to_string(),
-    })?;
+pub fn read_obj_uv(
+    path: &std::path::Path,
+    max_bytes: u64,
+) -> Result<(Mesh, Vec<[f64; 2]>), ReadError> {
+    let text = super::read_text(path, max_bytes)?;
     parse_obj_uv(&text, &path.display().to_string())
 }
 
@@ -207,9 +203,13 @@ fn parse_obj_impl(text: &str, name: &str, want_uv: bool) -> Result<MeshAndUv, Re
     let mut vt_used: Option<(usize, usize)> = None;
     let mut triangles = Vec::new();
     let mut segments = Vec::new();
-    // Faces may name vertices defined later, so indices are checked at the end against
-    // the largest one used (and the line using it).
-    let mut largest: Option<(usize, usize)> = None;
+    // Faces may name vertices defined later: a first pass counts the vertices the file
+    // defines, so an index is checked where it is used, against what the file holds,
+    // before anything is sized by it.
+    let defined = text
+        .lines()
+        .filter(|l| l.split_whitespace().next() == Some("v"))
+        .count();
     for (ln, raw) in text.lines().enumerate() {
         let line = ln + 1;
         let err = |message: String| ReadError {
@@ -280,6 +280,12 @@ fn parse_obj_impl(text: &str, name: &str, want_uv: bool) -> Result<MeshAndUv, Re
                     if abs > u32::MAX as i64 {
                         return Err(err(format!("vertex index {i} is too large")));
                     }
+                    if abs >= defined as i64 {
+                        return Err(err(format!(
+                            "vertex {} does not exist: the file defines {defined} vertices",
+                            abs + 1
+                        )));
+                    }
                     idx.push(abs as u32);
                     if want_uv && key == "f" {
                         let t: i64 = tex.parse().map_err(|_| {
@@ -311,9 +317,6 @@ fn parse_obj_impl(text: &str, name: &str, want_uv: bool) -> Result<MeshAndUv, Re
                             }
                         }
                     }
-                    if largest.is_none_or(|(k, _)| abs as usize > k) {
-                        largest = Some((abs as usize, line));
-                    }
                 }
                 if key == "f" {
                     if idx.len() < 3 {
@@ -344,16 +347,6 @@ fn parse_obj_impl(text: &str, name: &str, want_uv: bool) -> Result<MeshAndUv, Re
         }
     }
     let n = xyz.len();
-    if let Some((k, line)) = largest.filter(|&(k, _)| k >= n) {
-        return Err(ReadError {
-            path: name.to_string(),
-            line,
-            message: format!(
-                "vertex {} does not exist: the file defines {n} vertices",
-                k + 1
-            ),
-        });
-    }
     let uv = if want_uv {
         if let Some((k, line)) = vt_used.filter(|&(k, _)| k >= vts.len()) {
             return Err(ReadError {

@@ -6,7 +6,8 @@
 use super::{Body, Load};
 use crate::simulation::Stage;
 use crate::validate::{check, require, ModelError, Rule};
-use largestep_kernels::interp::{sample3_vec_add, Grid3};
+use largestep_kernels::get3;
+use largestep_kernels::interp::{sample3_vec, sample3_vec_add, Grid3};
 
 /// An external force field (N per vertex) on a regular grid of nodes, x fastest: node
 /// (i, j, k) at `i + nx (j + ny k)`.
@@ -50,6 +51,19 @@ impl Load for ForceField {
             x,
             1.0,
         );
+    }
+
+    fn work_rate(&self, _t: f64, _body: &Body<'_>, x: &[f64], v: &[f64]) -> Option<f64> {
+        let n = x.len() / 3;
+        let fields = [&self.force[0][..], &self.force[1], &self.force[2]];
+        let p = (0..n)
+            .map(|i| {
+                let f = sample3_vec(fields, self.grid, get3(x, n, i));
+                let vi = get3(v, n, i);
+                f[0] * vi[0] + f[1] * vi[1] + f[2] * vi[2]
+            })
+            .sum();
+        Some(p)
     }
 
     fn validate(&self) -> Result<(), ModelError> {

@@ -44,6 +44,14 @@ pub trait Load: std::fmt::Debug + Send + Sync {
         let _ = (body, x);
         None
     }
+    /// The rate (W) at which a load without a potential does work on the body,
+    /// `sum f_i . v_i`; `None` for a conservative load, whose work is its potential's
+    /// change. Energy accounting integrates it, so that a run driven by wind or a force
+    /// field is not taken for an unstable one.
+    fn work_rate(&self, t: f64, body: &Body<'_>, x: &[f64], v: &[f64]) -> Option<f64> {
+        let _ = (t, body, x, v);
+        None
+    }
     /// Checks the parameters (errors name the load as the item).
     fn validate(&self) -> Result<(), ModelError>;
     /// The `--explain` line of the load.
@@ -144,6 +152,18 @@ impl Loads {
         self.terms()
             .filter_map(|l| l.potential(body, x))
             .fold(0.0, |a, b| a + b)
+    }
+
+    /// The rate (W) at which the loads without a potential (wind, field) do work.
+    pub fn work_rate(&self, t: f64, body: &Body<'_>, x: &[f64], v: &[f64]) -> f64 {
+        self.terms()
+            .filter_map(|l| l.work_rate(t, body, x, v))
+            .fold(0.0, |a, b| a + b)
+    }
+
+    /// Whether any load does work outside a potential.
+    pub fn does_work(&self) -> bool {
+        self.wind.is_some() || self.field.is_some()
     }
 
     /// Checks every load.

@@ -24,8 +24,17 @@ pub struct Wind {
     pub frequency: f64,
 }
 
-impl Load for Wind {
-    fn add_forces(&self, t: f64, body: &Body<'_>, x: &[f64], v: &[f64], f: &mut [f64]) {
+impl Wind {
+    /// Calls `each(triangle, s, nn)` for every triangle the wind pushes: each of its three
+    /// vertices gets the force `s nn` (N).
+    fn for_each_force(
+        &self,
+        t: f64,
+        body: &Body<'_>,
+        x: &[f64],
+        v: &[f64],
+        mut each: impl FnMut(&[u32; 3], f64, [f64; 3]),
+    ) {
         let w = self;
         let n = body.mass.len();
         let speed = dot(w.velocity, w.velocity).sqrt();
@@ -51,12 +60,31 @@ impl Load for Wind {
                 std::array::from_fn(|c| air[c] - (vs[0][c] + vs[1][c] + vs[2][c]) / 3.0);
             // drag A (rel . n) n = drag (rel . N) N / (2 |N|), a third to each vertex.
             let s = w.drag * dot(rel, nn) / (2.0 * len2.sqrt()) / 3.0;
+            each(tri, s, nn);
+        }
+    }
+}
+
+impl Load for Wind {
+    fn add_forces(&self, t: f64, body: &Body<'_>, x: &[f64], v: &[f64], f: &mut [f64]) {
+        let n = body.mass.len();
+        self.for_each_force(t, body, x, v, |tri, s, nn| {
             for &i in tri {
                 for c in 0..3 {
                     f[c * n + i as usize] += s * nn[c];
                 }
             }
-        }
+        });
+    }
+
+    fn work_rate(&self, t: f64, body: &Body<'_>, x: &[f64], v: &[f64]) -> Option<f64> {
+        let n = body.mass.len();
+        let mut p = 0.0;
+        self.for_each_force(t, body, x, v, |tri, s, nn| {
+            let vs = gather_nodes(v, n, tri);
+            p += s * (dot(nn, vs[0]) + dot(nn, vs[1]) + dot(nn, vs[2]));
+        });
+        Some(p)
     }
 
     fn validate(&self) -> Result<(), ModelError> {

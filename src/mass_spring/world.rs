@@ -22,6 +22,7 @@
 use super::{lattice, CollisionDesc, LatticeOptions, MassSpringDesc};
 use crate::integrate::{MechSettings, Method};
 use crate::io::ReadError;
+use crate::limits::Limits;
 use crate::loads::ForceField;
 use crate::scene::{stem_name, FrameFormat, Output, Scene, SceneError, System};
 use crate::simulation::MechSimulation;
@@ -128,13 +129,10 @@ impl<'a> Reader<'a> {
 }
 
 impl World {
-    /// Reads a world file.
-    pub fn read(path: &std::path::Path) -> Result<World, ReadError> {
-        let text = std::fs::read_to_string(path).map_err(|e| ReadError {
-            path: path.display().to_string(),
-            line: 0,
-            message: e.to_string(),
-        })?;
+    /// Reads a world file of at most `max_bytes` bytes (through
+    /// [`crate::io::read_text`]).
+    pub fn read(path: &std::path::Path, max_bytes: u64) -> Result<World, ReadError> {
+        let text = crate::io::read_text(path, max_bytes)?;
         World::parse(&text, &path.display().to_string())
     }
 
@@ -163,8 +161,11 @@ impl World {
             )
         })?;
         let [dt, every] = r.numbers::<2>("`dt n`: the time step and the display interval")?;
-        if dt <= 0.0 {
-            return Err(r.err(r.line, format!("the time step must be > 0, not {dt}")));
+        if !(dt.is_finite() && dt > 0.0) {
+            return Err(r.err(
+                r.line,
+                format!("the time step must be > 0 and finite, not {dt}"),
+            ));
         }
         if every < 1.0 || every.fract() != 0.0 {
             return Err(r.err(
@@ -333,7 +334,7 @@ impl World {
     /// box `[-2, 2]^3`, run for [`WORLD_DURATION`] seconds with a frame every
     /// `max(n, 1/30 s)` steps (the file's display interval n, but not more than 30 frames
     /// per simulated second). `file` names it in errors and gives the scene its name.
-    pub fn to_scene(&self, file: &str) -> Result<Scene, SceneError> {
+    pub fn to_scene(&self, file: &str, limits: &Limits) -> Result<Scene, SceneError> {
         let whole = |message: String| SceneError {
             file: file.to_string(),
             line: 0,
@@ -342,6 +343,15 @@ impl World {
             message,
             snippet: None,
         };
+        limits
+            .steps(
+                &format!(
+                    "dt = {:e} s over the {WORLD_DURATION} s of a world run",
+                    self.dt
+                ),
+                WORLD_DURATION / self.dt,
+            )
+            .map_err(whole)?;
         let (model, state) = self.to_desc().build().map_err(|e| whole(e.to_string()))?;
         let sim = MechSimulation::new(model, state, MechSettings::new(self.method))
             .map_err(|e| whole(e.to_string()))?;
@@ -359,6 +369,7 @@ impl World {
                 sim: Box::new(sim),
             }],
             output: Output::new(FrameFormat::Obj, every, self.dt),
+            limits: *limits,
         })
     }
 }
@@ -367,7 +378,7 @@ impl World {
 pub const WORLD_DURATION: f64 = 5.0;
 
 /// Reads a world file as a scene (the scene registry's loader for `.w` files).
-pub fn load_scene(path: &std::path::Path) -> Result<Scene, SceneError> {
-    let world = World::read(path).map_err(SceneError::from_read)?;
-    world.to_scene(&path.display().to_string())
+pub fn load_scene(path: &std::path::Path, limits: &Limits) -> Result<Scene, SceneError> {
+    let world = World::read(path, limits.max_file_bytes).map_err(SceneError::from_read)?;
+    world.to_scene(&path.display().to_string(), limits)
 }

@@ -217,7 +217,7 @@ pub fn write_preview(
 
 /// Reads every `*.obj` in `dir`, in name order (frames written by `largestep run` sort by
 /// number). A malformed file is an error naming the file and line.
-pub fn load_frames(dir: &Path) -> Result<Vec<Mesh>, RenderError> {
+pub fn load_frames(dir: &Path, max_bytes: u64) -> Result<Vec<Mesh>, RenderError> {
     let entries = std::fs::read_dir(dir).map_err(file_err(dir))?;
     let mut paths: Vec<PathBuf> = entries
         .filter_map(|e| e.ok().map(|e| e.path()))
@@ -232,7 +232,7 @@ pub fn load_frames(dir: &Path) -> Result<Vec<Mesh>, RenderError> {
     }
     let mut frames: Vec<Mesh> = Vec::with_capacity(paths.len());
     for p in &paths {
-        let mut m = read_obj(p).map_err(|e| RenderError::File {
+        let mut m = read_obj(p, max_bytes).map_err(|e| RenderError::File {
             path: e.path.clone(),
             message: if e.line > 0 {
                 format!("line {}: {}", e.line, e.message)

@@ -27,7 +27,8 @@ pub mod shared;
 
 pub use run::{FrameFormat, FrameRecord, Output, Progress, RunError, Runner, Summary};
 
-use crate::integrate::{LinearSolverKind, MechSettings, Method};
+use crate::integrate::{LinearSolverKind, MechSettings, Method, AUTO_CHOLESKY_MAX_DOFS};
+use crate::limits::Limits;
 use crate::render::preview::PreviewSettings;
 use crate::render::{
     Camera, CameraSpec, DEFAULT_AZIMUTH_DEG, DEFAULT_ELEVATION_DEG, DEFAULT_FOV_DEG,
@@ -222,6 +223,8 @@ pub struct Scene {
     pub duration: f64,
     /// The systems, in registry order.
     pub systems: Vec<System>,
+    /// The limits it was checked against (a run checks its steps against them too).
+    pub limits: Limits,
     /// Outputs.
     pub output: Output,
 }
@@ -239,6 +242,9 @@ pub struct Context<'a> {
     pub dt: f64,
     /// Integrator and solver settings, from `[scene]` and `[solver]`.
     pub settings: MechSettings,
+    /// What the scene may ask for: its converter checks sizes against these before
+    /// allocating.
+    pub limits: Limits,
     src: &'a str,
     table: &'a str,
     value: Spanned<DeValue<'a>>,
@@ -261,6 +267,29 @@ impl Context<'_> {
     /// The error `message` at an absolute key path (`[scene] gravity`, say).
     pub fn error_at(&self, p: &[Key], message: impl Into<String>) -> SceneError {
         located(self.file, self.src, p, message.into())
+    }
+
+    /// `Ok` when a model estimated to need `bytes` fits the memory budget, else the
+    /// error at `at` naming `what` needs them.
+    pub fn memory(&self, at: &[Key], what: &str, bytes: f64) -> Result<(), SceneError> {
+        self.limits
+            .memory(what, bytes)
+            .map_err(|m| self.error(at, m))
+    }
+
+    /// Whether the integrator solves systems (and so assembles matrices).
+    pub fn implicit(&self) -> bool {
+        self.settings.method.is_implicit()
+    }
+
+    /// Whether implicit steps of a model of `vertices` vertices solve with sparse Cholesky
+    /// (whose factor fills in) rather than PCG.
+    pub fn cholesky(&self, vertices: f64) -> bool {
+        match self.settings.linear {
+            LinearSolverKind::Cholesky => true,
+            LinearSolverKind::Auto(_) => 3.0 * vertices <= AUTO_CHOLESKY_MAX_DOFS as f64,
+            LinearSolverKind::Pcg(_) => false,
+        }
     }
 
     /// A model's validation error, at `key` below the domain's table; gravity's at
@@ -325,8 +354,14 @@ fn table<T: DeserializeOwned>(
 
 impl Scene {
     /// Reads and validates a scene file: TOML, or a format of [`registry::FORMATS`] by
-    /// its extension.
+    /// its extension; within the default [`Limits`] of this machine.
     pub fn load(path: &Path) -> Result<Scene, SceneError> {
+        Self::load_with(path, &Limits::default())
+    }
+
+    /// [`Scene::load`] within `limits`: the file's size, and every size and step count
+    /// the scene asks for, are checked against them before anything is allocated.
+    pub fn load_with(path: &Path, limits: &Limits) -> Result<Scene, SceneError> {
         let file = path.display().to_string();
         let ext = path
             .extension()
@@ -335,22 +370,26 @@ impl Scene {
             .iter()
             .find(|f| ext.as_deref() == Some(f.extension))
         {
-            return (format.load)(path);
+            return (format.load)(path, limits);
         }
-        let src = std::fs::read_to_string(path).map_err(|e| SceneError {
-            file: file.clone(),
-            line: 0,
-            column: 0,
-            field: String::new(),
-            message: format!("cannot read the scene: {e}"),
-            snippet: None,
+        let src = crate::io::read_text(path, limits.max_file_bytes).map_err(|e| {
+            let mut e = SceneError::from_read(e);
+            if e.line == 0 {
+                e.message = format!("cannot read the scene: {}", e.message);
+            }
+            e
         })?;
-        Self::parse(&src, &file)
+        Self::parse_with(&src, &file, limits)
     }
 
     /// Parses and validates scene text; `file` names it in errors and its folder is where
     /// files named in the scene are looked for.
     pub fn parse(src: &str, file: &str) -> Result<Scene, SceneError> {
+        Self::parse_with(src, file, &Limits::default())
+    }
+
+    /// [`Scene::parse`] within `limits` (see [`Scene::load_with`]).
+    pub fn parse_with(src: &str, file: &str, limits: &Limits) -> Result<Scene, SceneError> {
         let root = DeTable::parse(src).map_err(|e| syntax_error(file, src, &e))?;
         let err = |p: Vec<Key>, m: String| located(file, src, &p, m);
         let domains: Vec<&str> = registry::DOMAINS.iter().map(|d| d.table).collect();
@@ -390,6 +429,12 @@ impl Scene {
         };
         let dt = positive(s.dt, "dt")?;
         let duration = positive(s.duration, "duration")?;
+        limits
+            .steps(
+                &format!("a duration of {duration} s at dt = {dt:e} s"),
+                duration / dt,
+            )
+            .map_err(|m| err(path(&[&"scene", &"dt"]), m))?;
         let method = Method::from_name(&s.integrator).ok_or_else(|| {
             err(
                 path(&[&"scene", &"integrator"]),
@@ -412,6 +457,7 @@ impl Scene {
             let ctx = Context {
                 file,
                 base,
+                limits: *limits,
                 gravity,
                 dt,
                 settings,
@@ -444,6 +490,7 @@ impl Scene {
             duration,
             systems,
             output,
+            limits: *limits,
         })
     }
 

@@ -3,6 +3,7 @@
 //! Adding a domain is a folder (`src/<domain>/` with its `scene.rs`) and one line here.
 
 use super::{Context, Scene, SceneError};
+use crate::limits::Limits;
 use crate::simulation::Simulation;
 use std::path::Path;
 
@@ -19,8 +20,8 @@ pub struct Domain {
 pub struct Format {
     /// The file extension, lower case, without the dot.
     pub extension: &'static str,
-    /// Reads the file into a scene.
-    pub load: fn(&Path) -> Result<Scene, SceneError>,
+    /// Reads the file into a scene within the limits.
+    pub load: fn(&Path, &Limits) -> Result<Scene, SceneError>,
 }
 
 /// The domains, in the order a scene's systems are built and stepped.

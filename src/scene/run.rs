@@ -8,6 +8,7 @@
 use super::{Scene, System};
 use crate::integrate::{IntegrateError, StepInfo};
 use crate::io::{write_atomically, write_obj, write_ply, Mesh, MeshRef};
+use crate::limits::Limits;
 use crate::render::preview::PreviewSettings;
 use crate::simulation::{Energy, FrameData, Simulation};
 use std::io::Write;
@@ -86,15 +87,17 @@ pub struct FrameRecord {
     pub steps: usize,
     /// Wall time of the frame's steps (s).
     pub step_seconds: f64,
+    /// Work done since the start by loads without a potential (wind, force fields), J.
+    pub external_work: f64,
 }
 
 impl FrameRecord {
-    const CSV_HEADER: &'static str = "frame,time_s,kinetic_J,potential_J,total_J,penetration_m,newton_iterations,linear_iterations,step_seconds";
+    const CSV_HEADER: &'static str = "frame,time_s,kinetic_J,potential_J,total_J,penetration_m,newton_iterations,linear_iterations,step_seconds,external_work_J";
 
     fn write_csv(&self, w: &mut dyn Write) -> std::io::Result<()> {
         writeln!(
             w,
-            "{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{}",
             self.frame,
             self.time,
             self.kinetic,
@@ -103,7 +106,8 @@ impl FrameRecord {
             self.penetration,
             self.newton_iterations,
             self.linear_iterations,
-            self.step_seconds
+            self.step_seconds,
+            self.external_work
         )
     }
 }
@@ -129,7 +133,10 @@ pub struct Summary {
     pub wall_seconds: f64,
     /// Total energy at the start and the end (J).
     pub energy: (f64, f64),
-    /// `(E_end - E_start) / max(|E_start|, largest kinetic energy seen)`.
+    /// Work done by loads without a potential over the run (J).
+    pub external_work: f64,
+    /// `(E_end - E_start - W) / max(|E_start|, largest kinetic energy seen)`, W the work
+    /// of loads without a potential: what the system gained that nothing put in.
     pub energy_drift: f64,
     /// Newton iterations, summed.
     pub newton_iterations: usize,
@@ -155,11 +162,19 @@ impl std::fmt::Display for Summary {
             self.step_seconds,
             1e6 * self.step_seconds / self.steps.max(1) as f64
         )?;
-        writeln!(
-            f,
-            "  energy         {:.6e} J -> {:.6e} J (relative change {:+.3e})",
-            self.energy.0, self.energy.1, self.energy_drift
-        )?;
+        if self.external_work != 0.0 {
+            writeln!(
+                f,
+                "  energy         {:.6e} J -> {:.6e} J, {:.6e} J of it work of wind or a force field (relative change {:+.3e})",
+                self.energy.0, self.energy.1, self.external_work, self.energy_drift
+            )?;
+        } else {
+            writeln!(
+                f,
+                "  energy         {:.6e} J -> {:.6e} J (relative change {:+.3e})",
+                self.energy.0, self.energy.1, self.energy_drift
+            )?;
+        }
         if self.energy_drift > 0.1 {
             writeln!(
                 f,
@@ -207,6 +222,26 @@ pub enum RunError {
         /// The I/O error.
         source: std::io::Error,
     },
+    /// The run would exceed a limit (steps); nothing was run.
+    #[error("{0}")]
+    Limit(String),
+    /// The energy is not finite although every position and velocity is: values beyond
+    /// what f64 can square and sum (a mass of 1e308 kg, say).
+    #[error("frame {frame} (t = {time} s): the energy is not finite (kinetic {kinetic:e} J, potential {potential:e} J) although every position and velocity is: masses, velocities or stiffnesses too large for double precision; check them{}", if *frame > 0 { format!("\n  {frames_written} frames written before remain valid in {}", out.display()) } else { String::new() })]
+    NonFiniteEnergy {
+        /// The frame (0: the initial state).
+        frame: usize,
+        /// Simulated time (s).
+        time: f64,
+        /// Kinetic energy (J).
+        kinetic: f64,
+        /// Potential energy (J).
+        potential: f64,
+        /// Frames written before it.
+        frames_written: usize,
+        /// The output folder.
+        out: PathBuf,
+    },
 }
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> RunError + '_ {
@@ -223,6 +258,7 @@ pub struct Runner {
     duration: f64,
     dt: f64,
     output: Output,
+    limits: Limits,
     out_dir: PathBuf,
     records: Vec<FrameRecord>,
     kept: Option<Vec<Mesh>>,
@@ -237,6 +273,7 @@ impl Runner {
             duration: scene.duration,
             dt: scene.dt,
             output: scene.output,
+            limits: scene.limits,
             out_dir: out_dir.to_path_buf(),
             records: Vec::new(),
             kept: None,
@@ -279,6 +316,7 @@ impl Runner {
             Energy {
                 kinetic: e.kinetic + x.kinetic,
                 potential: e.potential + x.potential,
+                external_work: e.external_work + x.external_work,
             }
         })
     }
@@ -373,15 +411,27 @@ impl Runner {
 
     /// Number of frames (after the initial one) the run will simulate.
     pub fn frame_count(&self, frames: Option<usize>) -> usize {
-        frames.unwrap_or_else(|| self.total_steps(None).div_ceil(self.output.every))
+        frames.unwrap_or_else(|| {
+            let steps = (self.duration / self.dt).round().max(1.0);
+            (steps / self.output.every as f64).ceil() as usize
+        })
     }
 
-    /// Steps the run takes: `frames` frames, or the scene's duration.
-    fn total_steps(&self, frames: Option<usize>) -> usize {
-        match frames {
-            Some(f) => f * self.output.every,
-            None => (self.duration / self.dt).round().max(1.0) as usize,
-        }
+    /// Steps the run takes: `frames` frames, or the scene's duration; an error when that
+    /// is more than the step limit.
+    fn total_steps(&self, frames: Option<usize>) -> Result<usize, RunError> {
+        let (steps, what) = match frames {
+            Some(f) => (
+                f as f64 * self.output.every as f64,
+                format!("{f} frames of {} steps", self.output.every),
+            ),
+            None => (
+                (self.duration / self.dt).round().max(1.0),
+                format!("{} s at dt = {:e} s", self.duration, self.dt),
+            ),
+        };
+        self.limits.steps(&what, steps).map_err(RunError::Limit)?;
+        Ok(steps as usize)
     }
 
     fn write_frame(&mut self, k: usize) -> Result<bool, RunError> {
@@ -427,8 +477,8 @@ impl Runner {
         progress: &mut dyn FnMut(&Progress),
     ) -> Result<Summary, RunError> {
         let start = Instant::now();
-        let total_frames = self.frame_count(frames);
-        let total_steps = self.total_steps(frames);
+        let total_steps = self.total_steps(frames)?;
+        let total_frames = total_steps.div_ceil(self.output.every);
         let frames_dir = self.out_dir.join("frames");
         std::fs::create_dir_all(&frames_dir).map_err(io_err(&frames_dir))?;
         let csv_path = self.out_dir.join("energy.csv");
@@ -453,6 +503,21 @@ impl Runner {
                 linear_iterations: linear,
                 steps,
                 step_seconds: secs,
+                external_work: e.external_work,
+            }
+        };
+        let finite = |r: &FrameRecord, written: usize, out: &Path| {
+            if (r.kinetic + r.potential).is_finite() {
+                Ok(())
+            } else {
+                Err(RunError::NonFiniteEnergy {
+                    frame: r.frame,
+                    time: r.time,
+                    kinetic: r.kinetic,
+                    potential: r.potential,
+                    frames_written: written,
+                    out: out.to_path_buf(),
+                })
             }
         };
         let mut log = |r: FrameRecord, records: &mut Vec<FrameRecord>| {
@@ -461,6 +526,7 @@ impl Runner {
         };
         let r = record(0, self, 0, 0, 0, 0.0);
         log(r, &mut self.records).map_err(io_err(&csv_path))?;
+        finite(&r, written, &self.out_dir)?;
         let mut summary = Summary {
             name: self.name.clone(),
             method: self.method(),
@@ -471,6 +537,7 @@ impl Runner {
             step_seconds: 0.0,
             wall_seconds: 0.0,
             energy: (e_start, e_start),
+            external_work: 0.0,
             energy_drift: 0.0,
             newton_iterations: 0,
             linear_iterations: 0,
@@ -502,6 +569,7 @@ impl Runner {
             written += self.write_frame(frame)? as usize;
             let r = record(frame, self, newton, linear, n, secs);
             log(r, &mut self.records).map_err(io_err(&csv_path))?;
+            finite(&r, written, &self.out_dir)?;
             progress(&Progress {
                 frame,
                 frames: total_frames,
@@ -509,13 +577,15 @@ impl Runner {
                 time: self.time(),
             });
         }
-        let e1 = self.energy().total();
+        let end = self.energy();
+        let e1 = end.total();
         summary.steps = self.steps();
         summary.frames_written = written;
         summary.sim_time = self.time();
         summary.energy = (e_start, e1);
+        summary.external_work = end.external_work;
         let scale = e_start.abs().max(max_kinetic).max(f64::MIN_POSITIVE);
-        summary.energy_drift = (e1 - e_start) / scale;
+        summary.energy_drift = (e1 - e_start - end.external_work) / scale;
         summary.wall_seconds = start.elapsed().as_secs_f64();
         Ok(summary)
     }

@@ -187,8 +187,8 @@ pub fn obstacles(ctx: &Context<'_>, t: ObstacleTables<'_>) -> Result<Vec<Obstacl
     }
     for (k, s) in t.sdf.iter().enumerate() {
         let file = path(&[&"sdf", &k, &"file"]);
-        let grid =
-            SdfGrid::read(&ctx.base.join(&s.file)).map_err(|e| ctx.error(&file, e.to_string()))?;
+        let grid = SdfGrid::read(&ctx.base.join(&s.file), ctx.limits.max_file_bytes)
+            .map_err(|e| ctx.error(&file, e.to_string()))?;
         out.push((
             path(&[&"sdf", &k]),
             Obstacle::Sdf(std::sync::Arc::new(grid)),

@@ -160,6 +160,15 @@ pub trait MechModel: Send + Sync + 'static {
     fn step_control(&self) -> Option<StepControl> {
         None
     }
+    /// Whether loads without a potential (wind, force fields) act on the model.
+    fn does_external_work(&self) -> bool {
+        false
+    }
+    /// The rate (W) at which those loads do work at time `t` and state `(x, v)`.
+    fn external_power(&self, t: f64, x: &[f64], v: &[f64]) -> f64 {
+        let _ = (t, x, v);
+        0.0
+    }
     /// The model's stages for `--explain`: elements, damping, loads, pins, collisions.
     fn stages(&self) -> Vec<Stage>;
     /// Surface triangles written per frame (may be empty).
@@ -254,6 +263,45 @@ pub struct MechSimulation<M: MechModel> {
     good_steps: u32,
     saved: (Vec<f64>, Vec<f64>),
     t: f64,
+    /// Work done by the loads without a potential so far (J), by the trapezoidal rule
+    /// over accepted steps, and their power at the end of the last one (W).
+    external_work: f64,
+    power: f64,
+    /// The model's initial size (m): the diagonal of its vertices' bounding box, at least
+    /// 1 m. A vertex moving ten times that in one step is a blow-up.
+    size: f64,
+}
+
+/// The diagonal of the bounding box of component-major positions (m), at least 1 m.
+fn size_of(x: &[f64]) -> f64 {
+    let n = x.len() / 3;
+    let mut d2 = 0.0;
+    for c in 0..3 {
+        let s = &x[c * n..(c + 1) * n];
+        let (lo, hi) = s
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| {
+                (lo.min(v), hi.max(v))
+            });
+        if hi > lo {
+            d2 += (hi - lo) * (hi - lo);
+        }
+    }
+    d2.sqrt().max(1.0)
+}
+
+/// The largest speed in component-major velocities (m/s); NaN if any is NaN.
+fn max_speed(v: &[f64]) -> f64 {
+    let n = v.len() / 3;
+    let mut m2 = 0.0f64;
+    for i in 0..n {
+        let s2 = v[i] * v[i] + v[n + i] * v[n + i] + v[2 * n + i] * v[2 * n + i];
+        if s2.is_nan() {
+            return f64::NAN;
+        }
+        m2 = m2.max(s2);
+    }
+    m2.sqrt()
 }
 
 impl<M: MechModel> MechSimulation<M> {
@@ -287,6 +335,12 @@ impl<M: MechModel> MechSimulation<M> {
             Some(_) => (vec![0.0; 3 * n], vec![0.0; 3 * n]),
             None => (Vec::new(), Vec::new()),
         };
+        let power = if model.does_external_work() {
+            model.external_power(0.0, state.x.as_slice(), state.v.as_slice())
+        } else {
+            0.0
+        };
+        let size = size_of(state.x.as_slice());
         Ok(Self {
             model,
             state,
@@ -298,6 +352,9 @@ impl<M: MechModel> MechSimulation<M> {
             good_steps: 0,
             saved,
             t: 0.0,
+            external_work: 0.0,
+            power,
+            size,
         })
     }
 
@@ -398,8 +455,9 @@ impl<M: MechModel> MechSimulation<M> {
     }
 
     /// What follows every accepted step ending at `self.t`: prescribed vertices, then
-    /// contacts.
-    fn after_step(&mut self, h: f64) {
+    /// contacts; then the loads' work over the step, and the check for a blow-up (a
+    /// vertex moving more than ten times the model's size in the step).
+    fn after_step(&mut self, h: f64) -> Result<(), IntegrateError> {
         let (x, v) = (self.state.x.as_mut_slice(), self.state.v.as_mut_slice());
         self.model.prescribe(self.t, x, v);
         if let Some(friction) = self.model.contact_friction() {
@@ -414,6 +472,22 @@ impl<M: MechModel> MechSimulation<M> {
                 h,
             );
         }
+        if self.model.does_external_work() {
+            let p = self.model.external_power(self.t, x, v);
+            self.external_work += 0.5 * h * (self.power + p);
+            self.power = p;
+        }
+        let speed = max_speed(v);
+        if speed * h > 10.0 * self.size {
+            return Err(IntegrateError::Diverged {
+                step: self.stepper.steps(),
+                speed,
+                dt: h,
+                size: self.size,
+                hint: crate::integrate::hint(self.stepper.settings().method),
+            });
+        }
+        Ok(())
     }
 
     /// Advances by `dt` (s); see the module docs.
@@ -421,7 +495,7 @@ impl<M: MechModel> MechSimulation<M> {
         let Some(control) = self.control else {
             let info = self.integrate(dt)?;
             self.t += dt;
-            self.after_step(dt);
+            self.after_step(dt)?;
             return Ok(info);
         };
         // First step (NaN), or a dt smaller than the current sub-step: start at dt.
@@ -431,7 +505,15 @@ impl<M: MechModel> MechSimulation<M> {
         let end = self.t + dt;
         let mut total = StepInfo::default();
         while self.t < end - 1e-12 * dt {
-            let h = self.sub_dt.min(end - self.t);
+            // The sub-step, or what remains of dt when that is shorter; a remainder within
+            // rounding of the sub-step is the sub-step, so an undivided step is exactly dt
+            // ((t + dt) - t is not dt in floating point).
+            let remaining = end - self.t;
+            let h = if remaining < self.sub_dt * (1.0 - 1e-9) {
+                remaining
+            } else {
+                self.sub_dt
+            };
             self.saved.0.copy_from_slice(self.state.x.as_slice());
             self.saved.1.copy_from_slice(self.state.v.as_slice());
             let why = match self.integrate(h) {
@@ -445,7 +527,7 @@ impl<M: MechModel> MechSimulation<M> {
                         total.residual = info.residual;
                         total.solve_seconds += info.solve_seconds;
                         self.t += h;
-                        self.after_step(h);
+                        self.after_step(h)?;
                         self.good_steps += 1;
                         if self.good_steps >= 2 && self.sub_dt < dt {
                             self.sub_dt = (2.0 * self.sub_dt).min(dt);
@@ -480,7 +562,8 @@ impl<M: MechModel> MechSimulation<M> {
         Ok(total)
     }
 
-    /// Kinetic and potential energy (J).
+    /// Kinetic and potential energy (J), and the work of loads without a potential so
+    /// far.
     pub fn energy(&self) -> Energy {
         Energy {
             kinetic: kinetic_energy(self.model.mass(), self.state.v.as_slice()),
@@ -488,6 +571,7 @@ impl<M: MechModel> MechSimulation<M> {
                 .model
                 .potential_energy(self.t, self.state.x.as_slice())
                 .unwrap_or(0.0),
+            external_work: self.external_work,
         }
     }
 

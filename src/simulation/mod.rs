@@ -81,6 +81,10 @@ pub struct Energy {
     pub kinetic: f64,
     /// Potential energy of the conservative forces (J); 0 when the model has none.
     pub potential: f64,
+    /// Work done on the system since the start by loads without a potential (wind, force
+    /// fields), J: a stable run's total energy changes by this much less what damping,
+    /// friction and contacts take.
+    pub external_work: f64,
 }
 
 impl Energy {

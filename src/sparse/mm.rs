@@ -55,7 +55,9 @@ pub fn write_matrix_market(mut w: impl Write, a: &Bsr3) -> std::io::Result<()> {
     res
 }
 
-/// Reads a Matrix Market coordinate file; `file` names it in errors.
+/// Reads a Matrix Market coordinate file; `file` names it in errors. Allocates in
+/// proportion to what the reader holds, not to the sizes the file announces (read files
+/// through [`crate::io::read_text`] to bound that too).
 pub fn read_matrix_market(reader: impl BufRead, file: &str) -> Result<MatrixMarket, SparseError> {
     let err = |line: usize, message: String| SparseError::Parse {
         file: file.to_string(),
@@ -136,7 +138,14 @@ pub fn read_matrix_market(reader: impl BufRead, file: &str) -> Result<MatrixMark
     let nrows = parse_usize(nums[0], "the row count", ln)?;
     let ncols = parse_usize(nums[1], "the column count", ln)?;
     let count = parse_usize(nums[2], "the entry count", ln)?;
-    let mut entries = Vec::with_capacity(if symmetric { 2 * count } else { count });
+    // The size line is only a claim: reserve for what it says up to a bound, and let the
+    // entries actually read (as many as the reader holds) grow the rest.
+    let announced = if symmetric {
+        count.saturating_mul(2)
+    } else {
+        count
+    };
+    let mut entries = Vec::with_capacity(announced.min(1 << 16));
     let mut seen = 0usize;
     let mut last = ln;
     while let Some((l, s)) = next(&mut lines)? {
