@@ -264,7 +264,10 @@ fn blow_up_stops_with_the_step_and_keeps_earlier_frames() {
             && msg.contains("reduce dt"),
         "{msg}"
     );
-    assert!(msg.contains("blowing up"), "caught before it is infinite: {msg}");
+    assert!(
+        msg.contains("blowing up"),
+        "caught before it is infinite: {msg}"
+    );
     assert!(msg.contains("remain valid"), "{msg}");
     // Every frame file on disk is complete and finite.
     let mut frames = 0;
@@ -524,4 +527,64 @@ fn a_scene_holds_several_independent_systems() {
     };
     let sum = e(&alone_chain) + e(&alone_cloth);
     assert!((e(&both) - sum).abs() <= 1e-12 * sum.abs().max(1.0));
+}
+
+/// Output is safe against what an earlier run, or someone else, left in the folder:
+/// symbolic links planted at frame, temporary and log names are replaced, never written
+/// through; a longer earlier run's frames and interrupted writes' temporaries are removed;
+/// a scene's name cannot place the default output folder outside `out/`.
+#[cfg(unix)]
+#[test]
+fn output_is_safe_against_what_the_folder_holds() {
+    let out = tmp("safe");
+    let frames = out.join("frames");
+    std::fs::create_dir_all(&frames).unwrap();
+    let victim = tmp("victim.txt");
+    std::fs::write(&victim, "precious").unwrap();
+    let link = |name: &str| std::os::unix::fs::symlink(&victim, name).unwrap();
+    link(frames.join("frame_00001.obj").to_str().unwrap());
+    link(frames.join("frame_00001.obj.tmp").to_str().unwrap());
+    link(out.join("energy.csv").to_str().unwrap());
+    // An earlier, longer run's last frame and an interrupted write's temporary.
+    std::fs::write(frames.join("frame_00009.obj"), "v 0 0 0\n").unwrap();
+    std::fs::write(frames.join(".frame_00002.obj.1.7.tmp"), "half").unwrap();
+    let text = format!("{BASE}\n[output]\nevery = 2\n");
+    let mut runner = Runner::new(Scene::parse(&text, "safe.toml").unwrap(), &out);
+    runner.run(Some(3), &mut |_| {}).unwrap();
+    assert_eq!(std::fs::read_to_string(&victim).unwrap(), "precious");
+    let mut names: Vec<String> = std::fs::read_dir(&frames)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    assert_eq!(
+        names,
+        [
+            "frame_00000.obj",
+            "frame_00001.obj",
+            "frame_00002.obj",
+            "frame_00003.obj"
+        ]
+    );
+    for n in &names {
+        let meta = std::fs::symlink_metadata(frames.join(n)).unwrap();
+        assert!(meta.file_type().is_file(), "{n} is a regular file");
+    }
+    let csv = out.join("energy.csv");
+    assert!(std::fs::symlink_metadata(&csv)
+        .unwrap()
+        .file_type()
+        .is_file());
+    assert_eq!(std::fs::read_to_string(&csv).unwrap().lines().count(), 5);
+    // Names that would leave out/.
+    for (name, folder) in [
+        ("../../x", "_.._x"),
+        ("/etc/passwd", "_etc_passwd"),
+        ("..", "scene"),
+        ("a b", "a_b"),
+    ] {
+        let text = format!("{BASE}").replace("[scene]", &format!("[scene]\nname = {name:?}"));
+        let s = Scene::parse(&text, "named.toml").unwrap();
+        assert_eq!(s.folder_name(), folder, "{name}");
+    }
 }

@@ -304,7 +304,7 @@ fn run(
             return ExitCode::from(2);
         }
     };
-    let out = out.unwrap_or_else(|| PathBuf::from("out").join(&scene.name));
+    let out = out.unwrap_or_else(|| PathBuf::from("out").join(scene.folder_name()));
     let mut runner = Runner::new(scene, &out);
     if explain {
         print!("{}", runner.explain());

@@ -1,8 +1,12 @@
 //! Files: meshes (OBJ, PLY), images (PNG, GIF), the one bounded reader every input goes
 //! through ([`read_text`]) and the atomic write every output goes through.
 //!
-//! Files are written to `NAME.tmp` and renamed into place, so a reader (or a run that
-//! fails later) never sees half a file: what was written before an error stays valid.
+//! Files are written to a temporary file of their own and renamed into place, so a reader
+//! (or a run that fails later) never sees half a file: what was written before an error
+//! stays valid. The temporary is created exclusively (`create_new`: an existing file or
+//! a symbolic link planted at its name is an error, never followed) under a name no
+//! other writer uses (`.NAME.<process>.<counter>.tmp`), and the rename replaces whatever
+//! entry `NAME` was, a symbolic link included, without writing through it.
 
 mod mesh;
 
@@ -73,18 +77,90 @@ pub fn read_text(path: &Path, max_bytes: u64) -> Result<String, ReadError> {
     })
 }
 
-/// Writes a file atomically through `write` (temporary file, then rename).
+/// A new, exclusively created temporary file beside `path` (see the module docs), and its
+/// name.
+fn create_temporary(path: &Path) -> std::io::Result<(std::fs::File, std::path::PathBuf)> {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static COUNTER: AtomicU64 = AtomicU64::new(0);
+    let name = path
+        .file_name()
+        .ok_or_else(|| std::io::Error::other("not a file name"))?
+        .to_string_lossy();
+    let dir = path.parent().unwrap_or(Path::new(""));
+    for _ in 0..100 {
+        let k = COUNTER.fetch_add(1, Ordering::Relaxed);
+        let tmp = dir.join(format!(".{name}.{}.{k}{TEMP_SUFFIX}", std::process::id()));
+        match std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&tmp)
+        {
+            Ok(f) => return Ok((f, tmp)),
+            // Taken (by a stale file or a planted link): another name.
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(e) => return Err(e),
+        }
+    }
+    Err(std::io::Error::new(
+        std::io::ErrorKind::AlreadyExists,
+        format!("no free temporary name beside {}", path.display()),
+    ))
+}
+
+/// What the names of temporary files end in (see [`remove_stale`]).
+pub const TEMP_SUFFIX: &str = ".tmp";
+
+/// Writes a file atomically through `write` (an exclusive temporary file, then a rename;
+/// see the module docs). On an error the temporary is removed and `path` is untouched.
 pub fn write_atomically(
     path: &Path,
     write: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
 ) -> std::io::Result<()> {
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp");
-    let tmp = std::path::PathBuf::from(tmp);
-    {
-        let mut w = BufWriter::new(std::fs::File::create(&tmp)?);
+    let (file, tmp) = create_temporary(path)?;
+    let result = (|| {
+        let mut w = BufWriter::new(file);
         write(&mut w)?;
-        w.flush()?;
+        w.flush()
+    })()
+    .and_then(|_| std::fs::rename(&tmp, path));
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
     }
-    std::fs::rename(&tmp, path)
+    result
+}
+
+/// Creates `path` for writing as a stream (a log appended to as a run goes): an exclusive
+/// temporary file renamed into place at once, so that a symbolic link planted at `path`
+/// is replaced, not written through.
+pub fn create_replacing(path: &Path) -> std::io::Result<std::fs::File> {
+    let (file, tmp) = create_temporary(path)?;
+    if let Err(e) = std::fs::rename(&tmp, path) {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(e);
+    }
+    Ok(file)
+}
+
+/// Removes, in `dir`, the files an earlier run left that a new run would mix with its own:
+/// those whose names `is_ours` accepts, and temporaries of interrupted writes (hidden
+/// names ending in [`TEMP_SUFFIX`]). Only files are removed (a symbolic link itself, never
+/// what it points to); a missing folder is nothing to clean. Returns how many went.
+pub fn remove_stale(dir: &Path, is_ours: impl Fn(&str) -> bool) -> std::io::Result<usize> {
+    let entries = match std::fs::read_dir(dir) {
+        Ok(e) => e,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(0),
+        Err(e) => return Err(e),
+    };
+    let mut removed = 0;
+    for entry in entries {
+        let entry = entry?;
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let temporary = name.starts_with('.') && name.ends_with(TEMP_SUFFIX);
+        // `file_type` does not follow links: a link is removed as a link.
+        if (temporary || is_ours(&name)) && !entry.file_type()?.is_dir() {
+            std::fs::remove_file(entry.path())?;
+            removed += 1;
+        }
+    }
+    Ok(removed)
 }

@@ -144,6 +144,9 @@ pub fn write_preview(
         });
     }
     std::fs::create_dir_all(dir).map_err(file_err(dir))?;
+    // An earlier, longer preview's frames would outlive this one's.
+    crate::io::remove_stale(dir, |n| n.starts_with("frame_") && n.ends_with(".png"))
+        .map_err(file_err(dir))?;
     let mut bounds = bounds_of(frames);
     for m in scenery {
         bounds.add_positions(&m.positions);

@@ -494,6 +494,30 @@ impl Scene {
         })
     }
 
+    /// The scene's name as one safe folder name, for the default output folder
+    /// `out/<name>`: letters, digits, `-`, `_` and `.` kept, anything else (a `/`, a
+    /// space) made `_`, no leading `.` (so never `..`), at most 100 characters; `scene`
+    /// when nothing is left. A name can never put the output outside `out/`.
+    pub fn folder_name(&self) -> String {
+        let s: String = self
+            .name
+            .chars()
+            .map(|c| {
+                if c.is_ascii_alphanumeric() || "-_.".contains(c) {
+                    c
+                } else {
+                    '_'
+                }
+            })
+            .collect();
+        let s: String = s.trim_start_matches('.').chars().take(100).collect();
+        if s.is_empty() {
+            "scene".into()
+        } else {
+            s
+        }
+    }
+
     /// Meshes of every system's fixed scenery (obstacles), for previews.
     pub fn scenery(&self) -> Vec<crate::io::Mesh> {
         self.systems.iter().flat_map(|s| s.sim.scenery()).collect()

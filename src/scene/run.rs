@@ -481,9 +481,15 @@ impl Runner {
         let total_frames = total_steps.div_ceil(self.output.every);
         let frames_dir = self.out_dir.join("frames");
         std::fs::create_dir_all(&frames_dir).map_err(io_err(&frames_dir))?;
+        // An earlier run's frames would mix with this one's (a longer run leaves more):
+        // they go, with the temporaries of interrupted writes.
+        crate::io::remove_stale(&frames_dir, |n| n.starts_with("frame_"))
+            .map_err(io_err(&frames_dir))?;
+        crate::io::remove_stale(&self.out_dir, |_| false).map_err(io_err(&self.out_dir))?;
         let csv_path = self.out_dir.join("energy.csv");
-        let mut csv =
-            std::io::BufWriter::new(std::fs::File::create(&csv_path).map_err(io_err(&csv_path))?);
+        let mut csv = std::io::BufWriter::new(
+            crate::io::create_replacing(&csv_path).map_err(io_err(&csv_path))?,
+        );
         writeln!(csv, "{}", FrameRecord::CSV_HEADER).map_err(io_err(&csv_path))?;
 
         let e0 = self.energy();
