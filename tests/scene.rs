@@ -583,7 +583,7 @@ fn output_is_safe_against_what_the_folder_holds() {
         ("..", "scene"),
         ("a b", "a_b"),
     ] {
-        let text = format!("{BASE}").replace("[scene]", &format!("[scene]\nname = {name:?}"));
+        let text = BASE.replace("[scene]", &format!("[scene]\nname = {name:?}"));
         let s = Scene::parse(&text, "named.toml").unwrap();
         assert_eq!(s.folder_name(), folder, "{name}");
     }
