@@ -88,7 +88,15 @@ pub enum Rule {
     NonNegative,
     /// Finite and > 0.
     Positive,
+    /// A coordinate (m): finite and within [`MAX_COORDINATE`] of the origin, so that
+    /// energies and distances computed from it stay finite.
+    Coordinate,
 }
+
+/// The largest coordinate a model takes (m): 1e15 m, about 7,000 times the distance from
+/// the Earth to the Sun. Beyond it `m g x` and squared distances lose all meaning (at
+/// 1e308 they overflow), and nothing this library simulates is that large.
+pub const MAX_COORDINATE: f64 = 1e15;
 
 /// `Ok` if `value` obeys `rule`, else the error naming item, index and field.
 pub fn check(
@@ -102,6 +110,10 @@ pub fn check(
         Rule::Finite => (value.is_finite(), "must be finite"),
         Rule::NonNegative => (value.is_finite() && value >= 0.0, "must be finite and >= 0"),
         Rule::Positive => (value.is_finite() && value > 0.0, "must be finite and > 0"),
+        Rule::Coordinate => (
+            value.abs() <= MAX_COORDINATE,
+            "must be finite and within 1e15 m of the origin",
+        ),
     };
     require(item, index, field, value, ok, why)
 }

@@ -104,7 +104,8 @@ impl<'a> Disjoint<'a> {
     #[inline]
     pub unsafe fn components(&self, n: usize, r: Range<usize>) -> [&'a mut [f64]; 3] {
         assert!(self.len == 3 * n);
-        // SAFETY: the three ranges are disjoint from each other (r.end <= n); the caller
+        assert!(r.start <= r.end && r.end <= n, "vertex range {r:?} of {n}");
+        // SAFETY: the three ranges are disjoint from each other (r.end <= n, asserted); the caller
         // keeps vertex ranges of concurrent tasks disjoint.
         unsafe {
             [

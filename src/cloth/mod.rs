@@ -258,10 +258,10 @@ impl ClothDesc {
                 });
             }
         }
-        use Rule::{Finite, NonNegative, Positive};
+        use Rule::{Coordinate, Finite, NonNegative, Positive};
         for (i, p) in self.positions.iter().enumerate() {
             for (c, &x) in p.iter().enumerate() {
-                check("vertex", i, ["x", "y", "z"][c], x, Finite)?;
+                check("vertex", i, ["x", "y", "z"][c], x, Coordinate)?;
             }
         }
         for (i, p) in self.velocities.iter().enumerate() {
@@ -271,7 +271,7 @@ impl ClothDesc {
         }
         for (i, p) in self.uv.iter().enumerate() {
             for (c, &x) in p.iter().enumerate() {
-                check("vertex", i, ["u", "v"][c], x, Finite)?;
+                check("vertex", i, ["u", "v"][c], x, Coordinate)?;
             }
         }
         let m = &self.material;

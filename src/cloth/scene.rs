@@ -23,7 +23,7 @@ use super::{cloth_grid, estimated_bytes, ClothDesc, ClothGridOptions, ClothMater
 use crate::scene::shared::{self, ObstacleTables};
 use crate::scene::{path, Context, Key, PathPart, SceneError};
 use crate::simulation::{MechSimulation, Simulation};
-use crate::validate::ModelError;
+use crate::validate::{ModelError, MAX_COORDINATE};
 use serde::Deserialize;
 
 /// `[cloth]`: a Baraff-Witkin sheet.
@@ -229,12 +229,55 @@ pub fn desc(ctx: &Context<'_>, t: &ClothTable) -> Result<ClothDesc, SceneError> 
                 &format!("a cloth of {nv} vertices"),
                 estimated_bytes(nv as f64, ctx.implicit(), ctx.cholesky(nv as f64)),
             )?;
-            let positions = (0..nv)
+            // A vertex out of range is reported at its line in the OBJ file; one that the
+            // scale or offset puts out of range, at that key.
+            let in_range = |x: f64| x.abs() <= MAX_COORDINATE;
+            if let Some(i) = (0..nv).find(|&i| {
+                !largestep_kernels::get3(&mesh.positions, nv, i)
+                    .iter()
+                    .all(|&x| in_range(x))
+            }) {
+                let p = largestep_kernels::get3(&mesh.positions, nv, i);
+                let line = crate::io::read_text(&file, ctx.limits.max_file_bytes)
+                    .ok()
+                    .and_then(|text| crate::io::obj_vertex_line(&text, i))
+                    .map_or(String::new(), |l| format!(":{l}"));
+                return Err(ctx.error(
+                    &at(&[&"mesh", &"file"]),
+                    format!(
+                        "{}{line}: vertex {} at {p:?}: coordinates must be finite and within 1e15 m of the origin",
+                        file.display(),
+                        i + 1
+                    ),
+                ));
+            }
+            let positions: Vec<[f64; 3]> = (0..nv)
                 .map(|i| {
                     let p = largestep_kernels::get3(&mesh.positions, nv, i);
                     std::array::from_fn(|c| scale * p[c] + offset[c])
                 })
                 .collect();
+            if !positions.iter().flatten().all(|&x| in_range(x)) {
+                let key = if offset.iter().all(|&c| in_range(c)) {
+                    "scale"
+                } else {
+                    "offset"
+                };
+                return Err(ctx.error(
+                    &at(&[&"mesh", &key]),
+                    format!("puts vertices beyond 1e15 m from the origin (scale {scale}, offset {offset:?})"),
+                ));
+            }
+            let largest_uv = uv.iter().flatten().fold(0.0f64, |m, t| m.max(t.abs()));
+            if !in_range(uv_scale * largest_uv) {
+                return Err(ctx.error(
+                    &at(&[&"mesh", &"uv_scale"]),
+                    format!(
+                        "uv_scale = {uv_scale:e} makes rest (u, v) coordinates of {:e} m: they must stay within 1e15 m",
+                        uv_scale * largest_uv
+                    ),
+                ));
+            }
             let mut desc = cloth_grid(&ClothGridOptions {
                 nu: 2,
                 nv: 2,

@@ -74,7 +74,7 @@ impl Obstacle {
     /// The solid behind the plane through `point` with outward normal `normal` (any
     /// length); `None` when the normal is zero or either is not finite.
     pub fn plane_through(point: [f64; 3], normal: [f64; 3]) -> Option<Obstacle> {
-        let (_, n) = unit(normal)?;
+        let (_, _, n) = scaled_unit(normal)?;
         let offset = -dot(n, point);
         offset
             .is_finite()
@@ -84,10 +84,10 @@ impl Obstacle {
     /// The solid `a x + b y + c z + d < 0` of the plane `[a, b, c, d]`; `None` for a zero
     /// or non-finite normal or a non-finite `d`.
     pub fn plane(p: [f64; 4]) -> Option<Obstacle> {
-        let (len, n) = unit([p[0], p[1], p[2]])?;
+        let (scale, len, n) = scaled_unit([p[0], p[1], p[2]])?;
         p[3].is_finite().then(|| Obstacle::Plane {
             normal: n,
-            offset: p[3] / len,
+            offset: p[3] / scale / len,
         })
     }
 
@@ -260,6 +260,19 @@ impl Obstacle {
             }
         }
     }
+}
+
+/// `(m, |a / m|, a / |a|)` with m the largest magnitude of a component: the direction of
+/// any finite non-zero vector, however large (`[1e308, 1e308, 1]` has one, though its
+/// length overflows); `None` for a zero or non-finite one. Exact scaling (m = 1, or a
+/// power of two) leaves the result bitwise that of the unscaled vector.
+fn scaled_unit(a: [f64; 3]) -> Option<(f64, f64, [f64; 3])> {
+    let m = a.iter().fold(0.0f64, |m, c| m.max(c.abs()));
+    if !(m > 0.0 && m.is_finite()) {
+        return None;
+    }
+    let (len, n) = unit(a.map(|c| c / m))?;
+    Some((m, len, n))
 }
 
 /// The deepest penetration (m, >= 0) of any vertex of component-major positions `x` into

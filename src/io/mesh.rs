@@ -145,10 +145,20 @@ impl Mesh {
     }
 }
 
+/// The 1-based line of the `i`-th (0-based) `v` statement of OBJ text: where a vertex an
+/// error names was defined.
+pub fn obj_vertex_line(text: &str, i: usize) -> Option<usize> {
+    text.lines()
+        .enumerate()
+        .filter(|(_, l)| l.split_whitespace().next() == Some("v"))
+        .nth(i)
+        .map(|(ln, _)| ln + 1)
+}
+
 /// A malformed input file: the file, the 1-based line (0 when the file as a whole is
 /// wrong) and what was expected.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("{path}{}: {message}", if *line > 0 { format!(":{line}") } else { String::new() })]
+#[error("{path}{}: {}", if *line > 0 { format!(":{line}") } else { String::new() }, super::clip(message, super::MAX_MESSAGE))]
 pub struct ReadError {
     /// The file.
     pub path: String,

@@ -11,13 +11,31 @@
 mod mesh;
 
 pub use mesh::{
-    parse_obj, parse_obj_uv, read_obj, read_obj_uv, write_obj, write_ply, Mesh, MeshRef, ReadError,
+    obj_vertex_line, parse_obj, parse_obj_uv, read_obj, read_obj_uv, write_obj, write_ply, Mesh,
+    MeshRef, ReadError,
 };
 mod image;
 pub use image::{read_png, write_gif, write_png, Image};
 
 use std::io::{BufWriter, Read, Write};
 use std::path::Path;
+
+/// The most characters of one message an error shows: what input it echoes (a token, a
+/// line) is cut there, so that a 5 MB line does not come back as a 5 MB message.
+pub const MAX_MESSAGE: usize = 400;
+
+/// `s` cut to at most `max` characters (at a character boundary), saying how many were
+/// left out.
+pub fn clip(s: &str, max: usize) -> std::borrow::Cow<'_, str> {
+    match s.char_indices().nth(max) {
+        None => std::borrow::Cow::Borrowed(s),
+        Some((cut, _)) => std::borrow::Cow::Owned(format!(
+            "{}... ({} more characters)",
+            &s[..cut],
+            s[cut..].chars().count()
+        )),
+    }
+}
 
 /// Reads a text input file through the one bounded reader: regular files only (devices,
 /// FIFOs and sockets are refused before they are opened: they may never end), at most

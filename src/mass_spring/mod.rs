@@ -26,7 +26,7 @@ use crate::simulation::{MechModel, Stage, StepControl};
 use crate::soa::Vec3s;
 use crate::solve::Filter;
 use crate::sparse::{Bsr3, Bsr3Pattern, ElementAssembly, LocalLayout, SparseError, VectorGather};
-use crate::validate::{require, ModelError};
+use crate::validate::{check, require, ModelError, Rule};
 use largestep_kernels::mass_spring::{self as ks, SpringParams, Springs};
 use std::sync::Arc;
 
@@ -216,13 +216,21 @@ impl MassSpringDesc {
             pinned[p] = true;
         }
         let vectors = [
-            (&self.positions, ["position.x", "position.y", "position.z"]),
-            (&self.velocities, ["velocity.x", "velocity.y", "velocity.z"]),
+            (
+                &self.positions,
+                ["position.x", "position.y", "position.z"],
+                Rule::Coordinate,
+            ),
+            (
+                &self.velocities,
+                ["velocity.x", "velocity.y", "velocity.z"],
+                Rule::Finite,
+            ),
         ];
-        for (values, fields) in vectors {
+        for (values, fields, rule) in vectors {
             for (i, p) in values.iter().enumerate() {
                 for (&x, field) in p.iter().zip(fields) {
-                    require("particle", i, field, x, x.is_finite(), "must be finite")?;
+                    check("particle", i, field, x, rule)?;
                 }
             }
         }

@@ -221,7 +221,8 @@ impl Camera {
             .all(|c| c.is_finite())
         {
             return Err(RenderError::Camera(format!(
-                "camera coordinates must be finite: {self:?}"
+                "camera coordinates must be finite: eye {:?}, target {:?}, up {:?}",
+                self.eye, self.target, self.up
             )));
         }
         let forward = normalize(sub(self.target, self.eye)).ok_or_else(|| {

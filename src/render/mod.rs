@@ -52,7 +52,7 @@ pub enum RenderError {
     #[error("render settings: {0}")]
     Settings(String),
     /// Reading frames or writing images failed.
-    #[error("{path}: {message}")]
+    #[error("{path}: {}", crate::io::clip(message, crate::io::MAX_MESSAGE))]
     File {
         /// The file.
         path: String,

@@ -243,6 +243,28 @@ pub fn load_frames(dir: &Path, max_bytes: u64) -> Result<Vec<Mesh>, RenderError>
                 e.message.clone()
             },
         })?;
+        // A finite vertex beyond any scene's size cannot be framed: it is the file's fault,
+        // named here, not the camera's. (Non-finite vertices are skipped when drawing.)
+        let n = m.positions.len() / 3;
+        let huge = |i: usize| {
+            largestep_kernels::get3(&m.positions, n, i)
+                .iter()
+                .any(|x| x.is_finite() && x.abs() > crate::validate::MAX_COORDINATE)
+        };
+        if let Some(i) = (0..n).find(|&i| huge(i)) {
+            let line = crate::io::read_text(p, max_bytes)
+                .ok()
+                .and_then(|t| crate::io::obj_vertex_line(&t, i))
+                .map_or(String::new(), |l| format!("line {l}: "));
+            return Err(RenderError::File {
+                path: p.display().to_string(),
+                message: format!(
+                    "{line}vertex {} at {:?} lies beyond 1e15 m: too far to frame",
+                    i + 1,
+                    largestep_kernels::get3(&m.positions, n, i)
+                ),
+            });
+        }
         if let Some(prev) = frames.last() {
             m.share_topology(prev);
         }

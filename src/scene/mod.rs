@@ -62,15 +62,19 @@ impl fmt::Display for SceneError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "{}", self.file)?;
         if self.line > 0 {
-            write!(f, ":{}:{}", self.line, self.column)?;
+            write!(f, ":{}", self.line)?;
+            if self.column > 0 {
+                write!(f, ":{}", self.column)?;
+            }
         }
+        let message = crate::io::clip(&self.message, crate::io::MAX_MESSAGE);
         if self.field.is_empty() {
-            write!(f, ": {}", self.message)?;
+            write!(f, ": {message}")?;
         } else {
-            write!(f, ": {}: {}", self.field, self.message)?;
+            write!(f, ": {}: {message}", self.field)?;
         }
         if let Some(s) = &self.snippet {
-            write!(f, "\n{:>5} | {}", self.line, s)?;
+            write!(f, "\n{:>5} | {}", self.line, crate::io::clip(s, 160))?;
         }
         Ok(())
     }

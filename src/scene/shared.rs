@@ -163,10 +163,12 @@ pub fn obstacles(ctx: &Context<'_>, t: ObstacleTables<'_>) -> Result<Vec<Obstacl
         let Some(o) = Obstacle::plane_through(s.point, s.normal) else {
             let mut p = at.clone();
             p.extend(path(&[&"normal"]));
-            return Err(ctx.error(
-                &p,
-                format!("must not be zero and must be finite, not {:?}", s.normal),
-            ));
+            let why = if s.normal.iter().all(|c| c.is_finite()) {
+                "must not be zero"
+            } else {
+                "must be finite"
+            };
+            return Err(ctx.error(&p, format!("{why}, not {:?}", s.normal)));
         };
         out.push((at, o));
     }

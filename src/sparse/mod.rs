@@ -40,7 +40,7 @@ pub enum SparseError {
         blocks: usize,
     },
     /// A Matrix Market file could not be read.
-    #[error("{file}:{line}: {message}")]
+    #[error("{file}:{line}: {}", crate::io::clip(message, crate::io::MAX_MESSAGE))]
     Parse {
         /// File name (or `<memory>`).
         file: String,
