@@ -310,3 +310,18 @@ fn messages_are_bounded_and_name_the_file_where_the_bad_value_is() {
         .to_string();
     assert!(e.contains("frame_00000.obj") && e.contains("line 3"), "{e}");
 }
+
+#[test]
+fn a_model_falling_through_an_obstacle_is_reported() {
+    // Points of 1e30 kg against 400 N/m penalty springs: the cube goes through the wall.
+    let scene = Scene::load_with(&world_with(4, "1e30"), &small()).unwrap();
+    let mut runner = Runner::new(scene, &dir("heavy30"));
+    let s = runner.run(Some(4), &mut |_| {}).unwrap();
+    assert!(s.max_penetration > 0.5 * s.size, "{s}");
+    assert!(s.to_string().contains("sank up to"), "{s}");
+    // The assignment's own cube dents the wall by centimetres: no warning.
+    let scene = Scene::load_with(&world_with(4, "0.001953"), &small()).unwrap();
+    let mut runner = Runner::new(scene, &dir("light"));
+    let s = runner.run(Some(4), &mut |_| {}).unwrap();
+    assert!(!s.to_string().contains("warning"), "{s}");
+}

@@ -135,6 +135,11 @@ pub struct Summary {
     pub energy: (f64, f64),
     /// Work done by loads without a potential over the run (J).
     pub external_work: f64,
+    /// The deepest penetration into an obstacle seen in any frame (m).
+    pub max_penetration: f64,
+    /// The size of the scene's systems at the start: the diagonal of their bounding box
+    /// (m).
+    pub size: f64,
     /// `(E_end - E_start - W) / max(|E_start|, largest kinetic energy seen)`, W the work
     /// of loads without a potential: what the system gained that nothing put in.
     pub energy_drift: f64,
@@ -180,6 +185,13 @@ impl std::fmt::Display for Summary {
                 f,
                 "  warning        total energy grew by {:.0}% of its scale: the integrator is probably unstable at this dt (reduce dt or use an implicit integrator)",
                 100.0 * self.energy_drift
+            )?;
+        }
+        if self.max_penetration > 0.5 * self.size {
+            writeln!(
+                f,
+                "  warning        the model sank up to {:.3} m into an obstacle, half its size ({:.3} m) or more: the collision stiffness is too small for the masses, or dt too large",
+                self.max_penetration, self.size
             )?;
         }
         if let Some(ls) = self.linear_solver {
@@ -242,6 +254,24 @@ pub enum RunError {
         /// The output folder.
         out: PathBuf,
     },
+}
+
+/// The diagonal of the bounding box of component-major positions (m; 0 for none).
+fn diagonal(x: &[f64]) -> f64 {
+    let n = x.len() / 3;
+    (0..3)
+        .map(|c| {
+            let s = &x[c * n..(c + 1) * n];
+            let lo = s.iter().copied().fold(f64::INFINITY, f64::min);
+            let hi = s.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            if hi > lo {
+                (hi - lo) * (hi - lo)
+            } else {
+                0.0
+            }
+        })
+        .sum::<f64>()
+        .sqrt()
 }
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> RunError + '_ {
@@ -544,6 +574,8 @@ impl Runner {
             wall_seconds: 0.0,
             energy: (e_start, e_start),
             external_work: 0.0,
+            max_penetration: 0.0,
+            size: self.with_frame(|m| diagonal(m.positions)),
             energy_drift: 0.0,
             newton_iterations: 0,
             linear_iterations: 0,
@@ -590,6 +622,11 @@ impl Runner {
         summary.sim_time = self.time();
         summary.energy = (e_start, e1);
         summary.external_work = end.external_work;
+        summary.max_penetration = self
+            .records
+            .iter()
+            .map(|r| r.penetration)
+            .fold(0.0, f64::max);
         let scale = e_start.abs().max(max_kinetic).max(f64::MIN_POSITIVE);
         summary.energy_drift = (e1 - e_start - end.external_work) / scale;
         summary.wall_seconds = start.elapsed().as_secs_f64();
