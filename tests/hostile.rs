@@ -325,3 +325,12 @@ fn a_model_falling_through_an_obstacle_is_reported() {
     let s = runner.run(Some(4), &mut |_| {}).unwrap();
     assert!(!s.to_string().contains("warning"), "{s}");
 }
+
+#[test]
+fn a_preview_larger_than_the_budget_is_refused_at_its_size() {
+    let text = format!("{HEAD}[mass_spring.chain]\ncount = 2\nspacing = 0.1\nmass = 1.0\nstiffness = 1.0\n[output]\nwidth = 16384\nheight = 16384\n");
+    let e = Scene::parse_with(&text, "big.toml", &Limits::with_memory(1 << 30)).unwrap_err();
+    assert_eq!(e.field, "output.width", "{e}");
+    assert!(e.to_string().contains("16384 x 16384 preview"), "{e}");
+    assert!(Scene::parse_with(&text, "big.toml", &small()).is_ok());
+}

@@ -452,6 +452,14 @@ impl Scene {
         let gravity = s.gravity.unwrap_or([0.0; 3]);
         let settings = solver_settings(method, solver.as_ref(), &err)?;
         let output = output_settings(output.as_ref(), dt, gravity, &err)?;
+        // A preview holds a frame's image (3 bytes a pixel) and the contact sheet's.
+        let r = output.preview.render;
+        limits
+            .memory(
+                &format!("a {} x {} preview", r.width, r.height),
+                6.0 * r.width as f64 * r.height as f64,
+            )
+            .map_err(|m| err(path(&[&"output", &"width"]), m))?;
         let base = Path::new(file).parent().unwrap_or(Path::new(""));
         let mut systems = Vec::new();
         for domain in registry::DOMAINS {
