@@ -642,3 +642,34 @@ fn obstacle_shapes_are_closed_outward_and_on_their_surfaces() {
     }
     assert!((outermost - r).abs() < 1e-12);
 }
+
+/// Frames of a run that blew up (the last ones at 1e151 m, or not finite) do not break
+/// the preview: the sane frames are rendered and framed on, the rest are left out with a
+/// warning (issue 14: the camera used to fail on coordinates of 1e151).
+#[test]
+fn preview_frames_the_sane_frames_of_a_run_that_blew_up() {
+    let sheet = wavy_sheet([0.0, 0.5, 0.0], 1.0, 8, 0.05);
+    let mut frames = vec![sheet.clone(), sheet.clone()];
+    for scale in [1e151, f64::INFINITY] {
+        let mut m = sheet.clone();
+        for p in &mut m.positions {
+            *p *= scale;
+        }
+        frames.push(m);
+    }
+    let settings = PreviewSettings {
+        render: small(true),
+        ..PreviewSettings::default()
+    };
+    let dir = temp_dir("blown-preview");
+    let s = write_preview(&dir, &frames, &[], &settings, &mut |_, _| {}).unwrap();
+    assert!(dir.join("frame_00001.png").is_file());
+    assert!(!dir.join("frame_00002.png").exists());
+    assert!(
+        s.warnings
+            .iter()
+            .any(|w| w.contains("frames 2 to 3 left out")),
+        "{:?}",
+        s.warnings
+    );
+}

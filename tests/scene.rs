@@ -588,3 +588,52 @@ fn output_is_safe_against_what_the_folder_holds() {
         assert_eq!(s.folder_name(), folder, "{name}");
     }
 }
+
+/// `largestep run --preview` on a scene that blows up still previews the frames written
+/// before (issue 14): the sane ones, framed on them; and `render --up 0,0,0` falls back
+/// to +y with a warning, as for a fixed camera.
+#[test]
+fn a_failed_run_is_previewed_and_a_zero_up_falls_back() {
+    let exe = env!("CARGO_BIN_EXE_largestep");
+    let text = std::fs::read_to_string(scene_path("spring-grid.toml"))
+        .unwrap()
+        .replace(
+            "integrator = \"linearized-backward-euler\"",
+            "integrator = \"explicit-euler\"",
+        );
+    assert!(text.contains("explicit-euler"));
+    let dir = tmp("failed-preview");
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = dir.join("boom.toml");
+    std::fs::write(&scene, text).unwrap();
+    let out = dir.join("out");
+    let st = std::process::Command::new(exe)
+        .args(["run", scene.to_str().unwrap(), "--preview", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&st.stderr);
+    assert_eq!(st.status.code(), Some(1), "the run fails: {err}");
+    assert!(
+        err.contains("blowing up") || err.contains("not finite"),
+        "{err}"
+    );
+    assert!(!err.contains("camera"), "{err}");
+    assert!(out.join("preview/contact-sheet.png").is_file(), "{err}");
+    assert!(out.join("preview/frame_00000.png").is_file());
+    // A zero up vector with auto-framing.
+    let st = std::process::Command::new(exe)
+        .arg("render")
+        .arg(out.join("frames"))
+        .args(["--up", "0,0,0", "--size", "160x90", "--out"])
+        .arg(dir.join("up"))
+        .output()
+        .unwrap();
+    let all = format!(
+        "{}{}",
+        String::from_utf8_lossy(&st.stdout),
+        String::from_utf8_lossy(&st.stderr)
+    );
+    assert!(st.status.success(), "{all}");
+    assert!(all.contains("up vector is zero"), "{all}");
+}

@@ -118,6 +118,31 @@ pub fn camera_for(
     }
 }
 
+/// How many leading frames are sane: finite bounds within a hundred times the first
+/// frame's size (a run that blew up ends in frames no camera can frame).
+fn sane_frames(frames: &[Mesh]) -> usize {
+    let Some(first) = frames.first() else {
+        return 0;
+    };
+    let mut b0 = Bounds::EMPTY;
+    b0.add_positions(&first.positions);
+    let (c0, r0) = (b0.or_unit().center(), b0.or_unit().radius());
+    frames
+        .iter()
+        .position(|m| {
+            let mut b = Bounds::EMPTY;
+            b.add_positions(&m.positions);
+            let b = b.or_unit();
+            let shift = (0..3)
+                .map(|k| (b.center()[k] - c0[k]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            !(b.radius() <= 100.0 * r0 && shift <= 100.0 * r0)
+        })
+        .unwrap_or(frames.len())
+        .max(1)
+}
+
 /// The union of the bounds of `frames`.
 pub fn bounds_of(frames: &[Mesh]) -> Bounds {
     let mut b = Bounds::EMPTY;
@@ -147,11 +172,40 @@ pub fn write_preview(
     // An earlier, longer preview's frames would outlive this one's.
     crate::io::remove_stale(dir, |n| n.starts_with("frame_") && n.ends_with(".png"))
         .map_err(file_err(dir))?;
+    let mut warnings: Vec<String> = Vec::new();
+    // Frames of a run that went wrong: the ones whose model grew beyond a hundred times
+    // its first frame's size are left out, and the camera frames the sane ones.
+    let sane = sane_frames(frames);
+    if sane < frames.len() {
+        warnings.push(format!(
+            "frames {sane} to {} left out: the model grew beyond 100 times its first frame's size",
+            frames.len() - 1
+        ));
+    }
+    let frames = &frames[..sane];
     let mut bounds = bounds_of(frames);
     for m in scenery {
         bounds.add_positions(&m.positions);
     }
-    let camera = camera_for(&settings.camera, &bounds, &settings.render)?;
+    // A zero up vector means no preference: against gravity's usual +y.
+    let spec = match settings.camera {
+        CameraSpec::Auto {
+            azimuth_deg,
+            elevation_deg,
+            fov_y_deg,
+            up: [0.0, 0.0, 0.0],
+        } => {
+            warnings.push("the up vector is zero: +y is used".into());
+            CameraSpec::Auto {
+                azimuth_deg,
+                elevation_deg,
+                fov_y_deg,
+                up: [0.0, 1.0, 0.0],
+            }
+        }
+        other => other,
+    };
+    let camera = camera_for(&spec, &bounds, &settings.render)?;
     let mut renderer = Renderer::new(settings.render)?;
     let shrink = settings
         .render
@@ -162,7 +216,6 @@ pub fn write_preview(
     let sheet = evenly(frames.len(), settings.sheet_frames);
     let mut gif_images = Vec::with_capacity(gif_frames.len());
     let mut sheet_images = Vec::with_capacity(sheet.len());
-    let mut warnings: Vec<String> = Vec::new();
     let mut image = Image::new(1, 1);
     let mut render_seconds = 0.0;
     // The scenery first (the same every frame), then each frame's mesh.
