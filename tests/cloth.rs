@@ -1914,3 +1914,28 @@ fn one_shared_model_serves_simultaneous_simulations() {
     assert_eq!(b, own_b, "dt = 1/120 from the shared model");
     assert_eq!(Arc::strong_count(&shared), 1);
 }
+
+/// The study's report, plot and numbers say what it ran (issue 14: the plot's title said
+/// T = 1 s of a 0.2 s study, and `--quick` kept the full sweep's dt range in the legend).
+#[cfg(feature = "cli")]
+#[test]
+fn the_quick_accuracy_study_labels_what_it_ran() {
+    let out = std::env::temp_dir().join(format!("largestep-study-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    largestep::study::run("cloth-accuracy", &out, true).unwrap();
+    let md = std::fs::read_to_string(out.join("cloth-accuracy.md")).unwrap();
+    let json = std::fs::read_to_string(out.join("cloth-accuracy.json")).unwrap();
+    let svg = std::fs::read_to_string(out.join("cloth-accuracy.svg")).unwrap();
+    for text in [&md, &json, &svg] {
+        assert!(
+            text.contains("dt from 1/30 to 1/120 s"),
+            "the quick sweep's range"
+        );
+        assert!(
+            !text.contains("to 1/480"),
+            "no step the quick sweep did not take"
+        );
+        assert!(text.contains("1e-1 to 1e-3"), "the quick tolerance range");
+    }
+    assert!(svg.contains("T = 0.2 s") && !svg.contains("T = 1 s"));
+}

@@ -145,18 +145,22 @@ pub(super) fn accuracy(out: &Path, quick: bool) -> Result<String, StudyError> {
     );
     let sweeps = vec![
         Sweep {
-            name: "dt from 1/30 to 1/480 s (PCG 1e-8)".into(),
+            name: format!("dt from {} (PCG 1e-8)", dt_range(&dts)),
             observed_order_in_dt: order,
             points: dt_sweep,
         },
         Sweep {
-            name: "PCG tolerance 1e-1 to 1e-8 (dt = 1/60 s)".into(),
+            name: format!(
+                "PCG tolerance {:.0e} to {:.0e} (dt = 1/60 s)",
+                tols[0],
+                tols[tols.len() - 1]
+            ),
             observed_order_in_dt: None,
             points: tol_sweep,
         },
     ];
     let panels = vec![Panel {
-        title: format!("cloth drape {n}x{n}, T = 1 s: error against run time"),
+        title: format!("cloth drape {n}x{n}, T = {t_end} s: error against run time"),
         x_label: "run time (s)".into(),
         y_label: "max vertex distance from reference (m)".into(),
         scale: Scale::LogLog,
@@ -222,6 +226,16 @@ pub(super) fn accuracy(out: &Path, quick: bool) -> Result<String, StudyError> {
         order.map_or("-".into(), |o| format!("{o:.2}")),
         out.join("cloth-accuracy.md").display()
     ))
+}
+
+/// `1/30 to 1/120 s`: the first and last of time steps that are unit fractions.
+fn dt_range(dts: &[f64]) -> String {
+    let frac = |dt: f64| format!("1/{}", (1.0 / dt).round());
+    match dts {
+        [] => "no steps".into(),
+        [one] => format!("{} s", frac(*one)),
+        [first, .., last] => format!("{} to {} s", frac(*first), frac(*last)),
+    }
 }
 
 /// The hanging sheet; `control`: the paper's step-size control with max_strain_change
