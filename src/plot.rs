@@ -1,5 +1,14 @@
 //! Plots (plotters): panels of curves, log-log or linear, written as SVG and PNG.
 //!
+//! Every curve has its colour (eight that stay apart on white and for the common colour
+//! blindnesses: Okabe and Ito's set, with black, grey and brown for its yellow and sky
+//! blue) and its marker (circle, square, triangle, diamond, cross) by its index, so that
+//! two methods never look alike; a dashed curve (a prediction) is drawn before the solid
+//! ones, thinner and without markers, so that measurements lie on top. The legend sits
+//! beside the plot, never over the data. Log axes label whole decades, and 2 and 5 times
+//! them when the range spans at most three decades, as plain decimals between 0.001 and
+//! 10000.
+//!
 //! Text in PNGs is drawn with DejaVu Sans (the `dejavu` crate), registered once, so that
 //! no system font is needed; SVGs name the font family and leave drawing to the viewer.
 
@@ -10,12 +19,79 @@ use plotters::prelude::*;
 use std::path::Path;
 
 /// One curve: a label and its points (x, y).
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Default)]
 pub struct Curve {
     /// Legend label.
     pub label: String,
     /// Points (x, y); non-finite ones (and non-positive ones on log axes) are left out.
     pub points: Vec<(f64, f64)>,
+    /// Dashed, thin and without markers: a prediction or reference beside measurements.
+    pub dashed: bool,
+}
+
+/// The colours curves take by index: Okabe and Ito's palette (2008) with black, grey and
+/// brown in place of its yellow and sky blue, which fade on white.
+const COLOURS: [RGBColor; 8] = [
+    RGBColor(0, 114, 178),
+    RGBColor(213, 94, 0),
+    RGBColor(0, 158, 115),
+    RGBColor(204, 121, 167),
+    RGBColor(230, 159, 0),
+    RGBColor(0, 0, 0),
+    RGBColor(110, 110, 110),
+    RGBColor(140, 70, 20),
+];
+
+fn colour(i: usize) -> RGBColor {
+    COLOURS[i % COLOURS.len()]
+}
+
+/// Marker shapes by index.
+const MARKERS: usize = 5;
+
+/// Runs `$body` with `$m` bound to a function from a position to the marker element of
+/// curve `$i` there (radius `$r` pixels, style `$style`): one expansion per shape, since
+/// each shape is a type of its own.
+macro_rules! with_marker {
+    ($i:expr, $r:expr, $style:expr, |$m:ident| $body:expr) => {{
+        let (r, style): (i32, ShapeStyle) = ($r, $style);
+        match ($i / COLOURS.len() + $i) % MARKERS {
+            0 => {
+                let $m = |p| EmptyElement::at(p) + Circle::new((0, 0), r, style);
+                $body
+            }
+            1 => {
+                let $m = |p| EmptyElement::at(p) + Rectangle::new([(-r, -r), (r, r)], style);
+                $body
+            }
+            2 => {
+                let $m = |p| {
+                    EmptyElement::at(p)
+                        + Polygon::new(vec![(0, -r - 1), (-r - 1, r), (r + 1, r)], style)
+                };
+                $body
+            }
+            3 => {
+                let $m = |p| {
+                    EmptyElement::at(p)
+                        + Polygon::new(
+                            vec![(0, -r - 1), (r + 1, 0), (0, r + 1), (-r - 1, 0)],
+                            style,
+                        )
+                };
+                $body
+            }
+            _ => {
+                let s = style.stroke_width(2);
+                let $m = |p| {
+                    EmptyElement::at(p)
+                        + PathElement::new(vec![(-r, -r), (r, r)], s)
+                        + PathElement::new(vec![(-r, r), (r, -r)], s)
+                };
+                $body
+            }
+        }
+    }};
 }
 
 /// Axis scales of a panel.
@@ -81,12 +157,17 @@ pub fn write_panels(
 ) -> Result<(), String> {
     register_font();
     let rows = panels.len().div_ceil(cols.max(1)).max(1);
-    let size = (panel_size.0 * cols as u32, panel_size.1 * rows as u32);
+    // Each panel is as wide as asked plus its legend beside it.
+    let legend = panels.iter().map(legend_width).max().unwrap_or(0);
+    let size = (
+        (panel_size.0 + legend) * cols as u32,
+        panel_size.1 * rows as u32,
+    );
     let svg_path = stem.with_extension("svg");
     let mut svg = String::new();
     {
         let root = SVGBackend::with_string(&mut svg, size).into_drawing_area();
-        draw_all(&root, panels, rows, cols)?;
+        draw_all(&root, panels, rows, cols, legend)?;
         root.present().map_err(|e| e.to_string())?;
     }
     write_atomically(&svg_path, |w| w.write_all(svg.as_bytes()))
@@ -94,7 +175,7 @@ pub fn write_panels(
     let mut image = Image::new(size.0, size.1);
     {
         let root = BitMapBackend::with_buffer(&mut image.rgb, size).into_drawing_area();
-        draw_all(&root, panels, rows, cols)?;
+        draw_all(&root, panels, rows, cols, legend)?;
         root.present().map_err(|e| e.to_string())?;
     }
     let png_path = stem.with_extension("png");
@@ -102,11 +183,27 @@ pub fn write_panels(
         .map_err(|e| format!("{}: {e}", png_path.display()))
 }
 
+/// The width of a panel's legend (pixels): as long as its longest label needs.
+fn legend_width(panel: &Panel) -> u32 {
+    let font = ("sans-serif", 11).into_font();
+    let longest = panel
+        .curves
+        .iter()
+        .map(|(_, c)| {
+            // Measured with the registered font; about 6 pixels a character if not.
+            font.box_size(&c.label)
+                .map_or(6 * c.label.chars().count() as u32, |(w, _)| w)
+        })
+        .max();
+    longest.map_or(0, |w| 48 + w)
+}
+
 fn draw_all<DB: DrawingBackend>(
     root: &DrawingArea<DB, plotters::coord::Shift>,
     panels: &[Panel],
     rows: usize,
     cols: usize,
+    legend_w: u32,
 ) -> Result<(), String> {
     root.fill(&WHITE).map_err(|e| e.to_string())?;
     for (area, panel) in root.split_evenly((rows, cols)).iter().zip(panels) {
@@ -121,19 +218,64 @@ fn draw_all<DB: DrawingBackend>(
             )
         };
         let (xs, ys) = (pts(|p| p.0), pts(|p| p.1));
+        let width = area.dim_in_pixel().0;
+        let (plot, legend) = area.split_horizontally(width.saturating_sub(legend_w));
         if log {
+            let plain = |v: &f64| plain(*v);
             draw_panel(
-                area,
+                &plot,
                 panel,
-                (xs.0..xs.1).log_scale(),
-                (ys.0..ys.1).log_scale(),
-                |v| format!("{v:.0e}"),
+                (xs.0..xs.1).log_scale().with_key_points(log_ticks(xs)),
+                (ys.0..ys.1).log_scale().with_key_points(log_ticks(ys)),
+                &plain,
             )?;
         } else {
-            draw_panel(area, panel, xs.0..xs.1, ys.0..ys.1, linear_tick)?;
+            draw_panel(&plot, panel, xs.0..xs.1, ys.0..ys.1, &linear_tick)?;
         }
+        draw_legend(&legend, panel)?;
     }
     Ok(())
+}
+
+/// The ticks of a log axis over `(lo, hi)`: whole decades, and 2 and 5 times them when
+/// the range spans at most three decades (every digit when that leaves fewer than two,
+/// the two ends when even that does).
+fn log_ticks((lo, hi): (f64, f64)) -> Vec<f64> {
+    let (first, last) = (lo.log10().floor() as i32, hi.log10().ceil() as i32);
+    let ticks = |mantissas: &[f64]| -> Vec<f64> {
+        (first..=last)
+            .flat_map(|e| mantissas.iter().map(move |m| m * 10f64.powi(e)))
+            .filter(|v| (lo..=hi).contains(v))
+            .collect()
+    };
+    let decades = (hi / lo).log10();
+    let mut t = if decades > 3.0 {
+        ticks(&[1.0])
+    } else {
+        ticks(&[1.0, 2.0, 5.0])
+    };
+    if t.len() < 2 {
+        t = ticks(&[1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0]);
+    }
+    if t.len() < 2 {
+        // Within one digit step: the ends, to two significant digits, inside the range.
+        let step = |v: f64| 10f64.powi(v.log10().floor() as i32 - 1);
+        t = vec![
+            (lo / step(lo)).ceil() * step(lo),
+            (hi / step(hi)).floor() * step(hi),
+        ];
+    }
+    t
+}
+
+/// `v` as a plain decimal between 0.001 and 10000, else in exponent form (`2e-5`).
+fn plain(v: f64) -> String {
+    if (1e-3..1e4).contains(&v.abs()) {
+        let s = format!("{v:.3}");
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        format!("{v:.0e}")
+    }
 }
 
 /// A linear-axis tick label: up to 4 significant digits without trailing zeros, in
@@ -155,12 +297,14 @@ fn linear_tick(v: &f64) -> String {
     }
 }
 
+/// The panel's curves: dashed ones first (thin, no markers), then the others with their
+/// markers on top.
 fn draw_panel<DB, X, Y>(
     area: &DrawingArea<DB, plotters::coord::Shift>,
     panel: &Panel,
     x: X,
     y: Y,
-    label: fn(&f64) -> String,
+    tick: &dyn Fn(&f64) -> String,
 ) -> Result<(), String>
 where
     DB: DrawingBackend,
@@ -177,15 +321,21 @@ where
         .y_label_area_size(64)
         .build_cartesian_2d(x, y)
         .map_err(|e| e.to_string())?;
+    // Log axes bring their own ticks (`log_ticks`); no finer grid lines.
     chart
         .configure_mesh()
         .x_desc(panel.x_label.as_str())
         .y_desc(panel.y_label.as_str())
-        .x_label_formatter(&label)
-        .y_label_formatter(&label)
+        .x_labels(if log { 40 } else { 8 })
+        .y_labels(if log { 40 } else { 8 })
+        .light_line_style(WHITE)
+        .x_label_formatter(&tick)
+        .y_label_formatter(&tick)
         .draw()
         .map_err(|e| e.to_string())?;
-    for (colour, curve) in &panel.curves {
+    let mut order: Vec<&(usize, Curve)> = panel.curves.iter().collect();
+    order.sort_by_key(|(_, c)| !c.dashed);
+    for (index, curve) in order {
         let pts: Vec<(f64, f64)> = curve
             .points
             .iter()
@@ -195,39 +345,73 @@ where
         if pts.is_empty() {
             continue;
         }
-        let colour = *colour;
-        chart
-            .draw_series(LineSeries::new(
-                pts.clone(),
-                Palette99::pick(colour).stroke_width(2),
-            ))
-            .map_err(|e| e.to_string())?
-            .label(curve.label.as_str())
-            .legend(move |(x, y)| {
-                PathElement::new(
-                    vec![(x, y), (x + 16, y)],
-                    Palette99::pick(colour).stroke_width(2),
-                )
-            });
-        if log || pts.len() <= 40 {
+        let c = colour(*index);
+        if curve.dashed {
             chart
-                .draw_series(
-                    pts.iter()
-                        .map(|&p| Circle::new(p, 3, Palette99::pick(colour).filled())),
-                )
+                .draw_series(DashedLineSeries::new(pts, 6, 4, c.stroke_width(1)))
                 .map_err(|e| e.to_string())?;
+            continue;
+        }
+        chart
+            .draw_series(LineSeries::new(pts.clone(), c.stroke_width(2)))
+            .map_err(|e| e.to_string())?;
+        if log || pts.len() <= 40 {
+            with_marker!(*index, 4, c.filled(), |m| {
+                chart
+                    .draw_series(pts.iter().map(|&p| m(p)))
+                    .map_err(|e| e.to_string())?;
+            });
         }
     }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .label_font(("sans-serif", 11))
-        .position(if log {
-            SeriesLabelPosition::LowerLeft
+    Ok(())
+}
+
+/// The legend of `panel` in its own area beside the plot: a sample of each curve's line
+/// and marker, and its label, one row each.
+fn draw_legend<DB: DrawingBackend>(
+    area: &DrawingArea<DB, plotters::coord::Shift>,
+    panel: &Panel,
+) -> Result<(), String> {
+    let font = ("sans-serif", 11).into_font().color(&BLACK);
+    let e = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
+    for (row, (index, curve)) in panel.curves.iter().enumerate() {
+        let y = 44 + 18 * row as i32;
+        let c = colour(*index);
+        if curve.dashed {
+            area.draw(&PathElement::new(vec![(4, y), (11, y)], c.stroke_width(1)))
+                .map_err(e)?;
+            area.draw(&PathElement::new(vec![(17, y), (26, y)], c.stroke_width(1)))
+                .map_err(e)?;
         } else {
-            SeriesLabelPosition::UpperRight
-        })
-        .draw()
-        .map_err(|e| e.to_string())
+            area.draw(&PathElement::new(vec![(4, y), (28, y)], c.stroke_width(2)))
+                .map_err(e)?;
+            with_marker!(*index, 4, c.filled(), |m| {
+                area.draw(&m((16, y))).map_err(e)?;
+            });
+        }
+        area.draw(&Text::new(curve.label.as_str(), (34, y - 6), font.clone()))
+            .map_err(e)?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn log_ticks_are_decades_or_1_2_5_and_plain_decimals() {
+        assert_eq!(log_ticks((0.004, 0.12)), vec![0.005, 0.01, 0.02, 0.05, 0.1]);
+        assert_eq!(log_ticks((1e-9, 1e-1)).len(), 9);
+        // Less than one decade still gets at least two ticks.
+        let narrow = log_ticks((0.212, 0.287));
+        assert_eq!(narrow.len(), 2);
+        assert!((narrow[0] - 0.22).abs() < 1e-12 && (narrow[1] - 0.28).abs() < 1e-12);
+        assert_eq!(log_ticks((2.0, 9.5)), vec![2.0, 5.0]);
+        assert_eq!(plain(0.005), "0.005");
+        assert_eq!(plain(20.0), "20");
+        assert_eq!(plain(1e-5), "1e-5");
+        assert_eq!(linear_tick(&0.25), "0.25");
+        assert_eq!(linear_tick(&1500.0), "1500");
+    }
 }

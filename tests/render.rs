@@ -536,6 +536,7 @@ fn plots_are_written_as_svg_and_png_and_survive_bad_points() {
     let curve = |label: &str, pts: Vec<(f64, f64)>| Curve {
         label: label.into(),
         points: pts,
+        dashed: false,
     };
     let panels = vec![
         Panel {
@@ -562,6 +563,14 @@ fn plots_are_written_as_svg_and_png_and_survive_bad_points() {
                     ),
                 ),
                 (2, curve("empty", vec![])),
+                // A prediction: dashed, drawn under the measurements.
+                (
+                    0,
+                    Curve {
+                        dashed: true,
+                        ..curve("predicted", vec![(1e-7, 1e-14), (1e-1, 1e-2)])
+                    },
+                ),
             ],
         },
         Panel {
@@ -584,7 +593,10 @@ fn plots_are_written_as_svg_and_png_and_survive_bad_points() {
     let svg = std::fs::read_to_string(stem.with_extension("svg")).unwrap();
     assert!(svg.starts_with("<svg") && svg.contains("log-log") && svg.contains("no data"));
     let png = read_png(&stem.with_extension("png")).unwrap();
-    assert_eq!((png.width, png.height), (600, 400));
+    // Each panel is as wide as asked plus the widest legend, which sits beside the plot.
+    assert_eq!(png.height, 400);
+    assert!(png.width > 600 && png.width < 900, "width {}", png.width);
+    assert!(svg.contains("predicted"));
     // Drawn, not blank: white background, dark text and axes.
     let dark = png
         .rgb

@@ -649,6 +649,7 @@ impl Runner {
                 .skip(skip_first as usize)
                 .map(|x| (x.time, f(x)))
                 .collect(),
+            dashed: false,
         };
         let panel = |title: &str, y: &str, curves: Vec<Curve>| Panel {
             title: title.to_string(),

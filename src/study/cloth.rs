@@ -177,6 +177,7 @@ pub(super) fn accuracy(out: &Path, quick: bool) -> Result<String, StudyError> {
                             .iter()
                             .filter_map(|p| p.error.map(|e| (p.seconds, e.max(1e-12))))
                             .collect(),
+                        dashed: false,
                     },
                 )
             })
@@ -371,6 +372,7 @@ pub(super) fn stability(out: &Path, quick: bool) -> Result<String, StudyError> {
                         .filter(|r| r.method == *label)
                         .filter_map(|r| r.largest_stable_dt.map(|d| (r.stretch, d)))
                         .collect(),
+                    dashed: false,
                 },
             )
         })

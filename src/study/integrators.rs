@@ -472,6 +472,7 @@ fn write_outputs(out: &Path, r: &Report) -> Result<String, StudyError> {
                         Curve {
                             label: s.method.to_string(),
                             points: s.points.iter().map(|pt| (pt.seconds, pt.error)).collect(),
+                            dashed: false,
                         },
                     )
                 })

@@ -292,13 +292,16 @@ pub(super) fn stability(out: &Path, quick: bool) -> Result<String, StudyError> {
                 Curve {
                     label: format!("{} measured", method.name()),
                     points: pick(&|r| r.measured),
+                    dashed: false,
                 },
             ));
+            // The prediction in the method's colour, dashed, under the measurement.
             curves.push((
-                ci + 8,
+                ci,
                 Curve {
                     label: format!("{} predicted", method.name()),
                     points: pick(&|r| r.predicted),
+                    dashed: true,
                 },
             ));
         }
@@ -508,6 +511,7 @@ pub(super) fn accuracy(out: &Path, quick: bool) -> Result<String, StudyError> {
                             .iter()
                             .filter_map(|p| p.error.map(|e| (p.seconds, e)))
                             .collect(),
+                        dashed: false,
                     },
                 )
             })
