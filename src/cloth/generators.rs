@@ -1,6 +1,7 @@
 //! Cloth meshes: a rectangular grid with (u, v) from the grid.
 
 use super::{ClothDesc, ClothMaterial};
+use crate::simulation::StepControl;
 
 /// Options of [`cloth_grid`].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -67,7 +68,7 @@ pub fn cloth_grid(o: &ClothGridOptions) -> ClothDesc {
         obstacles: Vec::new(),
         wind: None,
         paths: Vec::new(),
-        step_control: Default::default(),
+        step_control: StepControl::CLOTH,
         friction: 0.0,
         definiteness_fix: true,
     }

@@ -22,7 +22,7 @@
 use super::{cloth_grid, estimated_bytes, ClothDesc, ClothGridOptions, ClothMaterial, VertexPath};
 use crate::scene::shared::{self, ObstacleTables};
 use crate::scene::{path, Context, Key, PathPart, SceneError};
-use crate::simulation::{MechSimulation, Simulation};
+use crate::simulation::{MechSimulation, Simulation, StepControl};
 use crate::validate::{ModelError, MAX_COORDINATE};
 use serde::Deserialize;
 
@@ -337,7 +337,7 @@ pub fn desc(ctx: &Context<'_>, t: &ClothTable) -> Result<ClothDesc, SceneError> 
         });
     }
     if let Some(sc) = &t.step_control {
-        desc.step_control = shared::step_control(ctx, sc)?;
+        desc.step_control = shared::step_control(ctx, sc, StepControl::CLOTH)?;
     }
     desc.friction = ctx.non_negative(t.friction, &at(&[&"friction"]), "friction")?;
     desc.gravity = ctx.gravity;

@@ -19,10 +19,12 @@
 //! yet: scenes hold a handful of obstacles).
 
 mod contacts;
+mod edges;
 mod penalty;
 mod sdf;
 
 pub use contacts::{VertexContacts, CONTACT_THICKNESS};
+pub use edges::edge_through_triangle;
 pub use penalty::Penalty;
 pub use sdf::SdfGrid;
 
@@ -259,6 +261,36 @@ impl Obstacle {
                 Some((d, n))
             }
         }
+    }
+}
+
+impl Obstacle {
+    /// Where the path from `start` (outside) to `end` (inside) entered the obstacle: the
+    /// signed distance of `end` from the tangent plane there (m, negative) and that plane's
+    /// outward unit normal. `None` when `start` is not outside or a distance is undefined
+    /// on the way. The crossing is found by bisection to a millionth of the path, and its
+    /// normal taken just outside it.
+    pub fn entry(&self, start: [f64; 3], end: [f64; 3]) -> Option<(f64, [f64; 3])> {
+        let at = |s: f64| std::array::from_fn(|k| start[k] + s * (end[k] - start[k]));
+        let (d0, _) = self.distance(start)?;
+        if d0.is_nan() || d0 <= 0.0 {
+            return None;
+        }
+        // Invariant: at(lo) outside, at(hi) inside.
+        let (mut lo, mut hi) = (0.0f64, 1.0f64);
+        for _ in 0..20 {
+            let mid = 0.5 * (lo + hi);
+            if self.distance(at(mid))?.0 > 0.0 {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        let q = at(lo);
+        let (dq, nrm) = self.distance(q)?;
+        // The tangent plane at the crossing point q (dq >= 0 from it).
+        let depth = dot(sub(end, q), nrm) + dq;
+        depth.is_finite().then_some((depth.min(0.0), nrm))
     }
 }
 

@@ -376,7 +376,7 @@ impl MechStepper {
         sys.constraints(&mut self.filter);
         let filter = (!self.filter.is_empty()).then_some(&self.filter);
         if let Some(f) = filter {
-            f.apply(v);
+            f.impose(v);
         }
         let solve_err = solve_error(step, method, true);
         let mut info = StepInfo::default();
@@ -393,7 +393,7 @@ impl MechStepper {
                     sys.force(t, yx, yv, dv);
                     scale_by_inverse_mass(dv, inv_mass);
                     if let Some(f) = filter {
-                        f.apply(dx);
+                        f.impose(dx);
                         f.apply(dv);
                     }
                     Ok(())

@@ -430,7 +430,7 @@ pub fn desc(ctx: &Context<'_>, t: &MassSpringTable) -> Result<(MassSpringDesc, u
     // step of a chain at dt = 1 s stretched it from 0.95 m to 58.7 m and back without a
     // word. Explicit steps are limited by stability, not by strain: off unless asked.
     desc.step_control = match &t.step_control {
-        Some(sc) => Some(shared::step_control(ctx, sc)?),
+        Some(sc) => Some(shared::step_control(ctx, sc, StepControl::default())?),
         None => ctx.implicit().then(StepControl::default),
     };
     desc.gravity = ctx.gravity;

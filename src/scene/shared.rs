@@ -10,7 +10,8 @@
 //! # [[cloth.plane]] point, normal; [[cloth.box]] min, max; [[cloth.capsule]] a, b, radius
 //! # [[cloth.sdf]] file = "shape.sdf"   (SDFGen text: ni nj nk / origin / dx / values)
 //! # [cloth.wind] velocity = [3.0, 0.0, 0.0], drag = 0.5, gust = 0.5, frequency = 1.5
-//! # [cloth.step_control] max_strain_change = 0.25, max_halvings = 6   (these are the defaults)
+//! # [cloth.step_control] max_strain_change = 0.1, max_halvings = 6   (the cloth's defaults;
+//! #                      a mass-spring model's are 0.25 and 6)
 //! ```
 
 use super::{path, Context, Key, PathPart, SceneError};
@@ -260,10 +261,13 @@ pub fn force_field(ctx: &Context<'_>, f: &ForceFieldTable) -> Result<ForceField,
     Ok(field)
 }
 
-/// The step-size control of a `[<domain>.step_control]` table (defaults for what it
-/// leaves out).
-pub fn step_control(ctx: &Context<'_>, sc: &StepControlTable) -> Result<StepControl, SceneError> {
-    let d = StepControl::default();
+/// The step-size control of a `[<domain>.step_control]` table (the domain's defaults `d`
+/// for what it leaves out).
+pub fn step_control(
+    ctx: &Context<'_>,
+    sc: &StepControlTable,
+    d: StepControl,
+) -> Result<StepControl, SceneError> {
     let max_strain_change = ctx.positive(
         sc.max_strain_change.unwrap_or(d.max_strain_change),
         &path(&[&"step_control", &"max_strain_change"]),

@@ -9,6 +9,12 @@
 //! solves the system is projected instead: `A' = S A S + (I - S)`, `b' = S b`. Its solution
 //! `y` has `(I - S) y = 0` and `S A S y = S b`, the same as the filtered CG, and `A'` is
 //! positive definite whenever A is.
+//!
+//! A constrained vertex may also have a prescribed velocity `z_i` in its constrained
+//! directions (the paper's `z`): the step starts from `v_i = S_i v_i + z_i`
+//! ([`Filter::impose`]) and, since every change of velocity is filtered, ends with the
+//! same constrained component. Contacts use it to bring an approaching vertex exactly to
+//! the surface within the step ([`crate::collide::VertexContacts`]).
 
 use crate::sparse::Bsr3;
 
@@ -18,6 +24,8 @@ pub struct Filter {
     n: usize,
     verts: Vec<u32>,
     s: Vec<[f64; 9]>,
+    /// Prescribed velocity per constrained vertex (m/s), in its constrained directions.
+    z: Vec<[f64; 3]>,
     index_of: Vec<u32>,
 }
 
@@ -30,6 +38,7 @@ impl Filter {
             n,
             verts: Vec::new(),
             s: Vec::new(),
+            z: Vec::new(),
             index_of: vec![FREE; n],
         }
     }
@@ -67,8 +76,12 @@ impl Filter {
                 self.index_of[i] = self.verts.len() as u32;
                 self.verts.push(i as u32);
                 self.s.push(s);
+                self.z.push([0.0; 3]);
             }
-            k => self.s[k as usize] = s,
+            k => {
+                self.s[k as usize] = s;
+                self.z[k as usize] = [0.0; 3];
+            }
         }
     }
 
@@ -79,6 +92,7 @@ impl Filter {
         }
         self.verts.clear();
         self.s.clear();
+        self.z.clear();
     }
 
     /// Pins vertex i (all three directions constrained).
@@ -108,6 +122,32 @@ impl Filter {
             }
         }
         self.set(i, s);
+    }
+
+    /// Prescribes the velocity of constrained vertex i (m/s) in its constrained directions:
+    /// the part of `z` in them is kept (`(I - S_i) z`), the rest dropped. Constraining the
+    /// vertex again resets it to zero; a free vertex is left free.
+    pub fn prescribe(&mut self, i: usize, z: [f64; 3]) {
+        let k = self.index_of[i];
+        if k == FREE {
+            return;
+        }
+        let s = &self.s[k as usize];
+        self.z[k as usize] = std::array::from_fn(|r| {
+            z[r] - (s[3 * r] * z[0] + s[3 * r + 1] * z[1] + s[3 * r + 2] * z[2])
+        });
+    }
+
+    /// `v = S v + z` for component-major Vec3s velocities v: constrained directions take
+    /// their prescribed velocity (zero unless [`Filter::prescribe`]d).
+    pub fn impose(&self, v: &mut [f64]) {
+        self.apply(v);
+        let n = self.n;
+        for (&i, z) in self.verts.iter().zip(&self.z) {
+            for r in 0..3 {
+                v[r * n + i as usize] += z[r];
+            }
+        }
     }
 
     /// `v = S v` for component-major Vec3s data v.
