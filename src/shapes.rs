@@ -167,3 +167,86 @@ pub fn capsule(a: [f64; 3], b: [f64; 3], radius: f64, sectors: usize) -> Mesh {
 fn unit(a: [f64; 3]) -> Option<[f64; 3]> {
     length_and_unit(a).map(|(_, u)| u)
 }
+
+/// The faces of the convex region where `n . x + d >= 0` for every plane `(n, d)` (unit
+/// normals) and that lies inside the box `region`: one polygon per plane, as a triangle
+/// fan wound counter-clockwise seen from the side its normal points to, and its outline
+/// as segments. The region's own sides are not drawn; planes that leave no face give
+/// nothing.
+pub fn convex_faces(planes: &[([f64; 3], f64)], region: ([f64; 3], [f64; 3])) -> Mesh {
+    let (lo, hi) = region;
+    let centre: [f64; 3] = std::array::from_fn(|k| 0.5 * (lo[k] + hi[k]));
+    let half: f64 = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt();
+    // The region's six sides as half-spaces too.
+    let sides = (0..6).map(|s| {
+        let mut n = [0.0; 3];
+        let a = s / 2;
+        if s % 2 == 0 {
+            n[a] = 1.0;
+            (n, -lo[a])
+        } else {
+            n[a] = -1.0;
+            (n, hi[a])
+        }
+    });
+    let all: Vec<([f64; 3], f64)> = planes.iter().copied().chain(sides).collect();
+    let (mut points, mut triangles, mut segments) = (Vec::new(), Vec::new(), Vec::new());
+    for (i, &(n, d)) in planes.iter().enumerate() {
+        // A square on the plane around the region's centre, larger than the region,
+        // counter-clockwise about n.
+        let any = if n[0].abs() < 0.9 {
+            [1.0, 0.0, 0.0]
+        } else {
+            [0.0, 1.0, 0.0]
+        };
+        let Some((_, u)) = length_and_unit(cross(any, n)) else {
+            continue;
+        };
+        let v = cross(n, u);
+        let h = n.iter().zip(&centre).map(|(a, b)| a * b).sum::<f64>() + d;
+        let o: [f64; 3] = std::array::from_fn(|k| centre[k] - h * n[k]);
+        let mut poly: Vec<[f64; 3]> = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]
+            .iter()
+            .map(|&(a, b)| std::array::from_fn(|k| o[k] + 2.0 * half * (a * u[k] + b * v[k])))
+            .collect();
+        for (j, &(m, e)) in all.iter().enumerate() {
+            if j != i {
+                poly = clip(&poly, m, e);
+            }
+        }
+        // Where three planes meet, clipping leaves the corner twice: keep one.
+        let tiny = 1e-9 * half;
+        let near = |a: &[f64; 3], b: &[f64; 3]| (0..3).all(|k| (a[k] - b[k]).abs() <= tiny);
+        poly.dedup_by(|b, a| near(a, b));
+        while poly.len() > 1 && near(&poly[0], &poly[poly.len() - 1]) {
+            poly.pop();
+        }
+        if poly.len() < 3 {
+            continue;
+        }
+        let first = points.len() as u32;
+        let k = poly.len() as u32;
+        points.extend(poly);
+        triangles.extend((1..k - 1).map(|t| [first, first + t, first + t + 1]));
+        segments.extend((0..k).map(|t| [first + t, first + (t + 1) % k]));
+    }
+    mesh(&points, triangles, segments)
+}
+
+/// The part of convex polygon `poly` where `m . x + e >= 0` (Sutherland-Hodgman).
+fn clip(poly: &[[f64; 3]], m: [f64; 3], e: f64) -> Vec<[f64; 3]> {
+    let side = |p: &[f64; 3]| m[0] * p[0] + m[1] * p[1] + m[2] * p[2] + e;
+    let mut out = Vec::with_capacity(poly.len() + 1);
+    for (k, a) in poly.iter().enumerate() {
+        let b = &poly[(k + 1) % poly.len()];
+        let (sa, sb) = (side(a), side(b));
+        if sa >= 0.0 {
+            out.push(*a);
+        }
+        if (sa >= 0.0) != (sb >= 0.0) {
+            let t = sa / (sa - sb);
+            out.push(std::array::from_fn(|c| a[c] + t * (b[c] - a[c])));
+        }
+    }
+    out
+}

@@ -685,3 +685,78 @@ fn preview_frames_the_sane_frames_of_a_run_that_blew_up() {
         s.warnings
     );
 }
+
+#[test]
+fn planes_are_drawn_as_the_faces_of_the_region_they_leave_free() {
+    use largestep::collide::Obstacle;
+    // The jello's world: a container [-2, 2]^3 and the inclined plane -x + y + z + 2 = 0.
+    let mut obstacles: Vec<Obstacle> = Obstacle::container([-2.0; 3], [2.0; 3]).into();
+    obstacles.push(Obstacle::plane([-1.0, 1.0, 1.0, 2.0]).unwrap());
+    let m = Obstacle::plane_faces(&obstacles, ([-10.0; 3], [10.0; 3])).unwrap();
+    let n = m.positions.len() / 3;
+    let p = |i: u32| {
+        let i = i as usize;
+        [m.positions[i], m.positions[n + i], m.positions[2 * n + i]]
+    };
+    let planes: Vec<([f64; 3], f64)> = obstacles
+        .iter()
+        .map(|o| match o {
+            Obstacle::Plane { normal, offset } => (*normal, *offset),
+            _ => unreachable!(),
+        })
+        .collect();
+    let side =
+        |q: [f64; 3], (nn, d): ([f64; 3], f64)| nn[0] * q[0] + nn[1] * q[1] + nn[2] * q[2] + d;
+    // Every corner lies in the free region, on at least one plane.
+    for i in 0..n as u32 {
+        let q = p(i);
+        assert!(
+            planes.iter().all(|&pl| side(q, pl) >= -1e-9),
+            "{q:?} outside"
+        );
+        assert!(
+            planes.iter().any(|&pl| side(q, pl).abs() < 1e-9),
+            "{q:?} on no plane"
+        );
+    }
+    // Each triangle lies on a plane and faces its free side (the renderer culls it when
+    // the eye is behind the wall, leaving the outline).
+    for t in m.triangles.iter() {
+        let [a, b, c] = t.map(p);
+        let e1 = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+        let e2 = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
+        let cr = [
+            e1[1] * e2[2] - e1[2] * e2[1],
+            e1[2] * e2[0] - e1[0] * e2[2],
+            e1[0] * e2[1] - e1[1] * e2[0],
+        ];
+        let on = planes
+            .iter()
+            .find(|&&pl| [a, b, c].iter().all(|&q| side(q, pl).abs() < 1e-9))
+            .expect("a triangle on a plane");
+        let facing = cr[0] * on.0[0] + cr[1] * on.0[1] + cr[2] * on.0[2];
+        assert!(facing > 0.0, "triangle {t:?} faces the solid side");
+    }
+    // All seven planes show a face, each outlined.
+    let faces = planes
+        .iter()
+        .filter(|&&pl| {
+            m.triangles
+                .iter()
+                .any(|t| t.iter().all(|&i| side(p(i), pl).abs() < 1e-9))
+        })
+        .count();
+    assert_eq!(faces, 7);
+    assert!(m.segments.len() >= 7 * 3);
+    // The jello world file's scene draws them.
+    let data = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/data/jello-worlds/jello.w");
+    if data.exists() {
+        let scene = largestep::scene::Scene::load(&data).unwrap();
+        let scenery = scene.scenery(([-3.0; 3], [3.0; 3]));
+        // The cube starts on the plane's other side: the container's part there.
+        let tris: usize = scenery.iter().map(|m| m.triangles.len()).sum();
+        let segs: usize = scenery.iter().map(|m| m.segments.len()).sum();
+        assert!(tris >= 8 && segs >= 12, "{tris} triangles, {segs} segments");
+    }
+}

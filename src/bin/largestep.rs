@@ -6,7 +6,7 @@
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use largestep::limits::Limits;
-use largestep::render::preview::{load_frames, write_preview, PreviewSettings};
+use largestep::render::preview::{load_frames, preview_region, write_preview, PreviewSettings};
 use largestep::render::{
     Camera, CameraSpec, RenderError, DEFAULT_AZIMUTH_DEG, DEFAULT_ELEVATION_DEG,
 };
@@ -352,8 +352,9 @@ fn run(
     if preview {
         let settings = runner.output().preview;
         let dir = runner.out_dir().join("preview");
-        let scenery = runner.scenery();
-        match write_preview_with_bar(&dir, runner.kept_frames(), &scenery, &settings) {
+        let frames = runner.kept_frames();
+        let scenery = runner.scenery(preview_region(frames));
+        match write_preview_with_bar(&dir, frames, &scenery, &settings) {
             Ok(s) => println!("{s}"),
             Err(e) => {
                 eprintln!("error: {e}");
@@ -389,16 +390,19 @@ fn render(
     view: &ViewArgs,
     limits: &Limits,
 ) -> ExitCode {
-    let (base, scenery) = match scene {
-        Some(path) => match Scene::load_with(&path, limits) {
-            Ok(s) => (s.output.preview, s.scenery()),
-            Err(e) => {
-                eprintln!("error: {e}");
-                return ExitCode::from(2);
-            }
-        },
-        None => (PreviewSettings::default(), Vec::new()),
+    let scene = match scene
+        .map(|path| Scene::load_with(&path, limits))
+        .transpose()
+    {
+        Ok(s) => s,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return ExitCode::from(2);
+        }
     };
+    let base = scene
+        .as_ref()
+        .map_or_else(PreviewSettings::default, |s| s.output.preview);
     let settings = match view.apply(base) {
         Ok(s) => s,
         Err(e) => {
@@ -413,6 +417,7 @@ fn render(
             return ExitCode::from(2);
         }
     };
+    let scenery = scene.map_or_else(Vec::new, |s| s.scenery(preview_region(&frames)));
     let out = out.unwrap_or_else(|| {
         frames_dir
             .parent()

@@ -192,8 +192,8 @@ impl Obstacle {
         Ok(())
     }
 
-    /// A mesh to draw the obstacle in previews: spheres, boxes and capsules. Planes (the
-    /// preview's ground stands in for a floor) and distance grids (that would need an
+    /// A mesh to draw the obstacle in previews: spheres, boxes and capsules. Planes (drawn
+    /// together, [`Obstacle::plane_faces`]) and distance grids (that would need an
     /// isosurface) give `None`.
     pub fn preview_mesh(&self) -> Option<Mesh> {
         use crate::shapes;
@@ -205,6 +205,25 @@ impl Obstacle {
             Obstacle::Capsule { a, b, radius } => Some(shapes::capsule(*a, *b, *radius, 32)),
             Obstacle::Plane { .. } | Obstacle::Sdf(_) => None,
         }
+    }
+
+    /// The planes among `obstacles` drawn for previews: each plane's face of the region
+    /// they leave free, inside the box `around` (a plane alone is a square the size of
+    /// the box; a container's walls are its sides), as triangles facing the free side
+    /// and outlines. `None` without planes.
+    pub fn plane_faces(obstacles: &[Obstacle], around: ([f64; 3], [f64; 3])) -> Option<Mesh> {
+        let planes: Vec<([f64; 3], f64)> = obstacles
+            .iter()
+            .filter_map(|o| match o {
+                Obstacle::Plane { normal, offset } => Some((*normal, *offset)),
+                _ => None,
+            })
+            .collect();
+        if planes.is_empty() {
+            return None;
+        }
+        let m = crate::shapes::convex_faces(&planes, around);
+        (!m.triangles.is_empty()).then_some(m)
     }
 
     /// Signed distance of `p` (m, negative inside) and the outward unit normal there, or

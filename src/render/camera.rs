@@ -60,6 +60,24 @@ impl Bounds {
         }
     }
 
+    /// The height of the lowest corner along the unit vector `up` (m).
+    pub fn lowest_along(&self, up: [f64; 3]) -> f64 {
+        (0..8)
+            .map(|c| {
+                (0..3)
+                    .map(|k| {
+                        up[k]
+                            * if c >> k & 1 == 1 {
+                                self.max[k]
+                            } else {
+                                self.min[k]
+                            }
+                    })
+                    .sum::<f64>()
+            })
+            .fold(f64::INFINITY, f64::min)
+    }
+
     /// Centre.
     pub fn center(&self) -> [f64; 3] {
         std::array::from_fn(|k| 0.5 * (self.min[k] + self.max[k]))

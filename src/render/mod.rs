@@ -77,6 +77,9 @@ pub struct Style {
     /// Sphere radius (m); 0 picks 0.2 of the mean segment length, or 1/150 of the
     /// scene radius without segments.
     pub point_radius: f64,
+    /// Leave out triangles that face away from the eye (the far side of a solid, or a
+    /// wall seen from behind, whose outline still shows where it is).
+    pub cull_back: bool,
 }
 
 impl Style {
@@ -97,6 +100,7 @@ impl Style {
             wireframe: false,
             points: mesh.triangles.is_empty(),
             point_radius: 0.0,
+            cull_back: false,
         }
     }
 }
@@ -435,18 +439,7 @@ impl Renderer {
         let up = b.world_up;
         // Ground: the lowest corner of the bounds along `up`, a hair below it so a
         // resting object does not fight the ground for depth.
-        let lowest = (0..8)
-            .map(|c| {
-                let p = std::array::from_fn(|k| {
-                    if c >> k & 1 == 1 {
-                        bounds.max[k]
-                    } else {
-                        bounds.min[k]
-                    }
-                });
-                dot(p, up)
-            })
-            .fold(f64::INFINITY, f64::min);
+        let lowest = bounds.lowest_along(up);
         let ground_level = lowest - 2e-3 * r;
         let eye_height = dot(b.eye, up) - ground_level;
         // Key light from above, behind the viewer's left shoulder: shadows fall away
@@ -550,6 +543,12 @@ impl Renderer {
                 // Camera space (right, up, forward) is left-handed: a cross product there
                 // is the mirror image of the world's, hence the minus.
                 let c = self.view_world(v, c).map(|x| -x);
+                if o.style.cull_back {
+                    let centroid = [0, 1, 2].map(|a| (p[0][a] + p[1][a] + p[2][a]) / 3.0);
+                    if dot3(c, self.view_world(v, centroid)) > 0.0 {
+                        continue;
+                    }
+                }
                 for &k in &g {
                     self.normals[k] = axpy3(1.0, c, self.normals[k]);
                 }

@@ -143,6 +143,15 @@ fn sane_frames(frames: &[Mesh]) -> usize {
         .max(1)
 }
 
+/// The region a preview of `frames` shows, for cutting unbounded scenery (planes) to it:
+/// the bounds of the frames it draws (see [`write_preview`]), grown by half their
+/// diagonal on every side.
+pub fn preview_region(frames: &[Mesh]) -> ([f64; 3], [f64; 3]) {
+    let b = bounds_of(&frames[..sane_frames(frames)]).or_unit();
+    let pad = b.radius();
+    (b.min.map(|c| c - pad), b.max.map(|c| c + pad))
+}
+
 /// The union of the bounds of `frames`.
 pub fn bounds_of(frames: &[Mesh]) -> Bounds {
     let mut b = Bounds::EMPTY;
@@ -183,6 +192,19 @@ pub fn write_preview(
         ));
     }
     let frames = &frames[..sane];
+    let up = match settings.camera {
+        CameraSpec::Auto { up, .. } => up,
+        CameraSpec::Fixed(c) => c.up,
+    };
+    let up = crate::kernels::v3::length_and_unit(up).map_or([0.0, 1.0, 0.0], |u| u.1);
+    // Scenery lying flat at or below the frames' lowest point, facing up, is a floor:
+    // the preview's ground stands for it (and it would hide the ground's grid).
+    let floor = bounds_of(frames).or_unit().lowest_along(up);
+    let scenery: Vec<Mesh> = scenery
+        .iter()
+        .filter_map(|m| without_floor(m, up, floor))
+        .collect();
+    let scenery = &scenery[..];
     let mut bounds = bounds_of(frames);
     for m in scenery {
         bounds.add_positions(&m.positions);
@@ -223,7 +245,11 @@ pub fn write_preview(
         .iter()
         .map(|m| Object {
             mesh: m.as_ref(),
-            style: Style::palette(1, &m.as_ref()),
+            // A wall seen from behind shows as its outline.
+            style: Style {
+                cull_back: true,
+                ..Style::palette(1, &m.as_ref())
+            },
         })
         .collect();
     for (k, mesh) in frames.iter().enumerate() {
@@ -324,4 +350,68 @@ pub fn load_frames(dir: &Path, max_bytes: u64) -> Result<Vec<Mesh>, RenderError>
         frames.push(m);
     }
     Ok(frames)
+}
+
+/// `m` without its triangles and segments that lie at or below `floor` along `up` (m)
+/// with every vertex, within a millionth of the mesh's size: a floor, which the
+/// preview's ground draws. Vertices left unused go too (they would widen the camera's
+/// framing); `None` when nothing is left.
+fn without_floor(m: &Mesh, up: [f64; 3], floor: f64) -> Option<Mesh> {
+    let n = m.positions.len() / 3;
+    let mut b = Bounds::EMPTY;
+    b.add_positions(&m.positions);
+    let tol = 1e-6 * b.or_unit().radius();
+    let low = |i: u32| {
+        (i as usize) < n && {
+            let p = crate::kernels::get3(&m.positions, n, i as usize);
+            p[0] * up[0] + p[1] * up[1] + p[2] * up[2] <= floor + tol
+        }
+    };
+    let triangles: Vec<[u32; 3]> = m
+        .triangles
+        .iter()
+        .filter(|t| !t.iter().all(|&i| low(i)))
+        .copied()
+        .collect();
+    let segments: Vec<[u32; 2]> = m
+        .segments
+        .iter()
+        .filter(|s| !s.iter().all(|&i| low(i)))
+        .copied()
+        .collect();
+    if triangles.len() == m.triangles.len() && segments.len() == m.segments.len() {
+        return Some(m.clone());
+    }
+    // Renumber the vertices still used, in order.
+    let mut new_index = vec![u32::MAX; n];
+    let used = triangles.iter().flatten().chain(segments.iter().flatten());
+    for &i in used {
+        if (i as usize) < n {
+            new_index[i as usize] = 0;
+        }
+    }
+    let mut kept = Vec::new();
+    for (i, slot) in new_index.iter_mut().enumerate() {
+        if *slot == 0 {
+            *slot = kept.len() as u32;
+            kept.push(crate::kernels::get3(&m.positions, n, i));
+        }
+    }
+    if kept.is_empty() {
+        return None;
+    }
+    let map = |i: u32| new_index.get(i as usize).copied().unwrap_or(u32::MAX);
+    Some(Mesh {
+        positions: crate::soa::Vec3s::from_aos(&kept).into_vec(),
+        triangles: triangles
+            .iter()
+            .map(|t| t.map(map))
+            .collect::<Vec<_>>()
+            .into(),
+        segments: segments
+            .iter()
+            .map(|s| s.map(map))
+            .collect::<Vec<_>>()
+            .into(),
+    })
 }

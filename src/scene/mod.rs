@@ -530,9 +530,13 @@ impl Scene {
         }
     }
 
-    /// Meshes of every system's fixed scenery (obstacles), for previews.
-    pub fn scenery(&self) -> Vec<crate::io::Mesh> {
-        self.systems.iter().flat_map(|s| s.sim.scenery()).collect()
+    /// Meshes of every system's fixed scenery (obstacles), for previews, planes cut to
+    /// `around`.
+    pub fn scenery(&self, around: ([f64; 3], [f64; 3])) -> Vec<crate::io::Mesh> {
+        self.systems
+            .iter()
+            .flat_map(|s| s.sim.scenery(around))
+            .collect()
     }
 
     /// The simulation of a scene with one system (`None` with several).

@@ -315,9 +315,13 @@ impl Runner {
         &self.systems
     }
 
-    /// Meshes of every system's fixed scenery (obstacles), for previews.
-    pub fn scenery(&self) -> Vec<Mesh> {
-        self.systems.iter().flat_map(|s| s.sim.scenery()).collect()
+    /// Meshes of every system's fixed scenery (obstacles), for previews, planes cut to
+    /// `around`.
+    pub fn scenery(&self, around: ([f64; 3], [f64; 3])) -> Vec<Mesh> {
+        self.systems
+            .iter()
+            .flat_map(|s| s.sim.scenery(around))
+            .collect()
     }
 
     /// The simulation of the first system (the only one in most scenes).

@@ -680,12 +680,11 @@ impl<M: MechModel> Simulation for MechSimulation<M> {
         stages
     }
 
-    fn scenery(&self) -> Vec<Mesh> {
-        self.model
-            .obstacles()
-            .iter()
-            .filter_map(|o| o.preview_mesh())
-            .collect()
+    fn scenery(&self, around: ([f64; 3], [f64; 3])) -> Vec<Mesh> {
+        let obstacles = self.model.obstacles();
+        let mut meshes: Vec<Mesh> = obstacles.iter().filter_map(|o| o.preview_mesh()).collect();
+        meshes.extend(Obstacle::plane_faces(obstacles, around));
+        meshes
     }
 
     fn method(&self) -> String {

@@ -124,8 +124,9 @@ pub trait Simulation: Send {
     fn frame(&self) -> FrameData<'_>;
     /// The stages built and left out.
     fn stages(&self) -> Vec<Stage>;
-    /// Meshes of the fixed scenery (obstacles) for previews.
-    fn scenery(&self) -> Vec<Mesh>;
+    /// Meshes of the fixed scenery (obstacles) for previews; unbounded ones (planes) are
+    /// cut to the box `around` (the region the frames show).
+    fn scenery(&self, around: ([f64; 3], [f64; 3])) -> Vec<Mesh>;
     /// The integrator's name.
     fn method(&self) -> String;
     /// The linear solver of implicit steps, if any.
