@@ -1997,7 +1997,13 @@ fn one_shared_model_serves_simultaneous_simulations() {
 fn the_quick_accuracy_study_labels_what_it_ran() {
     let out = std::env::temp_dir().join(format!("largestep-study-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
-    largestep::study::run("cloth-accuracy", &out, true).unwrap();
+    largestep::study::run(
+        "cloth-accuracy",
+        &out,
+        true,
+        &largestep::study::Progress::silent(),
+    )
+    .unwrap();
     let md = std::fs::read_to_string(out.join("cloth-accuracy.md")).unwrap();
     let json = std::fs::read_to_string(out.join("cloth-accuracy.json")).unwrap();
     let svg = std::fs::read_to_string(out.join("cloth-accuracy.svg")).unwrap();

@@ -11,6 +11,7 @@ use largestep::render::{
     Camera, CameraSpec, RenderError, DEFAULT_AZIMUTH_DEG, DEFAULT_ELEVATION_DEG,
 };
 use largestep::scene::{Runner, Scene};
+use largestep::study::Progress;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -112,8 +113,9 @@ enum Command {
     Study {
         /// Which study (integrators, jello-stability, jello-accuracy, cloth-accuracy, cloth-stability).
         name: String,
-        /// Output folder for the report (default: docs/studies).
-        #[arg(long, default_value = "docs/studies")]
+        /// Output folder for the report (default: out/studies; `--out docs/studies`
+        /// regenerates the committed reports).
+        #[arg(long, default_value = "out/studies")]
         out: PathBuf,
         /// Fewer, coarser sweeps (for a quick look; reports say so).
         #[arg(long)]
@@ -440,7 +442,21 @@ fn render(
 }
 
 fn study(name: &str, out: &std::path::Path, quick: bool) -> ExitCode {
-    match largestep::study::run(name, out, quick) {
+    let bar = ProgressBar::new(0);
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} {msg}")
+            .expect("valid template"),
+    );
+    let report = |done: usize, total: usize, what: &str| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+        if !what.is_empty() {
+            bar.set_message(what.to_string());
+        }
+    };
+    let result = largestep::study::run(name, out, quick, &Progress::new(&report));
+    bar.finish_and_clear();
+    match result {
         Ok(report) => {
             println!("{report}");
             ExitCode::SUCCESS

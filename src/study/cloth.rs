@@ -18,7 +18,7 @@
 //! shrinks like 1/sqrt(k); the implicit step allows steps hundreds of times larger, and
 //! with the paper's step-size control (third series) any dt tried.
 
-use super::{log_slope, max_distance, write_file, StudyError};
+use super::{log_slope, max_distance, write_file, Progress, StudyError};
 use crate::plot::{write_panels, Curve, Panel, Scale};
 use crate::scene::Scene;
 use crate::simulation::FrameData;
@@ -103,7 +103,11 @@ struct Sweep {
     points: Vec<Point>,
 }
 
-pub(super) fn accuracy(out: &Path, quick: bool) -> Result<String, StudyError> {
+pub(super) fn accuracy(
+    out: &Path,
+    quick: bool,
+    progress: &Progress<'_>,
+) -> Result<String, StudyError> {
     let n = if quick { 12 } else { 24 };
     // T = 0.2 s: through the impact (at 0.14 s) and the first wrap. Later the free edges
     // whip down round the sphere and runs at dt and dt / 2 part exponentially (at T =
@@ -115,8 +119,12 @@ pub(super) fn accuracy(out: &Path, quick: bool) -> Result<String, StudyError> {
     let reference = reference.expect("the reference run succeeds");
     let (check, _, _) = run_scene(&drape_scene(n, 2.0 * ref_dt, 1e-10, t_end));
     let ref_change = check.map(|c| max_distance(&c, &reference));
+    let runs = if quick { 3 + 3 } else { 5 + 6 };
+    progress.expect(1 + runs);
+    progress.tick("reference and its check");
     let point = |dt: f64, tol: f64| {
         let (x, seconds, its) = run_scene(&drape_scene(n, dt, tol, t_end));
+        progress.tick(&format!("dt = {dt:.2e} s, PCG {tol:.0e}"));
         Point {
             dt,
             tolerance: tol,
@@ -311,7 +319,11 @@ struct StabilityRow {
     substeps: Option<f64>,
 }
 
-pub(super) fn stability(out: &Path, quick: bool) -> Result<String, StudyError> {
+pub(super) fn stability(
+    out: &Path,
+    quick: bool,
+    progress: &Progress<'_>,
+) -> Result<String, StudyError> {
     let ks: Vec<f64> = if quick {
         vec![1e2, 1e4]
     } else {
@@ -328,6 +340,7 @@ pub(super) fn stability(out: &Path, quick: bool) -> Result<String, StudyError> {
     ];
     let (lo0, hi0) = (1e-6, 0.1);
     let mut rows = Vec::new();
+    progress.expect(ks.len() * methods.len());
     for &k in &ks {
         for (method, control, label) in methods {
             let run = |dt: f64| run_hang(k, method, control, dt);
@@ -357,6 +370,7 @@ pub(super) fn stability(out: &Path, quick: bool) -> Result<String, StudyError> {
                 substeps: at.map(|a| a.1),
             };
             rows.push(row);
+            progress.tick(&format!("k = {k:.0e}: {label}"));
         }
     }
     let curves = methods

@@ -22,7 +22,7 @@
 //! stability analysis (see `theory`).
 
 use super::problems::{Oscillator, Pendulum, StiffScalar};
-use super::{write_file, StudyError};
+use super::{write_file, Progress, StudyError};
 use crate::integrate::{
     LinearSolverKind, MechSettings, MechStepper, Mechanical, Method, OdeStepper,
 };
@@ -277,8 +277,16 @@ fn pendulum() -> Box<dyn Mechanical> {
     Box::new(Pendulum::new(9.81))
 }
 
-pub(super) fn run(out: &Path, quick: bool) -> Result<String, StudyError> {
+pub(super) fn run(out: &Path, quick: bool, progress: &Progress<'_>) -> Result<String, StudyError> {
     let w = 2.0 * std::f64::consts::PI;
+    let all = Method::ALL.len();
+    let first_order = Method::ALL
+        .iter()
+        .filter(|m| m.supports_first_order())
+        .count();
+    // Sweeps: three exact problems, the stiff scalar, the pendulum (and its reference);
+    // stability searches on the two stiff problems.
+    progress.expect(3 * all + first_order + 1 + all + first_order + all);
     let mut problems = Vec::new();
 
     // Mechanical problems with exact solutions.
@@ -325,10 +333,12 @@ pub(super) fn run(out: &Path, quick: bool) -> Result<String, StudyError> {
         let series = Method::ALL
             .iter()
             .map(|&m| {
-                sweep(m, quick, &|steps| {
+                let s = sweep(m, quick, &|steps| {
                     run_mech(p, m, steps, p.t_end, 1e6)
                         .map(|(x, v)| ((x - xe).powi(2) + ((v - ve) / p.vscale).powi(2)).sqrt())
-                })
+                });
+                progress.tick(&format!("{key}: {m}"));
+                s
             })
             .collect();
         problems.push(ProblemResult {
@@ -348,9 +358,11 @@ pub(super) fn run(out: &Path, quick: bool) -> Result<String, StudyError> {
         .iter()
         .filter(|m| m.supports_first_order())
         .map(|&m| {
-            sweep(m, quick, &|steps| {
+            let s = sweep(m, quick, &|steps| {
                 run_ode(stiff, m, 0.0, steps, 1.0, 1e6).map(|y| (y - ye).abs())
-            })
+            });
+            progress.tick(&format!("stiff-scalar: {m}"));
+            s
         })
         .collect();
     problems.push(ProblemResult {
@@ -375,13 +387,16 @@ pub(super) fn run(out: &Path, quick: bool) -> Result<String, StudyError> {
         .expect("the reference run is stable");
     let (xr2, vr2) = run_mech(&pend, Method::Rk4, ref_steps / 2, pend.t_end, 1e6).expect("stable");
     let ref_change = ((xr - xr2).powi(2) + ((vr - vr2) / pend.vscale).powi(2)).sqrt();
+    progress.tick("pendulum: reference");
     let series = Method::ALL
         .iter()
         .map(|&m| {
-            sweep(m, quick, &|steps| {
+            let s = sweep(m, quick, &|steps| {
                 run_mech(&pend, m, steps, pend.t_end, 1e6)
                     .map(|(x, v)| ((x - xr).powi(2) + ((v - vr) / pend.vscale).powi(2)).sqrt())
-            })
+            });
+            progress.tick(&format!("pendulum: {m}"));
+            s
         })
         .collect();
     problems.push(ProblemResult {
@@ -419,6 +434,7 @@ pub(super) fn run(out: &Path, quick: bool) -> Result<String, StudyError> {
             theory_h: theory("stiff-scalar", *m, 1000.0),
             h_max_tried: h_max,
         });
+        progress.tick(&format!("stability, stiff-scalar: {m}"));
     }
     let so = &exact_cases[2].2;
     for m in Method::ALL {
@@ -433,6 +449,7 @@ pub(super) fn run(out: &Path, quick: bool) -> Result<String, StudyError> {
             theory_h: theory("stiff-oscillator", m, 1000.0),
             h_max_tried: h_max,
         });
+        progress.tick(&format!("stability, stiff-oscillator: {m}"));
     }
 
     let report = Report {

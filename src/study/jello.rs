@@ -23,7 +23,7 @@
 //! hits a wall at 25 m/s, is too chaotic for this: after 1 s runs differing by rounding
 //! end metres apart.) Run time: wall time of the whole run on this machine.
 
-use super::{log_slope, max_distance, write_file, StudyError};
+use super::{log_slope, max_distance, write_file, Progress, StudyError};
 use crate::integrate::{MechSettings, Method};
 use crate::mass_spring::{lattice, CollisionDesc, LatticeOptions, MassSpringDesc};
 use crate::plot::{write_panels, Curve, Panel, Scale};
@@ -234,7 +234,11 @@ struct StabilityRow {
     note: String,
 }
 
-pub(super) fn stability(out: &Path, quick: bool) -> Result<String, StudyError> {
+pub(super) fn stability(
+    out: &Path,
+    quick: bool,
+    progress: &Progress<'_>,
+) -> Result<String, StudyError> {
     let (iters, max_steps) = if quick { (8, 4000) } else { (14, 20_000) };
     let assignment_mass = 1.0 / 512.0;
     let mut cases: Vec<(&'static str, f64, f64)> = Vec::new();
@@ -244,6 +248,7 @@ pub(super) fn stability(out: &Path, quick: bool) -> Result<String, StudyError> {
     for e in 1..=4 {
         cases.push(("mass", 200.0, 10f64.powi(-e)));
     }
+    progress.expect(cases.len() * METHODS.len());
     let mut rows = Vec::new();
     for (sweep, k, mass) in cases {
         let desc = stability_scene(k, mass);
@@ -275,6 +280,7 @@ pub(super) fn stability(out: &Path, quick: bool) -> Result<String, StudyError> {
                 ratio: measured.zip(pred).map(|(m, p)| m / p),
                 note,
             });
+            progress.tick(&format!("k = {k:.0e} N/m, m = {mass:.1e} kg: {method}"));
         }
     }
     // Plots: largest stable h against k and against m, measured (solid) and predicted.
@@ -449,14 +455,21 @@ fn run_world(
     (ok.then(|| x.to_vec()), secs)
 }
 
-pub(super) fn accuracy(out: &Path, quick: bool) -> Result<String, StudyError> {
+pub(super) fn accuracy(
+    out: &Path,
+    quick: bool,
+    progress: &Progress<'_>,
+) -> Result<String, StudyError> {
     let world = accuracy_scene();
+    progress.expect(2);
     let t_end = 1.0;
     let ref_dt = if quick { 1e-4 } else { 2.5e-5 };
     let (reference, ref_secs) = run_world(&world, Method::Rk4, ref_dt, t_end);
     let reference = reference.expect("the reference run is stable");
     let (check, _) = run_world(&world, Method::Rk4, 2.0 * ref_dt, t_end);
     let ref_change = check.map(|c| max_distance(&c, &reference));
+    progress.tick("reference and its check");
+    progress.expect(METHODS.len());
     let mut series = Vec::new();
     for method in METHODS {
         let dts: Vec<f64> = if method == Method::LinearizedBackwardEuler {
@@ -492,6 +505,7 @@ pub(super) fn accuracy(out: &Path, quick: bool) -> Result<String, StudyError> {
             observed_order,
             points,
         });
+        progress.tick(method.name());
     }
     let panels = vec![Panel {
         title: "jello cube dropped on an edge, T = 1 s: error against run time".into(),

@@ -9,7 +9,45 @@ mod integrators;
 mod jello;
 mod problems;
 
+use std::cell::Cell;
 use std::path::Path;
+
+/// How far a study has got, for progress bars: its cases (one method's sweep, one
+/// stability search, one reference run) done out of those it announced. `report(done,
+/// total, what)` is called after each case.
+pub struct Progress<'a> {
+    done: Cell<usize>,
+    total: Cell<usize>,
+    report: &'a dyn Fn(usize, usize, &str),
+}
+
+impl<'a> Progress<'a> {
+    /// Progress reported to `report(done, total, what just finished)`.
+    pub fn new(report: &'a dyn Fn(usize, usize, &str)) -> Self {
+        Progress {
+            done: Cell::new(0),
+            total: Cell::new(0),
+            report,
+        }
+    }
+
+    /// No reporting.
+    pub fn silent() -> Progress<'static> {
+        Progress::new(&|_, _, _| {})
+    }
+
+    /// Announces `n` more cases.
+    pub(crate) fn expect(&self, n: usize) {
+        self.total.set(self.total.get() + n);
+        (self.report)(self.done.get(), self.total.get(), "");
+    }
+
+    /// One case done.
+    pub(crate) fn tick(&self, what: &str) {
+        self.done.set(self.done.get() + 1);
+        (self.report)(self.done.get(), self.total.get().max(self.done.get()), what);
+    }
+}
 
 /// Study failures.
 #[derive(Debug, thiserror::Error)]
@@ -29,7 +67,10 @@ pub enum StudyError {
 }
 
 /// A study: its name and what runs it (into a folder, quick or not).
-type Study = (&'static str, fn(&Path, bool) -> Result<String, StudyError>);
+type Study = (
+    &'static str,
+    fn(&Path, bool, &Progress<'_>) -> Result<String, StudyError>,
+);
 
 /// The studies of the domains built in.
 const STUDIES: &[Study] = &[
@@ -49,14 +90,20 @@ pub fn names() -> Vec<&'static str> {
     STUDIES.iter().map(|(name, _)| *name).collect()
 }
 
-/// Runs the study `name`, writing its report into `out`; returns a short text summary.
-pub fn run(name: &str, out: &Path, quick: bool) -> Result<String, StudyError> {
+/// Runs the study `name`, writing its report into `out` and its progress to `progress`;
+/// returns a short text summary.
+pub fn run(
+    name: &str,
+    out: &Path,
+    quick: bool,
+    progress: &Progress<'_>,
+) -> Result<String, StudyError> {
     std::fs::create_dir_all(out).map_err(|e| StudyError::Write {
         path: out.display().to_string(),
         message: e.to_string(),
     })?;
     match STUDIES.iter().find(|(n, _)| *n == name) {
-        Some((_, study)) => study(out, quick),
+        Some((_, study)) => study(out, quick, progress),
         None => Err(StudyError::Unknown(name.to_string())),
     }
 }
