@@ -637,3 +637,21 @@ fn a_failed_run_is_previewed_and_a_zero_up_falls_back() {
     assert!(st.status.success(), "{all}");
     assert!(all.contains("up vector is zero"), "{all}");
 }
+
+/// A mistyped subcommand or study name is a usage error (status 2) that names the nearest
+/// one, transpositions included; a name near nothing gets no guess.
+#[test]
+fn mistyped_commands_and_studies_get_the_nearest_name() {
+    let exe = env!("CARGO_BIN_EXE_largestep");
+    let stderr_of = |args: &[&str]| {
+        let o = std::process::Command::new(exe).args(args).output().unwrap();
+        assert_eq!(o.status.code(), Some(2), "{args:?}");
+        String::from_utf8_lossy(&o.stderr).into_owned()
+    };
+    assert!(stderr_of(&["rnu"]).contains("'run'"));
+    assert!(stderr_of(&["stduy"]).contains("'study'"));
+    assert!(!stderr_of(&["xyz"]).contains("similar"));
+    let e = stderr_of(&["study", "jelo-stability"]);
+    assert!(e.contains("did you mean `jello-stability`"), "{e}");
+    assert!(!stderr_of(&["study", "qqq"]).contains("did you mean"));
+}

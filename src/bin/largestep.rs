@@ -3,7 +3,8 @@
 //! Exit status: 0 on success, 1 when a run fails (blow-up, solver failure, I/O), 2 for
 //! bad input (unreadable or invalid scene, bad arguments).
 
-use clap::{Parser, Subcommand};
+use clap::error::{ContextKind, ContextValue, ErrorKind};
+use clap::{CommandFactory, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use largestep::limits::Limits;
 use largestep::render::preview::{load_frames, preview_region, write_preview, PreviewSettings};
@@ -247,8 +248,40 @@ impl ViewArgs {
     }
 }
 
+/// The name in `names` nearest to `typed` by optimal string alignment distance (a
+/// transposition counts one edit), if it is within two edits and closer than half the
+/// typed length: `rnu` gives `run`, `xyz` gives nothing.
+fn closest<'a>(typed: &str, names: impl IntoIterator<Item = &'a str>) -> Option<&'a str> {
+    names
+        .into_iter()
+        .map(|n| (strsim::osa_distance(typed, n), n))
+        .filter(|&(d, _)| d <= 2 && 2 * d < typed.chars().count().max(2))
+        .min_by_key(|&(d, _)| d)
+        .map(|(_, n)| n)
+}
+
+/// Parses the command line; a mistyped subcommand that clap finds no suggestion for gets
+/// the nearest one by edit distance.
+fn parse_cli() -> Cli {
+    Cli::try_parse().unwrap_or_else(|mut e| {
+        if e.kind() == ErrorKind::InvalidSubcommand
+            && e.get(ContextKind::SuggestedSubcommand).is_none()
+        {
+            if let Some(ContextValue::String(typed)) = e.get(ContextKind::InvalidSubcommand) {
+                let cmd = Cli::command();
+                let nearest =
+                    closest(typed, cmd.get_subcommands().map(|c| c.get_name())).map(String::from);
+                if let Some(n) = nearest {
+                    e.insert(ContextKind::SuggestedSubcommand, ContextValue::String(n));
+                }
+            }
+        }
+        e.exit()
+    })
+}
+
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli = parse_cli();
     if let Some(t) = cli.threads {
         if let Err(e) = rayon::ThreadPoolBuilder::new()
             .num_threads(t)
@@ -442,6 +475,17 @@ fn render(
 }
 
 fn study(name: &str, out: &std::path::Path, quick: bool) -> ExitCode {
+    let names = largestep::study::names();
+    if !names.contains(&name) {
+        let hint = closest(name, names.iter().copied())
+            .map(|n| format!("; did you mean `{n}`?"))
+            .unwrap_or_default();
+        eprintln!(
+            "error: unknown study `{name}`{hint} (available: {})",
+            names.join(", ")
+        );
+        return ExitCode::from(2);
+    }
     let bar = ProgressBar::new(0);
     bar.set_style(
         ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} {msg}")
