@@ -278,23 +278,9 @@ fn plain(v: f64) -> String {
     }
 }
 
-/// A linear-axis tick label: up to 4 significant digits without trailing zeros, in
-/// exponent form when very large or small.
+/// A linear-axis tick label: [`crate::io::human`].
 fn linear_tick(v: &f64) -> String {
-    let a = v.abs();
-    if a == 0.0 {
-        return "0".into();
-    }
-    if !(1e-3..1e5).contains(&a) {
-        return format!("{v:.2e}");
-    }
-    let decimals = (3 - a.log10().floor() as i32).clamp(0, 6) as usize;
-    let s = format!("{v:.decimals$}");
-    if s.contains('.') {
-        s.trim_end_matches('0').trim_end_matches('.').to_string()
-    } else {
-        s
-    }
+    crate::io::human(*v)
 }
 
 /// The panel's curves: dashed ones first (thin, no markers), then the others with their

@@ -361,7 +361,22 @@ fn run(
     // The plot and the preview cover what was simulated, also when the run failed.
     let mut status = ExitCode::SUCCESS;
     match &result {
-        Ok(summary) => println!("{summary}"),
+        Ok(summary) => {
+            println!("{summary}");
+            // The same numbers at full precision, for tools.
+            let path = runner.out_dir().join("summary.json");
+            let written = largestep::io::write_atomically(&path, |w| {
+                serde_json::to_writer_pretty(&mut *w, summary)?;
+                writeln!(w)
+            });
+            match written {
+                Ok(()) => println!("  summary        {}", path.display()),
+                Err(e) => {
+                    eprintln!("error: {}: {e}", path.display());
+                    status = ExitCode::from(1);
+                }
+            }
+        }
         Err(e) => {
             eprintln!("error: {e}");
             // A limit, or an energy that is not finite from the start, refuses the input

@@ -20,6 +20,26 @@ pub use image::{read_png, write_gif, write_png, Image};
 use std::io::{BufWriter, Read, Write};
 use std::path::Path;
 
+/// `v` rounded for people (summaries, plot labels): up to 4 significant digits without
+/// trailing zeros (`0.03333`, `1.179`, `480`), in exponent form outside 1e-3 to 1e5
+/// (`2.50e-7`). Files keep full precision; this is for what a person reads.
+pub fn human(v: f64) -> String {
+    let a = v.abs();
+    if a == 0.0 || !a.is_finite() {
+        return format!("{}", if a == 0.0 { 0.0 } else { v });
+    }
+    if !(1e-3..1e5).contains(&a) {
+        return format!("{v:.2e}");
+    }
+    let decimals = (3 - a.log10().floor() as i32).clamp(0, 6) as usize;
+    let s = format!("{v:.decimals$}");
+    if s.contains('.') {
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        s
+    }
+}
+
 /// The most characters of one message an error shows: what input it echoes (a token, a
 /// line) is cut there, so that a 5 MB line does not come back as a 5 MB message.
 pub const MAX_MESSAGE: usize = 400;

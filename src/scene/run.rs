@@ -113,7 +113,7 @@ impl FrameRecord {
 }
 
 /// What a finished run reports.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize)]
 pub struct Summary {
     /// Scene name.
     pub name: String,
@@ -140,10 +140,18 @@ pub struct Summary {
     /// The size of the scene's systems at the start: the diagonal of their bounding box
     /// (m).
     pub size: f64,
-    /// `(E_end - E_start - W) / max(|E_start|, largest kinetic energy seen)`, W the work
-    /// of loads without a potential: what the system gained that nothing put in.
+    /// `(E_end - E_start - W) / energy_scale`, W the work of loads without a potential:
+    /// what the system gained that nothing put in.
     pub energy_drift: f64,
-    /// Newton iterations, summed.
+    /// The scale energy changes are measured against: `max(|E_start|, largest kinetic
+    /// energy at any frame)` (J).
+    pub energy_scale: f64,
+    /// The largest gain at any frame, `(E(t) - E_start - W(t)) / energy_scale`, and the
+    /// time it was reached (s): a transient jump that the end value hides.
+    pub energy_peak: (f64, f64),
+    /// Whether a Newton iteration ran (else each implicit step is one linear solve).
+    pub newton: bool,
+    /// Newton iterations, summed (1 per step for the linearised step).
     pub newton_iterations: usize,
     /// Linear-solver iterations, summed.
     pub linear_iterations: usize,
@@ -154,54 +162,93 @@ pub struct Summary {
 }
 
 impl std::fmt::Display for Summary {
+    /// For people: rounded numbers with their units and what they are relative to
+    /// (`summary.json` and `energy.csv` keep full precision).
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        use crate::io::human;
+        let pct = |x: f64| format!("{:+.1}%", 100.0 * x);
         writeln!(
             f,
-            "{}: {} steps of {} ({:.4} s simulated)",
-            self.name, self.steps, self.method, self.sim_time
+            "{}: {} steps of {} ({} s simulated)",
+            self.name,
+            self.steps,
+            self.method,
+            human(self.sim_time)
         )?;
         writeln!(
             f,
-            "  wall time      {:.3} s ({:.3} s stepping, {:.1} us/step)",
-            self.wall_seconds,
-            self.step_seconds,
-            1e6 * self.step_seconds / self.steps.max(1) as f64
+            "  wall time      {} s ({} s stepping, {} ms per step)",
+            human(self.wall_seconds),
+            human(self.step_seconds),
+            human(1e3 * self.step_seconds / self.steps.max(1) as f64)
+        )?;
+        writeln!(
+            f,
+            "  energy         {} J at the start, {} J at the end (kinetic + potential)",
+            human(self.energy.0),
+            human(self.energy.1)
         )?;
         if self.external_work != 0.0 {
             writeln!(
                 f,
-                "  energy         {:.6e} J -> {:.6e} J, {:.6e} J of it work of wind or a force field (relative change {:+.3e})",
-                self.energy.0, self.energy.1, self.external_work, self.energy_drift
-            )?;
-        } else {
-            writeln!(
-                f,
-                "  energy         {:.6e} J -> {:.6e} J (relative change {:+.3e})",
-                self.energy.0, self.energy.1, self.energy_drift
+                "                 wind and force fields put in {} J",
+                human(self.external_work)
             )?;
         }
+        writeln!(
+            f,
+            "                 change{} {} of the energy scale {} J (the larger of the start's energy and the most kinetic energy)",
+            if self.external_work != 0.0 { " less that work" } else { "" },
+            pct(self.energy_drift),
+            human(self.energy_scale)
+        )?;
         if self.energy_drift > 0.1 {
             writeln!(
                 f,
-                "  warning        total energy grew by {:.0}% of its scale: the integrator is probably unstable at this dt (reduce dt or use an implicit integrator)",
-                100.0 * self.energy_drift
+                "  warning        total energy grew by {} of its scale: the integrator is probably unstable at this dt (reduce dt or use an implicit integrator)",
+                pct(self.energy_drift)
+            )?;
+        } else if self.energy_peak.0 > 0.1 {
+            writeln!(
+                f,
+                "  warning        total energy rose by {} of its scale at t = {} s and fell back: a contact or a large step put energy in (reduce dt, or let step control halve it)",
+                pct(self.energy_peak.0),
+                human(self.energy_peak.1)
             )?;
         }
         if self.max_penetration > 0.5 * self.size {
             writeln!(
                 f,
-                "  warning        the model sank up to {:.3} m into an obstacle, half its size ({:.3} m) or more: the collision stiffness is too small for the masses, or dt too large",
-                self.max_penetration, self.size
+                "  warning        the model sank up to {} m into an obstacle, half its size ({} m) or more: the collision stiffness is too small for the masses, or dt too large",
+                human(self.max_penetration),
+                human(self.size)
             )?;
         }
-        if let Some(ls) = self.linear_solver {
-            writeln!(
-                f,
-                "  solver         {ls}: {} Newton iterations, {} linear iterations (max {} per step)",
-                self.newton_iterations, self.linear_iterations, self.max_linear_iterations
-            )?;
-        } else {
-            writeln!(f, "  solver         none (explicit)")?;
+        match self.linear_solver {
+            Some(ls) => {
+                let per_step = |n: usize| human(n as f64 / self.steps.max(1) as f64);
+                if self.newton {
+                    write!(
+                        f,
+                        "  solver         {ls}: {} Newton iterations ({} per step)",
+                        self.newton_iterations,
+                        per_step(self.newton_iterations)
+                    )?;
+                } else {
+                    write!(f, "  solver         {ls}: one linear solve per step (linearised, no Newton iteration)")?;
+                }
+                if self.linear_iterations > 0 {
+                    write!(
+                        f,
+                        "; {} solver iterations ({} per step, at most {})",
+                        self.linear_iterations,
+                        per_step(self.linear_iterations),
+                        self.max_linear_iterations
+                    )?;
+                }
+                writeln!(f)?;
+            }
+            None => writeln!(f, "  solver         none (explicit)")?,
         }
         write!(
             f,
@@ -434,12 +481,16 @@ impl Runner {
                 ));
             }
         }
-        s.push_str(&format!(
-            "  output: {:?} frames every {} steps ({} s)\n",
-            self.output.frames,
+        let every = format!(
+            "every {} steps ({} s)",
             self.output.every,
-            self.output.every as f64 * self.dt
-        ));
+            crate::io::human(self.output.every as f64 * self.dt)
+        );
+        s.push_str(&match self.output.frames {
+            FrameFormat::Obj => format!("  output: OBJ frames {every}\n"),
+            FrameFormat::Ply => format!("  output: PLY frames {every}\n"),
+            FrameFormat::None => format!("  output: no frame files; energy logged {every}\n"),
+        });
         s
     }
 
@@ -461,7 +512,11 @@ impl Runner {
             ),
             None => (
                 (self.duration / self.dt).round().max(1.0),
-                format!("{} s at dt = {:e} s", self.duration, self.dt),
+                format!(
+                    "{} s at dt = {} s",
+                    crate::io::human(self.duration),
+                    crate::io::human(self.dt)
+                ),
             ),
         };
         self.limits.steps(&what, steps).map_err(RunError::Limit)?;
@@ -516,10 +571,12 @@ impl Runner {
         let frames_dir = self.out_dir.join("frames");
         std::fs::create_dir_all(&frames_dir).map_err(io_err(&frames_dir))?;
         // An earlier run's frames would mix with this one's (a longer run leaves more):
-        // they go, with the temporaries of interrupted writes.
+        // they go, with the temporaries of interrupted writes, and an earlier summary
+        // (written after a run succeeds) that would describe another run.
         crate::io::remove_stale(&frames_dir, |n| n.starts_with("frame_"))
             .map_err(io_err(&frames_dir))?;
-        crate::io::remove_stale(&self.out_dir, |_| false).map_err(io_err(&self.out_dir))?;
+        crate::io::remove_stale(&self.out_dir, |n| n == "summary.json")
+            .map_err(io_err(&self.out_dir))?;
         let csv_path = self.out_dir.join("energy.csv");
         let mut csv = std::io::BufWriter::new(
             crate::io::create_replacing(&csv_path).map_err(io_err(&csv_path))?,
@@ -581,6 +638,14 @@ impl Runner {
             max_penetration: 0.0,
             size: self.with_frame(|m| diagonal(m.positions)),
             energy_drift: 0.0,
+            energy_scale: 0.0,
+            energy_peak: (0.0, 0.0),
+            newton: self.systems.iter().any(|s| {
+                s.sim
+                    .stages()
+                    .iter()
+                    .any(|st| st.built && st.name == crate::simulation::NEWTON_STAGE)
+            }),
             newton_iterations: 0,
             linear_iterations: 0,
             max_linear_iterations: 0,
@@ -632,7 +697,16 @@ impl Runner {
             .map(|r| r.penetration)
             .fold(0.0, f64::max);
         let scale = e_start.abs().max(max_kinetic).max(f64::MIN_POSITIVE);
+        summary.energy_scale = scale;
         summary.energy_drift = (e1 - e_start - end.external_work) / scale;
+        summary.energy_peak = self
+            .records
+            .iter()
+            .map(|r| {
+                let gain = r.kinetic + r.potential - e_start - r.external_work;
+                (gain / scale, r.time)
+            })
+            .fold((0.0, 0.0), |a, b| if b.0 > a.0 { b } else { a });
         summary.wall_seconds = start.elapsed().as_secs_f64();
         Ok(summary)
     }
@@ -699,5 +773,91 @@ impl Runner {
             source: std::io::Error::other(message),
         })?;
         Ok(stem.with_extension("png"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn summary() -> Summary {
+        Summary {
+            name: "s".into(),
+            method: "linearized-backward-euler".into(),
+            linear_solver: Some("cholesky"),
+            steps: 480,
+            frames_written: 121,
+            sim_time: 4.000000000000003,
+            step_seconds: 1.7881234,
+            wall_seconds: 1.8781234,
+            energy: (7.549012345, 4.907012345),
+            external_work: 0.0,
+            max_penetration: 0.0,
+            size: 1.0,
+            energy_drift: -0.35,
+            energy_scale: 7.549012345,
+            energy_peak: (0.0, 0.0),
+            newton: false,
+            newton_iterations: 480,
+            linear_iterations: 0,
+            max_linear_iterations: 0,
+            out_dir: PathBuf::from("out/s"),
+        }
+    }
+
+    /// Issue 14: the summary rounds for people, names the scale of the relative change,
+    /// says no Newton iteration ran for the linearised step, and warns of a transient rise
+    /// the end value hides.
+    #[test]
+    fn the_summary_is_rounded_says_its_scale_and_warns_of_a_transient_rise() {
+        let text = summary().to_string();
+        assert!(text.contains("(4 s simulated)"), "{text}");
+        assert!(
+            text.contains("7.549 J at the start, 4.907 J at the end"),
+            "{text}"
+        );
+        assert!(
+            text.contains("-35.0% of the energy scale 7.549 J"),
+            "{text}"
+        );
+        assert!(!text.contains("Newton iterations"), "{text}");
+        assert!(text.contains("no Newton iteration"), "{text}");
+        assert!(!text.contains("warning"), "{text}");
+        assert!(!text.contains("00000"), "unrounded number: {text}");
+
+        let mut s = summary();
+        s.newton = true;
+        s.newton_iterations = 1000;
+        s.linear_iterations = 4800;
+        s.max_linear_iterations = 17;
+        let text = s.to_string();
+        assert!(
+            text.contains("1000 Newton iterations (2.083 per step)"),
+            "{text}"
+        );
+        assert!(
+            text.contains("4800 solver iterations (10 per step, at most 17)"),
+            "{text}"
+        );
+
+        let mut s = summary();
+        s.energy_peak = (1.48, 0.2);
+        let text = s.to_string();
+        assert!(
+            text.contains("rose by +148.0% of its scale at t = 0.2 s"),
+            "{text}"
+        );
+    }
+
+    #[test]
+    fn numbers_for_people_keep_four_significant_digits() {
+        use crate::io::human;
+        assert_eq!(human(1.0 / 30.0), "0.03333");
+        assert_eq!(human(4.000000000000003), "4");
+        assert_eq!(human(-1.178899), "-1.179");
+        assert_eq!(human(480.0), "480");
+        assert_eq!(human(0.0), "0");
+        assert_eq!(human(2.5e-7), "2.50e-7");
+        assert_eq!(human(f64::NAN), "NaN");
     }
 }

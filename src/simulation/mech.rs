@@ -616,9 +616,9 @@ impl<M: MechModel> MechSimulation<M> {
                 s.linear_solver_name().unwrap_or("none"),
             ));
             stages.push(if method == Method::LinearizedBackwardEuler {
-                Stage::left_out("Newton iteration", "one linearised step")
+                Stage::left_out(super::NEWTON_STAGE, "one linearised step")
             } else {
-                Stage::built("Newton iteration", "with backtracking line search")
+                Stage::built(super::NEWTON_STAGE, "with backtracking line search")
             });
         } else {
             stages.push(Stage::left_out(

@@ -33,6 +33,10 @@ pub struct Stage {
     pub detail: String,
 }
 
+/// The name of the Newton-iteration stage, built by implicit integrators that iterate
+/// (left out by the linearised step): the run summary names iterations by it.
+pub const NEWTON_STAGE: &str = "Newton iteration";
+
 impl Stage {
     /// A stage built, with what it holds.
     pub fn built(name: &'static str, detail: impl Into<String>) -> Stage {
