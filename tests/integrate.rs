@@ -304,3 +304,90 @@ fn methods_without_jacobians_or_first_order_form_are_rejected_clearly() {
     assert!(matches!(e, IntegrateError::Unsupported { .. }), "{e}");
     assert!(e.to_string().contains("no Jacobian"), "{e}");
 }
+
+/// A particle 1 cm above the plane y = 0 moving down at 1 m/s under a constant force, with
+/// a speculative approach that would land it on the plane within the step (h = 1/60 s).
+struct Approaching {
+    fy: f64,
+    pattern: std::sync::Arc<largestep::sparse::Bsr3Pattern>,
+    h: f64,
+    y0: f64,
+}
+
+impl Mechanical for Approaching {
+    fn vertex_count(&self) -> usize {
+        1
+    }
+    fn mass(&self) -> &[f64] {
+        &[1.0]
+    }
+    fn constraints(&self, filter: &mut largestep::solve::Filter) {
+        filter.approach(0, [0.0, 1.0, 0.0], -self.y0 / self.h);
+    }
+    fn force(&mut self, _: f64, _: &[f64], _: &[f64], f: &mut [f64]) {
+        f.copy_from_slice(&[0.0, self.fy, 0.0]);
+    }
+    fn prepare_jacobians(
+        &mut self,
+    ) -> Result<
+        Option<std::sync::Arc<largestep::sparse::Bsr3Pattern>>,
+        largestep::sparse::SparseError,
+    > {
+        Ok(Some(self.pattern.clone()))
+    }
+    fn force_jacobians(
+        &mut self,
+        t: f64,
+        x: &[f64],
+        v: &[f64],
+        f: &mut [f64],
+        dfdx: &mut largestep::sparse::Bsr3,
+        _: Option<&mut largestep::sparse::Bsr3>,
+    ) -> Result<(), IntegrateError> {
+        self.force(t, x, v, f);
+        dfdx.set_zero();
+        Ok(())
+    }
+}
+
+/// Speculative approaches are one-sided (issue 14): a particle pushed onto the plane
+/// lands on it with the prescribed speed; one that the force holds back is freed and
+/// moves as if unconstrained (ending above the plane, or moving away), instead of being
+/// dragged down to it.
+#[test]
+fn an_approach_the_solve_finds_pulling_is_freed() {
+    let h = 1.0 / 60.0;
+    for linear in [
+        LinearSolverKind::Cholesky,
+        LinearSolverKind::Pcg(PcgParams::default()),
+    ] {
+        // (force, expected end height, expected end velocity)
+        for (fy, y1, v1) in [
+            (-10.0, 0.0, -0.6), // pushed on: lands, at -y0/h
+            (30.0, 0.01 + h * (-1.0 + 30.0 * h), -1.0 + 30.0 * h), // held back: short of it
+            (100.0, 0.01 + h * (-1.0 + 100.0 * h), -1.0 + 100.0 * h), // pulled away
+        ] {
+            let mut sys = Approaching {
+                fy,
+                pattern: std::sync::Arc::new(largestep::sparse::Bsr3Pattern::diagonal(1)),
+                h,
+                y0: 0.01,
+            };
+            let mut settings = MechSettings::new(Method::LinearizedBackwardEuler);
+            settings.linear = linear;
+            let mut st = MechStepper::new(settings, &mut sys).unwrap();
+            let (mut x, mut v) = ([0.0, 0.01, 0.0], [0.0, -1.0, 0.0]);
+            st.step(&mut sys, 0.0, &mut x, &mut v, h).unwrap();
+            assert!(
+                (x[1] - y1).abs() < 1e-9,
+                "force {fy}: y = {}, expected {y1}",
+                x[1]
+            );
+            assert!(
+                (v[1] - v1).abs() < 1e-9,
+                "force {fy}: v = {}, expected {v1}",
+                v[1]
+            );
+        }
+    }
+}

@@ -374,6 +374,13 @@ impl MechStepper {
         let method = self.settings.method;
         self.filter.clear();
         sys.constraints(&mut self.filter);
+        if !self.filter.unilateral().is_empty() {
+            if let Some(w) = self.implicit.as_mut() {
+                // The velocity before the approaches are imposed: what a released
+                // approach goes back to (linearised step).
+                w.ve.copy_from_slice(v);
+            }
+        }
         let filter = (!self.filter.is_empty()).then_some(&self.filter);
         if let Some(f) = filter {
             f.impose(v);
@@ -419,21 +426,29 @@ impl MechStepper {
                 // from step to step: on a falling sheet with block Jacobi this takes a
                 // few iterations where a zero guess takes hundreds); PCG drops it when
                 // it is worse than zero (contacts changed).
-                w.dfdx.spmv(&mut w.rhs, v);
-                kv::xpay(&mut w.rhs, &w.f, h);
-                system_matrix(&mut w.a, &w.dfdx, w.dfdv.as_ref(), &self.mass, h * h, h);
-                let li = w
-                    .linear
-                    .solve(&mut w.a, &w.rhs, &mut w.v1, filter)
-                    .map_err(solve_err)?;
+                // One-sided approaches that pull are freed and the system solved again
+                // (see `crate::solve::filter`), at most MAX_RELEASE_ROUNDS times.
+                for round in 0.. {
+                    w.dfdx.spmv(&mut w.rhs, v);
+                    kv::xpay(&mut w.rhs, &w.f, h);
+                    system_matrix(&mut w.a, &w.dfdx, w.dfdv.as_ref(), &self.mass, h * h, h);
+                    let filter = (!self.filter.is_empty()).then_some(&self.filter);
+                    let li = w
+                        .linear
+                        .solve(&mut w.a, &w.rhs, &mut w.v1, filter)
+                        .map_err(&solve_err)?;
+                    info.newton_iterations = 1;
+                    info.linear_iterations += li.iterations;
+                    info.residual = li.residual;
+                    info.solve_seconds += li.seconds;
+                    if round == MAX_RELEASE_ROUNDS
+                        || !release_pulling(&mut self.filter, w, &self.mass, h, v)
+                    {
+                        break;
+                    }
+                }
                 kv::axpy(v, h, &w.v1);
                 kv::axpy(x, h, v);
-                info = StepInfo {
-                    newton_iterations: 1,
-                    linear_iterations: li.iterations,
-                    residual: li.residual,
-                    solve_seconds: li.seconds,
-                };
             }
             Method::BackwardEuler | Method::ImplicitMidpoint | Method::Newmark => {
                 let c = Coeffs::of(method);
@@ -511,6 +526,47 @@ impl MechStepper {
         }
         Ok(info)
     }
+}
+
+/// Most re-solves of a linearised step after freeing pulling approaches (one usually
+/// settles it: freed vertices are those the cloth holds back, and freeing them rarely
+/// makes another pull).
+const MAX_RELEASE_ROUNDS: usize = 2;
+
+/// Frees the one-sided approaches whose constraint pulled towards the obstacle over the
+/// step, and gives them back the velocity they had before the approach was imposed
+/// (`w.ve`). The constraint's impulse along the outward normal n is what imposing the
+/// approach speed took, `m (v_i - w.ve_i) . n`, plus `h` times its force in the last solve
+/// of `A y = b` (`w.v1`, `w.rhs`; `A = M - h dfdv - h^2 dfdx`, rebuilt from the
+/// Jacobians since a direct solve projects `w.a`), `(A y - b)_i . n`; it pulls when that
+/// sum is negative (the cloth would have held the vertex back short of the obstacle).
+/// Returns whether any was freed.
+fn release_pulling(filter: &mut Filter, w: &Implicit, mass: &[f64], h: f64, v: &mut [f64]) -> bool {
+    let n = mass.len();
+    let mut freed = false;
+    let mut k = 0;
+    while let Some(&(i, p)) = filter.unilateral().get(k) {
+        let i = i as usize;
+        let kx = w.dfdx.row_times(i, &w.v1);
+        let kv = w.dfdv.as_ref().map_or([0.0; 3], |d| d.row_times(i, &w.v1));
+        let impulse: f64 = (0..3)
+            .map(|c| {
+                let ay = mass[i] * w.v1[c * n + i] - h * h * kx[c] - h * kv[c];
+                let imposed = mass[i] * (v[c * n + i] - w.ve[c * n + i]);
+                (imposed + h * (ay - w.rhs[c * n + i])) * p[c]
+            })
+            .sum();
+        if impulse < 0.0 {
+            filter.free(i);
+            for c in 0..3 {
+                v[c * n + i] = w.ve[c * n + i];
+            }
+            freed = true;
+        } else {
+            k += 1;
+        }
+    }
+    freed
 }
 
 fn scale_by_inverse_mass(f: &mut [f64], inv_mass: &[f64]) {

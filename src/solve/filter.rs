@@ -15,6 +15,14 @@
 //! ([`Filter::impose`]) and, since every change of velocity is filtered, ends with the
 //! same constrained component. Contacts use it to bring an approaching vertex exactly to
 //! the surface within the step ([`crate::collide::VertexContacts`]).
+//!
+//! Such an approach is a one-sided constraint ([`Filter::approach`]): an obstacle can push
+//! a vertex but not pull it. The filter lists them ([`Filter::unilateral`]); after a solve
+//! the stepper frees those whose constraint force `(A y - b)_i . n` came out negative
+//! (the cloth would have held the vertex back short of the obstacle) and solves again:
+//! one round of an active-set method, in the spirit of the paper's release of contacts
+//! whose constraint force pulls (section 5.3), done within the step because an approach
+//! lasts only one.
 
 use crate::sparse::Bsr3;
 
@@ -27,6 +35,8 @@ pub struct Filter {
     /// Prescribed velocity per constrained vertex (m/s), in its constrained directions.
     z: Vec<[f64; 3]>,
     index_of: Vec<u32>,
+    /// One-sided constraints: vertex and the unit normal the obstacle may push along.
+    unilateral: Vec<(u32, [f64; 3])>,
 }
 
 const FREE: u32 = u32::MAX;
@@ -40,6 +50,7 @@ impl Filter {
             s: Vec::new(),
             z: Vec::new(),
             index_of: vec![FREE; n],
+            unilateral: Vec::new(),
         }
     }
 
@@ -81,6 +92,8 @@ impl Filter {
             k => {
                 self.s[k as usize] = s;
                 self.z[k as usize] = [0.0; 3];
+                // A new constraint replaces a one-sided one (`approach` marks it again).
+                self.unilateral.retain(|&(j, _)| j as usize != i);
             }
         }
     }
@@ -93,6 +106,41 @@ impl Filter {
         self.verts.clear();
         self.s.clear();
         self.z.clear();
+        self.unilateral.clear();
+    }
+
+    /// Frees vertex i (nothing if it is free); the others keep their constraints.
+    pub fn free(&mut self, i: usize) {
+        let k = self.index_of[i];
+        if k == FREE {
+            return;
+        }
+        let k = k as usize;
+        self.index_of[i] = FREE;
+        self.verts.swap_remove(k);
+        self.s.swap_remove(k);
+        self.z.swap_remove(k);
+        if let Some(&moved) = self.verts.get(k) {
+            self.index_of[moved as usize] = k as u32;
+        }
+        self.unilateral.retain(|&(j, _)| j as usize != i);
+    }
+
+    /// A one-sided approach (see the module docs): vertex i moves in the plane normal to
+    /// `normal` (outward from the obstacle, need not be unit) plus `speed` (m/s, negative
+    /// towards the obstacle) along the unit normal, unless the solve finds the constraint
+    /// pulling it, when the stepper frees it.
+    pub fn approach(&mut self, i: usize, normal: [f64; 3], speed: f64) {
+        let p = unit(normal);
+        self.constrain_normal(i, p);
+        self.prescribe(i, p.map(|c| c * speed));
+        self.unilateral.retain(|&(j, _)| j as usize != i);
+        self.unilateral.push((i as u32, p));
+    }
+
+    /// The one-sided constraints: vertex and unit outward normal.
+    pub fn unilateral(&self) -> &[(u32, [f64; 3])] {
+        &self.unilateral
     }
 
     /// Pins vertex i (all three directions constrained).

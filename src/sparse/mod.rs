@@ -230,6 +230,24 @@ impl Bsr3 {
         bsr3_spmv_dot_par(y, self.as_kernel(), x);
     }
 
+    /// Block row i times x: component c of `(A x)_i` (x component-major, length 3n).
+    pub fn row_times(&self, i: usize, x: &[f64]) -> [f64; 3] {
+        let n = self.n();
+        let (s, e) = (
+            self.pattern.row_ptr[i] as usize,
+            self.pattern.row_ptr[i + 1] as usize,
+        );
+        let mut y = [0.0; 3];
+        for k in s..e {
+            let j = self.pattern.col[k] as usize;
+            let b = self.block(k);
+            for (r, yr) in y.iter_mut().enumerate() {
+                *yr += b[3 * r] * x[j] + b[3 * r + 1] * x[n + j] + b[3 * r + 2] * x[2 * n + j];
+            }
+        }
+        y
+    }
+
     /// `r = b - A x` in one pass (parallel, deterministic).
     pub fn residual(&self, r: &mut [f64], x: &[f64], b: &[f64]) {
         bsr3_residual_par(r, self.as_kernel(), x, b);
