@@ -322,7 +322,7 @@ impl Mechanical for Approaching {
         &[1.0]
     }
     fn constraints(&self, filter: &mut largestep::solve::Filter) {
-        filter.approach(0, [0.0, 1.0, 0.0], -self.y0 / self.h);
+        filter.approach(0, [0.0, 1.0, 0.0], -self.y0 / self.h, 0.0);
     }
     fn force(&mut self, _: f64, _: &[f64], _: &[f64], f: &mut [f64]) {
         f.copy_from_slice(&[0.0, self.fy, 0.0]);

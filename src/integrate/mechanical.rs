@@ -189,16 +189,19 @@ enum Linear {
 }
 
 impl Linear {
-    /// Solves `a x = b` under the filter. PCG starts from `x` as given (filtered);
-    /// Cholesky projects `a`.
+    /// Solves `a x = b` under the filter. PCG starts from `x` as given (filtered), and
+    /// when `again` (the same step's system after constraints were freed) keeps the
+    /// preconditioner it built for the first solve; Cholesky projects `a`.
     fn solve(
         &mut self,
         a: &mut Bsr3,
         b: &[f64],
         x: &mut [f64],
         filter: Option<&Filter>,
+        again: bool,
     ) -> Result<SolveInfo, SolveError> {
         match self {
+            Linear::Pcg(p) if again => p.resolve(a, b, x, filter),
             Linear::Pcg(p) => p.solve(a, b, x, filter),
             Linear::Cholesky(c) => {
                 let start = std::time::Instant::now();
@@ -435,7 +438,7 @@ impl MechStepper {
                     let filter = (!self.filter.is_empty()).then_some(&self.filter);
                     let li = w
                         .linear
-                        .solve(&mut w.a, &w.rhs, &mut w.v1, filter)
+                        .solve(&mut w.a, &w.rhs, &mut w.v1, filter, round > 0)
                         .map_err(&solve_err)?;
                     info.newton_iterations = 1;
                     info.linear_iterations += li.iterations;
@@ -539,14 +542,14 @@ const MAX_RELEASE_ROUNDS: usize = 2;
 /// approach speed took, `m (v_i - w.ve_i) . n`, plus `h` times its force in the last solve
 /// of `A y = b` (`w.v1`, `w.rhs`; `A = M - h dfdv - h^2 dfdx`, rebuilt from the
 /// Jacobians since a direct solve projects `w.a`), `(A y - b)_i . n`; it pulls when that
-/// sum is negative (the cloth would have held the vertex back short of the obstacle).
-/// Returns whether any was freed.
+/// sum is below `-m slack` (the cloth would have held the vertex back short of the
+/// obstacle by more than the slack allows). Returns whether any was freed.
 fn release_pulling(filter: &mut Filter, w: &Implicit, mass: &[f64], h: f64, v: &mut [f64]) -> bool {
     let n = mass.len();
     let mut freed = false;
     let mut k = 0;
-    while let Some(&(i, p)) = filter.unilateral().get(k) {
-        let i = i as usize;
+    while let Some(&a) = filter.unilateral().get(k) {
+        let (i, p) = (a.vertex as usize, a.normal);
         let kx = w.dfdx.row_times(i, &w.v1);
         let kv = w.dfdv.as_ref().map_or([0.0; 3], |d| d.row_times(i, &w.v1));
         let impulse: f64 = (0..3)
@@ -556,7 +559,7 @@ fn release_pulling(filter: &mut Filter, w: &Implicit, mass: &[f64], h: f64, v: &
                 (imposed + h * (ay - w.rhs[c * n + i])) * p[c]
             })
             .sum();
-        if impulse < 0.0 {
+        if impulse < -mass[i] * a.slack {
             filter.free(i);
             for c in 0..3 {
                 v[c * n + i] = w.ve[c * n + i];
@@ -717,7 +720,9 @@ impl NewtonProblem for Residual<'_> {
         system_matrix(self.a, self.dfdx, self.dfdv.as_deref(), self.mass, ck, cd);
         kv::scale_copy(self.rhs, -1.0, r);
         dy.fill(0.0);
-        let li = self.linear.solve(self.a, self.rhs, dy, self.filter)?;
+        let li = self
+            .linear
+            .solve(self.a, self.rhs, dy, self.filter, false)?;
         self.linear_iterations += li.iterations;
         self.solve_seconds += li.seconds;
         self.residual = li.residual;

@@ -18,8 +18,9 @@
 //!
 //! Such an approach is a one-sided constraint ([`Filter::approach`]): an obstacle can push
 //! a vertex but not pull it. The filter lists them ([`Filter::unilateral`]); after a solve
-//! the stepper frees those whose constraint force `(A y - b)_i . n` came out negative
-//! (the cloth would have held the vertex back short of the obstacle) and solves again:
+//! the stepper frees those whose constraint impulse along n came out negative by more
+//! than the approach's slack (the cloth would have held the vertex back short of the
+//! obstacle by more than the slack allows) and solves again:
 //! one round of an active-set method, in the spirit of the paper's release of contacts
 //! whose constraint force pulls (section 5.3), done within the step because an approach
 //! lasts only one.
@@ -35,8 +36,22 @@ pub struct Filter {
     /// Prescribed velocity per constrained vertex (m/s), in its constrained directions.
     z: Vec<[f64; 3]>,
     index_of: Vec<u32>,
-    /// One-sided constraints: vertex and the unit normal the obstacle may push along.
-    unilateral: Vec<(u32, [f64; 3])>,
+    /// One-sided constraints.
+    unilateral: Vec<Approach>,
+}
+
+/// A one-sided constraint ([`Filter::approach`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Approach {
+    /// The vertex.
+    pub vertex: u32,
+    /// Unit normal the obstacle may push the vertex along (outward).
+    pub normal: [f64; 3],
+    /// The pull tolerated, as a velocity (m/s): the constraint is freed only when its
+    /// impulse pulls by more than mass times this. A pull of `m s` moves the vertex by at
+    /// most `h s` within the step; contacts set it so that this is the contact thickness,
+    /// which position correction absorbs anyway.
+    pub slack: f64,
 }
 
 const FREE: u32 = u32::MAX;
@@ -93,7 +108,7 @@ impl Filter {
                 self.s[k as usize] = s;
                 self.z[k as usize] = [0.0; 3];
                 // A new constraint replaces a one-sided one (`approach` marks it again).
-                self.unilateral.retain(|&(j, _)| j as usize != i);
+                self.unilateral.retain(|a| a.vertex as usize != i);
             }
         }
     }
@@ -123,23 +138,28 @@ impl Filter {
         if let Some(&moved) = self.verts.get(k) {
             self.index_of[moved as usize] = k as u32;
         }
-        self.unilateral.retain(|&(j, _)| j as usize != i);
+        self.unilateral.retain(|a| a.vertex as usize != i);
     }
 
     /// A one-sided approach (see the module docs): vertex i moves in the plane normal to
     /// `normal` (outward from the obstacle, need not be unit) plus `speed` (m/s, negative
     /// towards the obstacle) along the unit normal, unless the solve finds the constraint
-    /// pulling it, when the stepper frees it.
-    pub fn approach(&mut self, i: usize, normal: [f64; 3], speed: f64) {
+    /// pulling it by more than `slack` (m/s, see [`Approach::slack`]), when the stepper
+    /// frees it.
+    pub fn approach(&mut self, i: usize, normal: [f64; 3], speed: f64, slack: f64) {
         let p = unit(normal);
         self.constrain_normal(i, p);
         self.prescribe(i, p.map(|c| c * speed));
-        self.unilateral.retain(|&(j, _)| j as usize != i);
-        self.unilateral.push((i as u32, p));
+        self.unilateral.retain(|a| a.vertex as usize != i);
+        self.unilateral.push(Approach {
+            vertex: i as u32,
+            normal: p,
+            slack,
+        });
     }
 
-    /// The one-sided constraints: vertex and unit outward normal.
-    pub fn unilateral(&self) -> &[(u32, [f64; 3])] {
+    /// The one-sided constraints.
+    pub fn unilateral(&self) -> &[Approach] {
         &self.unilateral
     }
 

@@ -17,7 +17,7 @@ pub mod newton;
 pub mod pcg;
 
 pub use cholesky::SparseCholesky;
-pub use filter::Filter;
+pub use filter::{Approach, Filter};
 pub use multigrid::Multigrid;
 pub use newton::{Newton, NewtonParams, NewtonProblem};
 pub use pcg::{Pcg, PcgParams, Preconditioner};

@@ -210,6 +210,23 @@ impl Multigrid {
         2 * (fine + coarse)
     }
 
+    /// For `a` solved again after its filter lost a few constraints (one-sided contacts
+    /// freed): remakes what depends on single vertices, the fine level's smoother and its
+    /// `f32` copy, and keeps the coarse levels. Kept, they lack the freed vertices'
+    /// normal directions; the fine smoother, now from the freed vertices' real blocks
+    /// (not the identity the projection had put there), corrects those locally. A
+    /// hierarchy solved directly at the fine level is set up again in full.
+    pub fn refresh_fine(&mut self, a: &Bsr3, filter: Option<&Filter>) -> Result<(), SolveError> {
+        match self.smoother.as_mut() {
+            Some(s) if !self.coarse.is_empty() => {
+                s.factor(a, 0)?;
+                round_to_f32(a.values(), &mut self.fine32);
+                Ok(())
+            }
+            _ => self.setup(a, filter),
+        }
+    }
+
     /// Builds the hierarchy for `a`'s pattern if it is new, then the coarse matrices and
     /// smoothers from `a`'s values. `a` must already be projected by `filter`
     /// ([`Filter::project_matrix`]) when there is one.

@@ -130,7 +130,9 @@ impl Pcg {
         a.as_kernel().spmv_bytes() + 8 * vec_doubles + cycle
     }
 
-    fn setup(&mut self, a: &Bsr3, filter: Option<&Filter>) -> Result<(), SolveError> {
+    /// Builds the preconditioner for `a`; with `full` false (a re-solve, see
+    /// [`Pcg::resolve`]) multigrid keeps its coarse levels.
+    fn setup(&mut self, a: &Bsr3, filter: Option<&Filter>, full: bool) -> Result<(), SolveError> {
         let n = self.n;
         let diag = a.pattern().diag_slots();
         // The matrix is projected under the filter (see `solve`): pinned vertices' blocks
@@ -138,7 +140,8 @@ impl Pcg {
         // special case here.
         match self.params.preconditioner {
             Preconditioner::None => {}
-            Preconditioner::Multigrid => self.mg.setup(a, filter)?,
+            Preconditioner::Multigrid if full => self.mg.setup(a, filter)?,
+            Preconditioner::Multigrid => self.mg.refresh_fine(a, filter)?,
             Preconditioner::Jacobi => {
                 for (i, &slot) in diag.iter().enumerate() {
                     let b = a.block(slot as usize);
@@ -179,6 +182,34 @@ impl Pcg {
         x: &mut [f64],
         filter: Option<&Filter>,
     ) -> Result<SolveInfo, SolveError> {
+        self.solve_with(a, b, x, filter, true)
+    }
+
+    /// [`Pcg::solve`] of a system solved again after its filter lost a few constraints
+    /// (a one-sided contact freed, `crate::solve::Filter::approach`): multigrid keeps the
+    /// coarse levels of the previous solve ([`Multigrid::refresh_fine`]), whose Galerkin
+    /// products cost as much as the re-solve's iterations; block Jacobi and Jacobi are
+    /// remade (one pass over the diagonal). Any fixed symmetric positive definite
+    /// preconditioner leaves PCG exact. Call only after a successful [`Pcg::solve`] of a
+    /// matrix on the same pattern.
+    pub fn resolve(
+        &mut self,
+        a: &mut Bsr3,
+        b: &[f64],
+        x: &mut [f64],
+        filter: Option<&Filter>,
+    ) -> Result<SolveInfo, SolveError> {
+        self.solve_with(a, b, x, filter, false)
+    }
+
+    fn solve_with(
+        &mut self,
+        a: &mut Bsr3,
+        b: &[f64],
+        x: &mut [f64],
+        filter: Option<&Filter>,
+        full: bool,
+    ) -> Result<SolveInfo, SolveError> {
         let start = Instant::now();
         let n = self.n;
         assert_eq!(a.n(), n, "matrix and solver sizes differ");
@@ -187,7 +218,7 @@ impl Pcg {
             f.project_matrix(a);
         }
         let a = &*a;
-        self.setup(a, filter)?;
+        self.setup(a, filter, full)?;
         let filt = |v: &mut [f64]| {
             if let Some(f) = filter {
                 f.apply(v)
