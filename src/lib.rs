@@ -16,6 +16,8 @@ pub mod shapes;
 #[cfg(feature = "cloth")]
 pub mod cloth;
 pub mod collide;
+#[cfg(feature = "fem")]
+pub mod fem;
 pub mod integrate;
 pub mod io;
 pub mod limits;

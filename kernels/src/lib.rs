@@ -17,6 +17,7 @@
 //!   never by the number of threads, so their results are bitwise independent of it.
 
 pub mod cloth;
+pub mod fem;
 pub mod interp;
 pub mod mass_spring;
 pub mod par;

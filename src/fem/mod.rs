@@ -1,0 +1,592 @@
+//! Tetrahedral finite elements: linear tetrahedra with a hyperelastic material
+//! (`largestep_kernels::fem`: linear, corotational, St. Venant-Kirchhoff, neo-Hookean and
+//! stable neo-Hookean), lumped masses, gravity, pinned vertices and obstacle contacts.
+//!
+//! [`FemDesc`] (editable) is checked and built into an immutable [`Fem`] model: per
+//! element `Dm^-1` (nine arrays, structure of arrays) and the rest volume, computed once;
+//! per vertex a quarter of the mass of each element around it (`rho V / 4`, the lumped
+//! mass matrix); the boundary surface (faces that belong to one element, oriented
+//! outward), which frames write and loads see. Forces and stiffness blocks are computed
+//! per element into element-major buffers and gathered per vertex and per matrix slot in
+//! a fixed order (`crate::sparse::assembly`), so results do not depend on the thread
+//! count. `Fem` implements [`MechModel`], so every integrator steps it through
+//! [`crate::simulation::MechSimulation`].
+//!
+//! The rest mesh must have positive volumes: an inverted or flat element is an error
+//! naming it and its signed volume ([`FemDesc::reorient`] swaps two vertices of each
+//! inverted one first, for meshes written with the other orientation). Nodes no element
+//! uses carry no mass; they are held fixed and listed in [`Fem::unused_nodes`].
+
+pub mod mesh;
+
+use crate::collide::Obstacle;
+use crate::integrate::{IntegrateError, MechState};
+use crate::loads::{Body, Gravity, Loads};
+use crate::simulation::{MechModel, Stage};
+use crate::soa::Vec3s;
+use crate::solve::Filter;
+use crate::sparse::{Bsr3, Bsr3Pattern, SparseError};
+use crate::sparse::{ElementAssembly, LocalLayout, VectorGather};
+use crate::validate::{check, require, ModelError, Rule};
+pub use largestep_kernels::fem::Material;
+use largestep_kernels::fem::{element_forces, element_stiffness, signed_volume, Lame, M3};
+use largestep_kernels::gather_nodes;
+use rayon::prelude::*;
+use std::collections::HashMap;
+use std::sync::Arc;
+
+/// Elements per parallel task (fixed: thread-count independent).
+const CHUNK: usize = 1024;
+
+/// Doubles per element in the stiffness buffer: the ten blocks `K_ab`, `a <= b`.
+const TET_K: usize = 90;
+
+/// A material: the model and its constants.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FemMaterial {
+    /// The constitutive model.
+    pub model: Material,
+    /// Young's modulus E (Pa), > 0.
+    pub young: f64,
+    /// Poisson's ratio nu, in (-1, 0.5).
+    pub poisson: f64,
+    /// Density (kg/m^3), > 0.
+    pub density: f64,
+}
+
+impl FemMaterial {
+    /// Structural steel: E = 200 GPa, nu = 0.30, 7850 kg/m^3 (typical handbook values,
+    /// e.g. ASM Handbook vol. 1).
+    pub fn steel(model: Material) -> Self {
+        Self {
+            model,
+            young: 200e9,
+            poisson: 0.30,
+            density: 7850.0,
+        }
+    }
+    /// Aluminium alloy: E = 69 GPa, nu = 0.33, 2700 kg/m^3.
+    pub fn aluminium(model: Material) -> Self {
+        Self {
+            model,
+            young: 69e9,
+            poisson: 0.33,
+            density: 2700.0,
+        }
+    }
+    /// Soft rubber: E = 1 MPa (0.01 to 0.1 GPa for most rubbers; 1 MPa is a soft one),
+    /// nu = 0.49 (nearly incompressible), 1100 kg/m^3.
+    pub fn rubber(model: Material) -> Self {
+        Self {
+            model,
+            young: 1e6,
+            poisson: 0.49,
+            density: 1100.0,
+        }
+    }
+    /// Soft tissue (liver-like): E = 10 kPa, nu = 0.45, 1060 kg/m^3.
+    pub fn soft_tissue(model: Material) -> Self {
+        Self {
+            model,
+            young: 1e4,
+            poisson: 0.45,
+            density: 1060.0,
+        }
+    }
+
+    /// The Lamé parameters.
+    pub fn lame(&self) -> Lame {
+        Lame::from_young_poisson(self.young, self.poisson)
+    }
+
+    fn validate(&self) -> Result<(), ModelError> {
+        check("material", 0, "young", self.young, Rule::Positive)?;
+        check("material", 0, "density", self.density, Rule::Positive)?;
+        let nu = self.poisson;
+        require(
+            "material",
+            0,
+            "poisson",
+            nu,
+            nu > -1.0 && nu < 0.5,
+            "must lie in (-1, 0.5)",
+        )
+    }
+}
+
+/// An editable tetrahedral model (see the module docs).
+#[derive(Clone, Debug)]
+pub struct FemDesc {
+    /// Rest (and initial) positions (m).
+    pub positions: Vec<[f64; 3]>,
+    /// Initial velocities (m/s); empty means zero.
+    pub velocities: Vec<[f64; 3]>,
+    /// Tetrahedra, four vertex indices each, with positive rest volume.
+    pub tets: Vec<[u32; 4]>,
+    /// The material of every element.
+    pub material: FemMaterial,
+    /// Gravity (m/s^2).
+    pub gravity: [f64; 3],
+    /// Pinned vertices.
+    pub pinned: Vec<usize>,
+    /// Collision obstacles, resolved as contacts ([`crate::collide::VertexContacts`]).
+    pub obstacles: Vec<Obstacle>,
+    /// Coulomb friction coefficient of contacts, >= 0.
+    pub friction: f64,
+}
+
+impl FemDesc {
+    /// A model of `positions` and `tets` in `material`, with no gravity, pins or
+    /// obstacles.
+    pub fn new(positions: Vec<[f64; 3]>, tets: Vec<[u32; 4]>, material: FemMaterial) -> Self {
+        Self {
+            positions,
+            velocities: Vec::new(),
+            tets,
+            material,
+            gravity: [0.0; 3],
+            pinned: Vec::new(),
+            obstacles: Vec::new(),
+            friction: 0.0,
+        }
+    }
+
+    /// Swaps the last two vertices of every element with a negative rest volume (a mesh
+    /// written with the other orientation convention); returns how many. Flat elements
+    /// stay as they are (and are errors at build).
+    pub fn reorient(&mut self) -> usize {
+        let mut swapped = 0;
+        for t in &mut self.tets {
+            if t.iter().any(|&i| i as usize >= self.positions.len()) {
+                continue;
+            }
+            let x = t.map(|i| self.positions[i as usize]);
+            if signed_volume(&x) < 0.0 {
+                t.swap(2, 3);
+                swapped += 1;
+            }
+        }
+        swapped
+    }
+
+    /// Checks the description and builds the model and its initial state.
+    pub fn build(&self) -> Result<(Fem, MechState), ModelError> {
+        let n = self.positions.len();
+        if n == 0 {
+            return Err(ModelError::Empty { what: "vertices" });
+        }
+        if self.tets.is_empty() {
+            return Err(ModelError::Empty { what: "tetrahedra" });
+        }
+        if !self.velocities.is_empty() && self.velocities.len() != n {
+            return Err(ModelError::Length {
+                what: "velocities",
+                got: self.velocities.len(),
+                expected: n,
+                per: "vertex",
+            });
+        }
+        for (i, p) in self.positions.iter().enumerate() {
+            for (c, &x) in p.iter().enumerate() {
+                check("vertex", i, ["x", "y", "z"][c], x, Rule::Coordinate)?;
+            }
+        }
+        for (i, p) in self.velocities.iter().enumerate() {
+            for (c, &x) in p.iter().enumerate() {
+                check("vertex", i, ["vx", "vy", "vz"][c], x, Rule::Finite)?;
+            }
+        }
+        self.material.validate()?;
+        for (c, &g) in self.gravity.iter().enumerate() {
+            check("gravity", c, "g", g, Rule::Finite)?;
+        }
+        check("contact", 0, "friction", self.friction, Rule::NonNegative)?;
+        for (k, &p) in self.pinned.iter().enumerate() {
+            if p >= n {
+                return Err(ModelError::Missing {
+                    item: "pinned",
+                    index: k,
+                    target: "vertex",
+                    targets: "vertices",
+                    named: p,
+                    n,
+                });
+            }
+        }
+        for (i, o) in self.obstacles.iter().enumerate() {
+            o.validate(i)?;
+        }
+        let mut dm_inv: [Vec<f64>; 9] =
+            std::array::from_fn(|_| Vec::with_capacity(self.tets.len()));
+        let mut volume = Vec::with_capacity(self.tets.len());
+        let mut mass = vec![0.0; n];
+        let rho = self.material.density;
+        for (e, t) in self.tets.iter().enumerate() {
+            for &i in t {
+                if i as usize >= n {
+                    return Err(ModelError::Missing {
+                        item: "tetrahedron",
+                        index: e,
+                        target: "vertex",
+                        targets: "vertices",
+                        named: i as usize,
+                        n,
+                    });
+                }
+            }
+            let x = t.map(|i| self.positions[i as usize]);
+            let v = signed_volume(&x);
+            // A volume below 1e-12 of the element's bounding cube is flat for the
+            // inverse of Dm (its condition number would pass 1e12).
+            let size = (0..3)
+                .map(|c| {
+                    let (lo, hi) = x
+                        .iter()
+                        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
+                            (lo.min(p[c]), hi.max(p[c]))
+                        });
+                    hi - lo
+                })
+                .fold(0.0, f64::max);
+            if v.is_nan() || v <= 1e-12 * size.powi(3) {
+                return Err(ModelError::Element {
+                    item: "tetrahedron",
+                    index: e,
+                    what: format!(
+                        "(vertices {}, {}, {}, {}) has rest volume {v:e} m^3: {} (swap two of its vertices, or reorient the mesh)",
+                        t[0],
+                        t[1],
+                        t[2],
+                        t[3],
+                        if v < 0.0 { "inverted" } else { "flat" }
+                    ),
+                });
+            }
+            let inv = largestep_kernels::fem::inverse(&largestep_kernels::fem::shape_matrix(&x));
+            for (k, d) in dm_inv.iter_mut().enumerate() {
+                d.push(inv[k]);
+            }
+            volume.push(v);
+            for &i in t {
+                mass[i as usize] += 0.25 * rho * v;
+            }
+        }
+        let unused: Vec<u32> = (0..n as u32).filter(|&i| mass[i as usize] == 0.0).collect();
+        let mut fixed: Vec<u32> = self
+            .pinned
+            .iter()
+            .map(|&p| p as u32)
+            .chain(unused.iter().copied())
+            .collect();
+        fixed.sort_unstable();
+        fixed.dedup();
+        let surface = boundary_faces(&self.tets);
+        let sparse = |e: SparseError| ModelError::TooLarge(e.to_string());
+        let gather = VectorGather::new(n, &self.tets, &LocalLayout::dense(4)).map_err(sparse)?;
+        let model = Fem {
+            n,
+            tets: self.tets.clone(),
+            dm_inv,
+            volume,
+            mass,
+            material: self.material,
+            lame: self.material.lame(),
+            surface,
+            fixed,
+            pinned: self.pinned.len(),
+            unused,
+            loads: Loads {
+                gravity: Gravity(self.gravity),
+                wind: None,
+                field: None,
+            },
+            obstacles: self.obstacles.clone(),
+            friction: self.friction,
+            gather,
+        };
+        let x = Vec3s::from_aos(&self.positions);
+        let v = if self.velocities.is_empty() {
+            Vec3s::zeros(n)
+        } else {
+            Vec3s::from_aos(&self.velocities)
+        };
+        Ok((model, MechState { x, v }))
+    }
+}
+
+/// The faces that belong to one tetrahedron, oriented outward (for a positively oriented
+/// `(a, b, c, d)`: `(a, c, b)`, `(a, b, d)`, `(a, d, c)`, `(b, c, d)`), in element order.
+pub fn boundary_faces(tets: &[[u32; 4]]) -> Vec<[u32; 3]> {
+    let faces = |t: &[u32; 4]| {
+        let [a, b, c, d] = *t;
+        [[a, c, b], [a, b, d], [a, d, c], [b, c, d]]
+    };
+    let key = |f: &[u32; 3]| {
+        let mut k = *f;
+        k.sort_unstable();
+        k
+    };
+    let mut count: HashMap<[u32; 3], u32> = HashMap::with_capacity(2 * tets.len());
+    for t in tets {
+        for f in faces(t) {
+            *count.entry(key(&f)).or_insert(0) += 1;
+        }
+    }
+    tets.iter()
+        .flat_map(faces)
+        .filter(|f| count[&key(f)] == 1)
+        .collect()
+}
+
+/// An immutable tetrahedral model (see the module docs).
+#[derive(Clone, Debug)]
+pub struct Fem {
+    n: usize,
+    tets: Vec<[u32; 4]>,
+    /// `Dm^-1` per element, entry k (row-major) in array k.
+    dm_inv: [Vec<f64>; 9],
+    /// Rest volume per element (m^3).
+    volume: Vec<f64>,
+    mass: Vec<f64>,
+    material: FemMaterial,
+    lame: Lame,
+    surface: Vec<[u32; 3]>,
+    /// Pinned and unused vertices, sorted.
+    fixed: Vec<u32>,
+    pinned: usize,
+    unused: Vec<u32>,
+    loads: Loads,
+    obstacles: Vec<Obstacle>,
+    friction: f64,
+    gather: VectorGather,
+}
+
+/// Scratch buffers of a [`Fem`] model's evaluations.
+#[derive(Debug)]
+pub struct FemWork {
+    /// Element forces (12 per element).
+    f: Vec<f64>,
+    /// Stiffness blocks (90 per element) and their assembly, built for implicit methods.
+    jac: Option<(Vec<f64>, ElementAssembly)>,
+}
+
+impl Fem {
+    /// Tetrahedra.
+    pub fn tets(&self) -> &[[u32; 4]] {
+        &self.tets
+    }
+
+    /// Rest volume of each element (m^3).
+    pub fn volumes(&self) -> &[f64] {
+        &self.volume
+    }
+
+    /// The material.
+    pub fn material(&self) -> FemMaterial {
+        self.material
+    }
+
+    /// Nodes no element uses (held fixed, massless).
+    pub fn unused_nodes(&self) -> &[u32] {
+        &self.unused
+    }
+
+    /// `Dm^-1` of element e.
+    pub fn dm_inv(&self, e: usize) -> M3 {
+        std::array::from_fn(|k| self.dm_inv[k][e])
+    }
+
+    /// The deformation gradient of element e at positions x.
+    pub fn deformation_gradient(&self, e: usize, x: &[f64]) -> M3 {
+        largestep_kernels::fem::deformation_gradient(
+            &gather_nodes(x, self.n, &self.tets[e]),
+            &self.dm_inv(e),
+        )
+    }
+
+    /// The first Piola-Kirchhoff stress of element e at positions x (Pa).
+    pub fn stress(&self, e: usize, x: &[f64]) -> M3 {
+        largestep_kernels::fem::pk1(
+            self.material.model,
+            self.lame,
+            &self.deformation_gradient(e, x),
+        )
+    }
+
+    /// The elastic energy (J) at positions x, without loads.
+    pub fn elastic_energy(&self, x: &[f64]) -> f64 {
+        let m = self.material.model;
+        (0..self.tets.len())
+            .into_par_iter()
+            .with_min_len(CHUNK)
+            .map(|e| {
+                let f = self.deformation_gradient(e, x);
+                self.volume[e] * largestep_kernels::fem::energy_density(m, self.lame, &f)
+            })
+            .sum::<f64>()
+    }
+
+    fn body(&self) -> Body<'_> {
+        Body {
+            mass: &self.mass,
+            triangles: &self.surface,
+        }
+    }
+
+    /// Element forces into `out` (12 per element, element-major), in fixed chunks.
+    fn element_forces_into(&self, out: &mut [f64], x: &[f64]) {
+        let (m, l, n) = (self.material.model, self.lame, self.n);
+        out.par_chunks_mut(12 * CHUNK)
+            .enumerate()
+            .for_each(|(c, o)| {
+                for (le, oe) in o.chunks_exact_mut(12).enumerate() {
+                    let e = c * CHUNK + le;
+                    let mut f = [[0.0; 3]; 4];
+                    element_forces(
+                        &mut f,
+                        m,
+                        l,
+                        &gather_nodes(x, n, &self.tets[e]),
+                        &self.dm_inv(e),
+                        self.volume[e],
+                    );
+                    oe.copy_from_slice(f.as_flattened());
+                }
+            });
+    }
+}
+
+impl MechModel for Fem {
+    type Work = FemWork;
+
+    fn work(&self) -> FemWork {
+        FemWork {
+            f: vec![0.0; self.gather.vector_buffer_len()],
+            jac: None,
+        }
+    }
+
+    fn vertex_count(&self) -> usize {
+        self.n
+    }
+
+    fn mass(&self) -> &[f64] {
+        &self.mass
+    }
+
+    fn constraints(&self, filter: &mut Filter) {
+        for &p in &self.fixed {
+            filter.fix(p as usize);
+        }
+    }
+
+    fn force(&self, work: &mut FemWork, t: f64, x: &[f64], v: &[f64], f: &mut [f64]) {
+        self.loads.forces(t, &self.body(), x, v, f);
+        self.element_forces_into(&mut work.f, x);
+        self.gather.gather_vectors_add(&work.f, f);
+    }
+
+    fn potential_energy(&self, _t: f64, x: &[f64]) -> Option<f64> {
+        Some(self.elastic_energy(x) + self.loads.potential(&self.body(), x))
+    }
+
+    fn prepare_jacobians(
+        &self,
+        work: &mut FemWork,
+    ) -> Result<Option<Arc<Bsr3Pattern>>, SparseError> {
+        if work.jac.is_none() {
+            let asm = ElementAssembly::new(self.n, &self.tets, LocalLayout::symmetric(4))?;
+            work.jac = Some((vec![0.0; asm.block_buffer_len()], asm));
+        }
+        Ok(work.jac.as_ref().map(|(_, a)| a.pattern().clone()))
+    }
+
+    fn force_jacobians(
+        &self,
+        work: &mut FemWork,
+        t: f64,
+        x: &[f64],
+        v: &[f64],
+        f: &mut [f64],
+        dfdx: &mut Bsr3,
+        _dfdv: Option<&mut Bsr3>,
+    ) -> Result<(), IntegrateError> {
+        self.prepare_jacobians(work)
+            .map_err(IntegrateError::Sparse)?;
+        self.loads.forces(t, &self.body(), x, v, f);
+        let (m, l, n) = (self.material.model, self.lame, self.n);
+        let FemWork { f: ef, jac } = work;
+        let (kbuf, asm) = jac.as_mut().expect("prepared above");
+        ef.par_chunks_mut(12 * CHUNK)
+            .zip(kbuf.par_chunks_mut(TET_K * CHUNK))
+            .enumerate()
+            .for_each(|(c, (fo, ko))| {
+                for le in 0..fo.len() / 12 {
+                    let e = c * CHUNK + le;
+                    let mut fe = [[0.0; 3]; 4];
+                    element_stiffness(
+                        &mut fe,
+                        &mut ko[TET_K * le..TET_K * (le + 1)],
+                        m,
+                        l,
+                        &gather_nodes(x, n, &self.tets[e]),
+                        &self.dm_inv(e),
+                        self.volume[e],
+                    );
+                    fo[12 * le..12 * le + 12].copy_from_slice(fe.as_flattened());
+                }
+            });
+        self.gather.gather_vectors_add(ef, f);
+        asm.gather_blocks(kbuf, dfdx);
+        Ok(())
+    }
+
+    fn obstacles(&self) -> &[Obstacle] {
+        &self.obstacles
+    }
+
+    fn contact_friction(&self) -> Option<f64> {
+        (!self.obstacles.is_empty()).then_some(self.friction)
+    }
+
+    fn fixed_vertices(&self) -> &[u32] {
+        &self.fixed
+    }
+
+    fn stages(&self) -> Vec<Stage> {
+        let m = &self.material;
+        let mut stages = vec![Stage::built(
+            "tetrahedral elements",
+            format!(
+                "{} vertices, {} tetrahedra, {:?}, E = {} Pa, nu = {}",
+                self.n,
+                self.tets.len(),
+                m.model,
+                m.young,
+                m.poisson
+            ),
+        )];
+        stages.extend(self.loads.stages());
+        stages.push(Stage::pinned(self.pinned));
+        if !self.unused.is_empty() {
+            stages.push(Stage::built(
+                "unused nodes held fixed",
+                format!("{} nodes in no element", self.unused.len()),
+            ));
+        }
+        stages.push(if self.obstacles.is_empty() {
+            Stage::left_out("collision structures", "the scene has no colliders")
+        } else {
+            let kinds: Vec<&str> = self.obstacles.iter().map(|o| o.kind()).collect();
+            Stage::built(
+                "obstacle contacts (constraint filter + position correction)",
+                kinds.join(", "),
+            )
+        });
+        stages
+    }
+
+    fn triangles(&self) -> &[[u32; 3]] {
+        &self.surface
+    }
+}
