@@ -10,7 +10,7 @@ use largestep::simulation::{MechModel, MechSimulation};
 use largestep::validate::ModelError;
 use largestep_kernels::fem::{
     det, element_forces, element_stiffness, energy_density, mul, pk1, pk1_derivative,
-    pk1_differential, Lame, M3,
+    pk1_differential, project_psd, Lame, M3,
 };
 use proptest::prelude::*;
 use std::path::{Path, PathBuf};
@@ -123,6 +123,77 @@ proptest! {
     }
 }
 
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+
+    /// The definiteness fix makes any symmetric 9x9 matrix positive semi-definite, leaves
+    /// a semi-definite one as it is, and is idempotent; the compressed neo-Hookean tangent
+    /// (indefinite) becomes semi-definite.
+    #[test]
+    fn the_definiteness_fix_projects_onto_semi_definite(a in prop::array::uniform32(-1.0f64..1.0), v in prop::array::uniform9(-1.0f64..1.0)) {
+        let mut m = [0.0f64; 81];
+        for i in 0..9 {
+            for j in 0..=i {
+                let x = a[(i * 9 + j) % 32] * (1.0 + (i * j) as f64 * 0.1);
+                m[i * 9 + j] = x;
+                m[j * 9 + i] = x;
+            }
+        }
+        let quad = |m: &[f64; 81], v: &[f64; 9]| -> f64 {
+            (0..9).map(|i| (0..9).map(|j| v[i] * m[i * 9 + j] * v[j]).sum::<f64>()).sum()
+        };
+        let mut p = m;
+        project_psd(&mut p);
+        prop_assert!(quad(&p, &v) >= -1e-12 * max_abs(&m), "vT P v = {}", quad(&p, &v));
+        let mut again = p;
+        project_psd(&mut again);
+        for k in 0..81 {
+            prop_assert!((again[k] - p[k]).abs() <= 1e-10 * max_abs(&m));
+        }
+        // A semi-definite matrix (P itself, shifted up) is left alone.
+        let mut shifted = p;
+        for i in 0..9 { shifted[i * 9 + i] += 0.1; }
+        let before = shifted;
+        prop_assert!(!project_psd(&mut shifted) || (0..81).all(|k| (shifted[k] - before[k]).abs() <= 1e-10));
+    }
+}
+
+/// Compressed to half its length, a neo-Hookean element's tangent is indefinite; the
+/// projection makes it semi-definite and leaves the rest state's tangent (definite) as it
+/// is.
+#[test]
+fn compression_makes_the_tangent_indefinite_and_the_fix_repairs_it() {
+    let l = lame();
+    let f: M3 = [0.5, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+    for m in [
+        Material::NeoHookean,
+        Material::StableNeoHookean,
+        Material::StVenantKirchhoff,
+    ] {
+        let t = pk1_derivative(m, l, &f);
+        let mut p = t;
+        let changed = project_psd(&mut p);
+        let rest = pk1_derivative(m, l, &largestep_kernels::fem::I3);
+        let mut r = rest;
+        assert!(!project_psd(&mut r), "{m:?}: the rest tangent is definite");
+        if changed {
+            // Some direction had negative curvature before and has none after.
+            let v: [f64; 9] = [0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+            let q = |m: &[f64; 81]| -> f64 {
+                (0..9)
+                    .map(|i| (0..9).map(|j| v[i] * m[i * 9 + j] * v[j]).sum::<f64>())
+                    .sum()
+            };
+            assert!(q(&p) >= -1e-9 * l.mu, "{m:?}");
+        }
+    }
+    let mut st = pk1_derivative(Material::StVenantKirchhoff, l, &f);
+    assert!(
+        project_psd(&mut st),
+        "St. Venant-Kirchhoff at 50% compression is indefinite"
+    );
+}
+
 fn unit_tet() -> [[f64; 3]; 4] {
     [
         [0.0, 0.0, 0.0],
@@ -156,7 +227,7 @@ fn element_forces_and_stiffness_match_finite_differences() {
     for m in ALL {
         let mut f = [[0.0; 3]; 4];
         let mut k = vec![0.0; 90];
-        element_stiffness(&mut f, &mut k, m, l, &x, &dm_inv, vol);
+        element_stiffness(&mut f, &mut k, m, l, &x, &dm_inv, vol, false);
         let h = 1e-6;
         let scale = l.mu * vol;
         for b in 0..4 {
@@ -487,5 +558,58 @@ fn a_clamped_beam_sags_under_gravity() {
         assert!(y < -1e-3 && y > -0.5, "{m:?}: tip at y = {y}");
         assert_eq!(sim.state().x.get(clamped[0]), mesh.positions[clamped[0]]);
         assert!(sim.energy().kinetic.is_finite());
+    }
+}
+
+fn scene_path(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("scenes")
+        .join(name)
+}
+
+/// The shipped FEM scenes load (the ball reads TetGen's sphere beside the repository)
+/// and the cantilever runs end to end: frames of its boundary surface, a finite energy,
+/// the clamp held.
+#[test]
+fn fem_scenes_load_and_the_cantilever_runs() {
+    use largestep::scene::{Runner, Scene};
+    let ball = Scene::load(&scene_path("fem-ball.toml")).unwrap();
+    assert!(ball.into_simulation().is_some());
+    let scene = Scene::load(&scene_path("fem-cantilever.toml")).unwrap();
+    let out = std::env::temp_dir().join(format!("largestep-fem-{}", std::process::id()));
+    let mut runner = Runner::new(scene, &out);
+    let summary = runner.run(Some(3), &mut |_| {}).unwrap();
+    assert_eq!(summary.frames_written, 4);
+    assert!(summary.energy.1.is_finite() && summary.energy.1 < summary.energy.0);
+    let frame = std::fs::read_to_string(out.join("frames/frame_00003.obj")).unwrap();
+    assert_eq!(
+        frame.lines().filter(|l| l.starts_with("f ")).count(),
+        2 * 2 * (20 * 2 * 2 + 2 * 2)
+    );
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+/// Mistakes in a `[fem]` table are errors at their line: an unknown material model, a
+/// pin box that selects nothing, a missing constant without a preset, a Poisson's ratio
+/// of 0.5, a vertex that does not exist.
+#[test]
+fn fem_scene_errors_name_the_line() {
+    use largestep::scene::Scene;
+    let base = std::fs::read_to_string(scene_path("fem-cantilever.toml")).unwrap();
+    let cases: [(&str, &str, &str); 5] = [
+        ("model = \"corotational\"", "model = \"corotation\"", "unknown material model `corotation`"),
+        ("normal = [1.0, 0.0, 0.0]", "normal = [1.0, 0.0, 0.0]\n[[fem.pin_box]]\nmin = [5.0, 5.0, 5.0]\nmax = [6.0, 6.0, 6.0]", "selects no vertex"),
+        ("density = 1000.0", "", "give density or a preset"),
+        ("poisson = 0.3", "poisson = 0.5", "(-1, 0.5)"),
+        ("[fem]", "[fem]\npinned = [100000]", "vertex 100000 does not exist"),
+    ];
+    for (from, to, says) in cases {
+        assert!(base.contains(from), "{from}");
+        let text = base.replacen(from, to, 1);
+        let e = Scene::parse(&text, "bad.toml")
+            .err()
+            .map(|e| e.to_string())
+            .unwrap_or_else(|| panic!("{to}: no error"));
+        assert!(e.contains(says) && e.starts_with("bad.toml:"), "{e}");
     }
 }

@@ -332,6 +332,76 @@ pub fn pk1_derivative(m: Material, l: Lame, f: &M3) -> [f64; 81] {
     out
 }
 
+/// Projects a symmetric 9x9 matrix (row-major) onto the positive semi-definite cone in
+/// place: eigenvalues below zero are set to zero (Teran et al. 2005 project the tangent
+/// per element so; here the whole 9x9 `dP/dF` is diagonalised by cyclic Jacobi rotations,
+/// which needs no structure of the material). With a semi-definite `dP/dF` the element
+/// stiffness `-V G^T (dP/dF) G` is negative semi-definite, so `M - h^2 K` stays positive
+/// definite however far the element is compressed. Returns whether anything changed.
+pub fn project_psd(a: &mut [f64; 81]) -> bool {
+    const N: usize = 9;
+    let mut d = *a;
+    let mut q = [0.0f64; 81];
+    for i in 0..N {
+        q[i * N + i] = 1.0;
+    }
+    let norm: f64 = d.iter().map(|v| v * v).sum::<f64>().sqrt();
+    if norm == 0.0 || !norm.is_finite() {
+        return false;
+    }
+    for _sweep in 0..30 {
+        let off: f64 = (0..N)
+            .flat_map(|i| (0..N).filter(move |&j| j != i).map(move |j| (i, j)))
+            .map(|(i, j)| d[i * N + j] * d[i * N + j])
+            .sum::<f64>()
+            .sqrt();
+        if off <= 1e-15 * norm {
+            break;
+        }
+        for p in 0..N - 1 {
+            for r in p + 1..N {
+                let apr = d[p * N + r];
+                if apr.abs() <= 1e-300 {
+                    continue;
+                }
+                // The rotation that zeroes (p, r) (Golub and Van Loan, algorithm 8.4.1).
+                let theta = (d[r * N + r] - d[p * N + p]) / (2.0 * apr);
+                let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
+                let t = if theta == 0.0 { 1.0 } else { t };
+                let c = 1.0 / (t * t + 1.0).sqrt();
+                let sn = t * c;
+                for k in 0..N {
+                    let (dkp, dkr) = (d[k * N + p], d[k * N + r]);
+                    d[k * N + p] = c * dkp - sn * dkr;
+                    d[k * N + r] = sn * dkp + c * dkr;
+                }
+                for k in 0..N {
+                    let (dpk, drk) = (d[p * N + k], d[r * N + k]);
+                    d[p * N + k] = c * dpk - sn * drk;
+                    d[r * N + k] = sn * dpk + c * drk;
+                }
+                for k in 0..N {
+                    let (qkp, qkr) = (q[k * N + p], q[k * N + r]);
+                    q[k * N + p] = c * qkp - sn * qkr;
+                    q[k * N + r] = sn * qkp + c * qkr;
+                }
+            }
+        }
+    }
+    let lambda: [f64; N] = std::array::from_fn(|i| d[i * N + i]);
+    if lambda.iter().all(|&l| l >= 0.0) {
+        return false;
+    }
+    for i in 0..N {
+        for j in 0..N {
+            a[i * N + j] = (0..N)
+                .map(|k| q[i * N + k] * lambda[k].max(0.0) * q[j * N + k])
+                .sum();
+        }
+    }
+    true
+}
+
 /// The rest shape matrix `Dm = [X1 - X0, X2 - X0, X3 - X0]` (columns) of a tetrahedron.
 #[inline]
 pub fn shape_matrix(x: &[[f64; 3]; 4]) -> M3 {
@@ -392,7 +462,10 @@ pub fn element_forces(
 
 /// An element's forces (as [`element_forces`]) and its ten stiffness blocks `K_ab =
 /// df_a/dx_b`, `a <= b`, in row order `(0,0) (0,1) (0,2) (0,3) (1,1) (1,2) (1,3) (2,2)
-/// (2,3) (3,3)`, each 3x3 row-major, into `k` (90 values).
+/// (2,3) (3,3)`, each 3x3 row-major, into `k` (90 values). With `project`, the tangent is
+/// made positive semi-definite first ([`project_psd`], the definiteness fix): the blocks
+/// are then exact only where the material's tangent is already definite.
+#[allow(clippy::too_many_arguments)]
 pub fn element_stiffness(
     f: &mut [[f64; 3]; 4],
     k: &mut [f64],
@@ -401,11 +474,15 @@ pub fn element_stiffness(
     x: &[[f64; 3]; 4],
     dm_inv: &M3,
     volume: f64,
+    project: bool,
 ) {
     assert_eq!(k.len(), 90, "ten 3x3 blocks");
     element_forces(f, m, l, x, dm_inv, volume);
     let fg = deformation_gradient(x, dm_inv);
-    let dp = pk1_derivative(m, l, &fg);
+    let mut dp = pk1_derivative(m, l, &fg);
+    if project {
+        project_psd(&mut dp);
+    }
     let g = shape_gradients(dm_inv);
     // t[a][i][k][l] = sum_j dP_ij/dF_kl g_a,j, then K_ab,ik = -V sum_l t g_b,l.
     let mut t = [[0.0f64; 27]; 4];

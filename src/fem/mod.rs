@@ -18,6 +18,7 @@
 //! uses carry no mass; they are held fixed and listed in [`Fem::unused_nodes`].
 
 pub mod mesh;
+pub mod scene;
 
 use crate::collide::Obstacle;
 use crate::integrate::{IntegrateError, MechState};
@@ -133,6 +134,11 @@ pub struct FemDesc {
     pub obstacles: Vec<Obstacle>,
     /// Coulomb friction coefficient of contacts, >= 0.
     pub friction: f64,
+    /// Make each element's tangent positive semi-definite (the definiteness fix,
+    /// `largestep_kernels::fem::project_psd`), so implicit systems stay definite under
+    /// compression and inversion; the Jacobian is then exact only where the material's
+    /// tangent is definite. Default on.
+    pub definiteness_fix: bool,
 }
 
 impl FemDesc {
@@ -148,6 +154,7 @@ impl FemDesc {
             pinned: Vec::new(),
             obstacles: Vec::new(),
             friction: 0.0,
+            definiteness_fix: true,
         }
     }
 
@@ -302,6 +309,7 @@ impl FemDesc {
             },
             obstacles: self.obstacles.clone(),
             friction: self.friction,
+            definiteness_fix: self.definiteness_fix,
             gather,
         };
         let x = Vec3s::from_aos(&self.positions);
@@ -358,6 +366,7 @@ pub struct Fem {
     loads: Loads,
     obstacles: Vec<Obstacle>,
     friction: f64,
+    definiteness_fix: bool,
     gather: VectorGather,
 }
 
@@ -532,6 +541,7 @@ impl MechModel for Fem {
                         &gather_nodes(x, n, &self.tets[e]),
                         &self.dm_inv(e),
                         self.volume[e],
+                        self.definiteness_fix,
                     );
                     fo[12 * le..12 * le + 12].copy_from_slice(fe.as_flattened());
                 }
@@ -566,6 +576,14 @@ impl MechModel for Fem {
                 m.poisson
             ),
         )];
+        stages.push(if self.definiteness_fix {
+            Stage::built(
+                "definiteness fix",
+                "each element's tangent projected to semi-definite",
+            )
+        } else {
+            Stage::left_out("definiteness fix", "definiteness_fix = false")
+        });
         stages.extend(self.loads.stages());
         stages.push(Stage::pinned(self.pinned));
         if !self.unused.is_empty() {

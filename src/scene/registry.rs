@@ -36,6 +36,11 @@ pub const DOMAINS: &[Domain] = &[
         table: "cloth",
         build: crate::cloth::scene::build,
     },
+    #[cfg(feature = "fem")]
+    Domain {
+        table: "fem",
+        build: crate::fem::scene::build,
+    },
 ];
 
 /// Scene files other than TOML.

@@ -517,6 +517,40 @@ fn remove_constraint_identity(f: &Filter, c: &mut Coarse) {
             *bk -= identity - s[k];
         }
     }
+    // A direction every vertex of an aggregate is constrained in (a flat patch resting on
+    // a floor, a clamped face) is outside `S P`: the coarse block has nothing there and
+    // is singular. The correction along it is filtered out on the way back, so any
+    // stiffness serves; it gets the block's own scale along the average constrained part
+    // `D = sum (I - S_i) / k` of its k vertices (exactly the dead directions when they
+    // are all constrained alike; 1 when the aggregate is pinned). Blocks that are already
+    // definite are left alone.
+    for (i, _) in f.constrained() {
+        let ag = c.agg[i] as usize;
+        let slot = c.a.pattern().diag_slots()[ag] as usize;
+        if super::dense::inverse_spd3(c.a.block(slot)).is_some() {
+            continue;
+        }
+        let members = &c.members[c.member_ptr[ag] as usize..c.member_ptr[ag + 1] as usize];
+        let mut d = [0.0f64; 9];
+        for &m in members {
+            let s = f.projection(m as usize);
+            for (k, dk) in d.iter_mut().enumerate() {
+                let identity = if k % 4 == 0 { 1.0 } else { 0.0 };
+                *dk += (identity - s[k]) / members.len() as f64;
+            }
+        }
+        let b = c.a.block_mut(slot);
+        let dead = d[0] + d[4] + d[8];
+        let live = 3.0 - dead;
+        let scale = if live > 0.5 && b[0] + b[4] + b[8] > 0.0 {
+            (b[0] + b[4] + b[8]) / live
+        } else {
+            1.0
+        };
+        for (bk, dk) in b.iter_mut().zip(d) {
+            *bk += scale * dk;
+        }
+    }
 }
 
 /// `c.b = P^T r`: each aggregate sums its vertices' residuals (gathered per aggregate,

@@ -1,0 +1,409 @@
+//! The `[fem]` scene table: a tetrahedral mesh (a TetGen file pair or a generated box of
+//! cubes), a material, Dirichlet vertices (by index, or every vertex inside a box or
+//! behind a plane), obstacles and friction; its conversion to a [`FemDesc`], and the
+//! mapping of the model's validation errors to the keys they came from.
+//!
+//! ```toml
+//! [fem]
+//! pinned = [0, 5]               # vertex indices
+//! friction = 0.3                # of contacts
+//! definiteness_fix = true       # project element tangents to semi-definite (default)
+//! [[fem.pin_box]]               # every vertex inside [min, max] (m) is held
+//! min = [-0.01, -1.0, -1.0]
+//! max = [0.01, 1.0, 1.0]
+//! [[fem.pin_plane]]             # every vertex on or behind the plane (normal points out)
+//! point = [0.0, 0.0, 0.0]
+//! normal = [1.0, 0.0, 0.0]
+//! [[fem.plane]]                 # obstacles: sphere, plane, box, capsule, sdf (`scene::shared`)
+//! point = [0.0, -0.5, 0.0]
+//! normal = [0.0, 1.0, 0.0]
+//! [fem.beam]                    # or [fem.mesh] file = "nut.node" (TetGen; .ele beside it)
+//! cells = [20, 2, 2]            #    scale, offset, reorient optional
+//! size = [1.0, 0.1, 0.1]        # (m); origin optional
+//! [fem.material]
+//! model = "corotational"        # linear, corotational, stvk, neo-hookean, stable-neo-hookean
+//! preset = "rubber"             # steel, aluminium, rubber, soft-tissue; or give:
+//! young = 1e6                   # Pa (overrides the preset's)
+//! poisson = 0.45
+//! density = 1100.0              # kg/m^3
+//! ```
+
+use super::mesh::{box_mesh, read_tetgen, TetMesh};
+use super::{FemDesc, FemMaterial, Material};
+use crate::scene::shared::{self, ObstacleTables};
+use crate::scene::{path, Context, Key, PathPart, SceneError};
+use crate::simulation::{MechSimulation, Simulation};
+use crate::validate::{ModelError, MAX_COORDINATE};
+use serde::Deserialize;
+
+/// `[fem]`: a tetrahedral solid.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FemTable {
+    /// Pinned vertex indices.
+    #[serde(default)]
+    pub pinned: Vec<i64>,
+    /// `[[fem.pin_box]]` selections.
+    #[serde(default)]
+    pub pin_box: Vec<PinBoxTable>,
+    /// `[[fem.pin_plane]]` selections.
+    #[serde(default)]
+    pub pin_plane: Vec<PinPlaneTable>,
+    /// Friction of contacts (default 0).
+    #[serde(default)]
+    pub friction: f64,
+    /// Project each element's tangent to semi-definite (default true).
+    #[serde(default)]
+    pub definiteness_fix: Option<bool>,
+    /// `[[fem.sphere]]` obstacles.
+    #[serde(default)]
+    pub sphere: Vec<shared::SphereTable>,
+    /// `[[fem.plane]]` obstacles.
+    #[serde(default)]
+    pub plane: Vec<shared::PlaneTable>,
+    /// `[[fem.box]]` obstacles.
+    #[serde(default, rename = "box")]
+    pub boxes: Vec<shared::BoxTable>,
+    /// `[[fem.capsule]]` obstacles.
+    #[serde(default)]
+    pub capsule: Vec<shared::CapsuleTable>,
+    /// `[[fem.sdf]]` obstacles.
+    #[serde(default)]
+    pub sdf: Vec<shared::SdfTable>,
+    /// `[fem.beam]` (or `[fem.mesh]`).
+    #[serde(default)]
+    pub beam: Option<BeamTable>,
+    /// `[fem.mesh]`: a TetGen mesh.
+    #[serde(default)]
+    pub mesh: Option<MeshTable>,
+    /// `[fem.material]`
+    pub material: MaterialTable,
+}
+
+/// `[[fem.pin_box]]`
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PinBoxTable {
+    /// Low corner (m).
+    pub min: [f64; 3],
+    /// High corner (m).
+    pub max: [f64; 3],
+}
+
+/// `[[fem.pin_plane]]`
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PinPlaneTable {
+    /// A point on the plane (m).
+    pub point: [f64; 3],
+    /// Its normal; vertices on the plane or behind it (against the normal) are held.
+    pub normal: [f64; 3],
+}
+
+/// `[fem.beam]`: a box of cubes split into tetrahedra.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BeamTable {
+    /// Cubes along x, y, z (each >= 1).
+    pub cells: [i64; 3],
+    /// Extent (m).
+    pub size: [f64; 3],
+    /// Low corner (m, default the origin).
+    #[serde(default)]
+    pub origin: Option<[f64; 3]>,
+}
+
+/// `[fem.mesh]`
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MeshTable {
+    /// The TetGen `.node` file (its `.ele` beside it), relative to the scene file.
+    pub file: String,
+    /// Multiplies the positions (default 1).
+    #[serde(default)]
+    pub scale: Option<f64>,
+    /// Added after scaling (m, default 0).
+    #[serde(default)]
+    pub offset: Option<[f64; 3]>,
+    /// Swap two vertices of every inverted element (default false: they are errors).
+    #[serde(default)]
+    pub reorient: bool,
+}
+
+/// `[fem.material]`
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialTable {
+    /// The constitutive model.
+    pub model: String,
+    /// Published constants to start from.
+    #[serde(default)]
+    pub preset: Option<String>,
+    /// Young's modulus (Pa).
+    #[serde(default)]
+    pub young: Option<f64>,
+    /// Poisson's ratio.
+    #[serde(default)]
+    pub poisson: Option<f64>,
+    /// Density (kg/m^3).
+    #[serde(default)]
+    pub density: Option<f64>,
+}
+
+const MODELS: [(&str, Material); 5] = [
+    ("linear", Material::Linear),
+    ("corotational", Material::Corotational),
+    ("stvk", Material::StVenantKirchhoff),
+    ("neo-hookean", Material::NeoHookean),
+    ("stable-neo-hookean", Material::StableNeoHookean),
+];
+
+/// A preset's constructor.
+type Preset = fn(Material) -> FemMaterial;
+
+const PRESETS: [(&str, Preset); 4] = [
+    ("steel", FemMaterial::steel),
+    ("aluminium", FemMaterial::aluminium),
+    ("rubber", FemMaterial::rubber),
+    ("soft-tissue", FemMaterial::soft_tissue),
+];
+
+/// The memory (bytes) a model of `vertices` vertices is estimated to need: state,
+/// elements (about five per vertex) and scratch; with an implicit integrator the
+/// matrices, and with Cholesky its factor, whose fill-in grows faster than the vertices
+/// in 3-D (about 15 nonzero blocks per row for a 20 x 4 x 4 beam, up to hundreds for a
+/// cube of 30^3): rounded up from those.
+pub fn estimated_bytes(vertices: f64, implicit: bool, cholesky: bool) -> f64 {
+    let per_vertex = match (implicit, cholesky) {
+        (false, _) => 2_000.0,
+        (true, false) => 12_000.0,
+        (true, true) => 60_000.0,
+    };
+    vertices * per_vertex
+}
+
+/// Builds the solid of a scene's `[fem]` table (the registry's entry).
+pub fn build(ctx: &Context<'_>) -> Result<Box<dyn Simulation>, SceneError> {
+    let t: FemTable = ctx.table()?;
+    let desc = desc(ctx, &t)?;
+    let mesh_key = if t.beam.is_some() { "beam" } else { "mesh" };
+    let (model, state) = desc
+        .build()
+        .map_err(|e| ctx.model_error(&e, &error_key(&e, mesh_key)))?;
+    let sim = MechSimulation::new(model, state, ctx.settings)
+        .map_err(|e| ctx.error_at(&path(&[&"scene", &"integrator"]), e.to_string()))?;
+    Ok(Box::new(sim))
+}
+
+/// The description of a `[fem]` table; files are relative to the scene's folder.
+pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
+    let at = |f: &[&dyn PathPart]| path(f);
+    let material = material(ctx, &t.material)?;
+    let mesh = match (&t.beam, &t.mesh) {
+        (Some(b), None) => {
+            let mut cells = [0usize; 3];
+            for (c, &v) in b.cells.iter().enumerate() {
+                if !(1..=1024).contains(&v) {
+                    return Err(ctx.error(
+                        &at(&[&"beam", &"cells", &c]),
+                        format!("a beam needs 1..=1024 cubes along each axis, not {v}"),
+                    ));
+                }
+                cells[c] = v as usize;
+            }
+            for (c, &s) in b.size.iter().enumerate() {
+                ctx.positive(s, &at(&[&"beam", &"size", &c]), "size")?;
+            }
+            let origin = b.origin.unwrap_or([0.0; 3]);
+            if !origin.iter().all(|c| c.abs() <= MAX_COORDINATE) {
+                return Err(ctx.error(
+                    &at(&[&"beam", &"origin"]),
+                    "must be finite and within 1e15 m",
+                ));
+            }
+            let vertices = cells.iter().map(|&c| c as f64 + 1.0).product::<f64>();
+            ctx.memory(
+                &at(&[&"beam", &"cells"]),
+                &format!("a beam of {} x {} x {} cubes", cells[0], cells[1], cells[2]),
+                estimated_bytes(vertices, ctx.implicit(), ctx.cholesky(vertices)),
+            )?;
+            box_mesh(cells, b.size, origin)
+        }
+        (None, Some(m)) => {
+            let file = ctx.base.join(&m.file);
+            let stem = file.with_extension("");
+            let TetMesh { positions, tets } = read_tetgen(&stem, ctx.limits.max_file_bytes)
+                .map_err(|e| ctx.error(&at(&[&"mesh", &"file"]), e.to_string()))?;
+            ctx.memory(
+                &at(&[&"mesh", &"file"]),
+                &format!("a mesh of {} vertices", positions.len()),
+                estimated_bytes(
+                    positions.len() as f64,
+                    ctx.implicit(),
+                    ctx.cholesky(positions.len() as f64),
+                ),
+            )?;
+            let scale = ctx.positive(m.scale.unwrap_or(1.0), &at(&[&"mesh", &"scale"]), "scale")?;
+            let offset = m.offset.unwrap_or([0.0; 3]);
+            if !offset.iter().all(|c| c.abs() <= MAX_COORDINATE) {
+                return Err(ctx.error(
+                    &at(&[&"mesh", &"offset"]),
+                    "must be finite and within 1e15 m",
+                ));
+            }
+            let positions: Vec<[f64; 3]> = positions
+                .iter()
+                .map(|p| std::array::from_fn(|c| scale * p[c] + offset[c]))
+                .collect();
+            if !positions
+                .iter()
+                .flatten()
+                .all(|x| x.abs() <= MAX_COORDINATE)
+            {
+                return Err(ctx.error(
+                    &at(&[&"mesh", &"scale"]),
+                    format!("puts vertices beyond 1e15 m from the origin (scale {scale}, offset {offset:?})"),
+                ));
+            }
+            TetMesh { positions, tets }
+        }
+        _ => return Err(ctx.error(&[], "give exactly one of [fem.beam] or [fem.mesh]")),
+    };
+    let n = mesh.positions.len();
+    let mut desc = FemDesc::new(mesh.positions, mesh.tets, material);
+    if t.mesh.as_ref().is_some_and(|m| m.reorient) {
+        desc.reorient();
+    }
+    let mut pinned = Vec::new();
+    for (k, &p) in t.pinned.iter().enumerate() {
+        let key = at(&[&"pinned", &k]);
+        let i = ctx.index(p, &key, "vertex")?;
+        if i >= n {
+            return Err(ctx.error(
+                &key,
+                format!("vertex {i} does not exist: the mesh has {n} vertices"),
+            ));
+        }
+        pinned.push(i);
+    }
+    for (k, b) in t.pin_box.iter().enumerate() {
+        let key = at(&[&"pin_box", &k]);
+        if !b.min.iter().chain(&b.max).all(|c| c.is_finite()) {
+            return Err(ctx.error(&key, "min and max must be finite"));
+        }
+        let inside = |p: &[f64; 3]| (0..3).all(|c| p[c] >= b.min[c] && p[c] <= b.max[c]);
+        let before = pinned.len();
+        pinned.extend((0..n).filter(|&i| inside(&desc.positions[i])));
+        if pinned.len() == before {
+            return Err(ctx.error(&key, "selects no vertex"));
+        }
+    }
+    for (k, p) in t.pin_plane.iter().enumerate() {
+        let key = at(&[&"pin_plane", &k]);
+        let len = p.normal.iter().map(|c| c * c).sum::<f64>().sqrt();
+        if !(len.is_finite() && len > 0.0 && p.point.iter().all(|c| c.is_finite())) {
+            return Err(ctx.error(&key, "point must be finite and normal finite and non-zero"));
+        }
+        // On the plane within a millionth of the mesh's size counts as on it.
+        let size = desc
+            .positions
+            .iter()
+            .flatten()
+            .fold(0.0f64, |m, c| m.max(c.abs()))
+            .max(1e-300);
+        let behind = |x: &[f64; 3]| {
+            (0..3)
+                .map(|c| (x[c] - p.point[c]) * p.normal[c] / len)
+                .sum::<f64>()
+                <= 1e-6 * size
+        };
+        let before = pinned.len();
+        pinned.extend((0..n).filter(|&i| behind(&desc.positions[i])));
+        if pinned.len() == before {
+            return Err(ctx.error(&key, "selects no vertex"));
+        }
+    }
+    pinned.sort_unstable();
+    pinned.dedup();
+    desc.pinned = pinned;
+    desc.obstacles = shared::obstacles(
+        ctx,
+        ObstacleTables {
+            sphere: &t.sphere,
+            plane: &t.plane,
+            boxes: &t.boxes,
+            capsule: &t.capsule,
+            sdf: &t.sdf,
+        },
+    )?;
+    desc.friction = ctx.non_negative(t.friction, &at(&[&"friction"]), "friction")?;
+    desc.gravity = ctx.gravity;
+    desc.definiteness_fix = t.definiteness_fix.unwrap_or(true);
+    Ok(desc)
+}
+
+fn material(ctx: &Context<'_>, m: &MaterialTable) -> Result<FemMaterial, SceneError> {
+    let at = |f: &str| path(&[&"material", &f]);
+    let model = MODELS
+        .iter()
+        .find(|(name, _)| *name == m.model)
+        .map(|&(_, model)| model)
+        .ok_or_else(|| {
+            let names: Vec<&str> = MODELS.iter().map(|(n, _)| *n).collect();
+            ctx.error(
+                &at("model"),
+                format!(
+                    "unknown material model `{}`; one of: {}",
+                    m.model,
+                    names.join(", ")
+                ),
+            )
+        })?;
+    let base = match &m.preset {
+        Some(p) => {
+            let make = PRESETS
+                .iter()
+                .find(|(name, _)| name == p)
+                .map(|&(_, f)| f)
+                .ok_or_else(|| {
+                    let names: Vec<&str> = PRESETS.iter().map(|(n, _)| *n).collect();
+                    ctx.error(
+                        &at("preset"),
+                        format!("unknown preset `{p}`; one of: {}", names.join(", ")),
+                    )
+                })?;
+            Some(make(model))
+        }
+        None => None,
+    };
+    let value = |v: Option<f64>, preset: Option<f64>, key: &str| {
+        v.or(preset)
+            .ok_or_else(|| ctx.error(&at(key), format!("give {key} or a preset")))
+    };
+    Ok(FemMaterial {
+        model,
+        young: value(m.young, base.map(|b| b.young), "young")?,
+        poisson: value(m.poisson, base.map(|b| b.poisson), "poisson")?,
+        density: value(m.density, base.map(|b| b.density), "density")?,
+    })
+}
+
+/// The key below `[fem]` a validation error refers to.
+fn error_key(e: &ModelError, mesh: &str) -> Vec<Key> {
+    match e {
+        ModelError::Value {
+            item: "material",
+            field,
+            ..
+        } => path(&[&"material", field]),
+        ModelError::Value {
+            item: "contact", ..
+        } => path(&[&"friction"]),
+        ModelError::Element { .. }
+        | ModelError::Missing {
+            item: "tetrahedron",
+            ..
+        } => path(&[&mesh]),
+        _ => Vec::new(),
+    }
+}
