@@ -613,3 +613,133 @@ fn fem_scene_errors_name_the_line() {
         assert!(e.contains(says) && e.starts_with("bad.toml:"), "{e}");
     }
 }
+
+/// The patch test (Zienkiewicz and Taylor): the boundary vertices of a box mesh are moved
+/// by a linear field `x = A X + c`, the interior ones are solved for by the static solver;
+/// every material puts the interior on the same field and every element at the same
+/// stress P(A), to 1e-10 relative.
+#[test]
+fn the_patch_test_holds_for_every_material() {
+    let size = [1.0, 0.6, 0.5];
+    let mesh = box_mesh([4, 3, 3], size, [0.0; 3]);
+    let a: M3 = [1.05, 0.02, -0.01, 0.03, 0.97, 0.04, -0.02, 0.01, 1.02];
+    let field = |p: &[f64; 3]| -> [f64; 3] {
+        std::array::from_fn(|r| {
+            (0..3).map(|c| a[3 * r + c] * p[c]).sum::<f64>() + [0.1, -0.2, 0.3][r]
+        })
+    };
+    let boundary: Vec<usize> = (0..mesh.positions.len())
+        .filter(|&i| {
+            (0..3).any(|c| mesh.positions[i][c] < 1e-9 || mesh.positions[i][c] > size[c] - 1e-9)
+        })
+        .collect();
+    for m in ALL {
+        let mut d = FemDesc::new(
+            mesh.positions.clone(),
+            mesh.tets.clone(),
+            FemMaterial::rubber(m),
+        );
+        d.pinned = boundary.clone();
+        let (model, state) = d.build().unwrap();
+        let n = mesh.positions.len();
+        // The interior starts at rest, shifted by c (not inverted against the boundary).
+        let mut x = state.x.as_slice().to_vec();
+        for c in 0..3 {
+            for xi in &mut x[c * n..(c + 1) * n] {
+                *xi += [0.1, -0.2, 0.3][c];
+            }
+        }
+        for &i in &boundary {
+            let p = field(&mesh.positions[i]);
+            for c in 0..3 {
+                x[c * n + i] = p[c];
+            }
+        }
+        let info = model.solve_static(&mut x, 1, 1e-12).unwrap();
+        assert!(info.newton_iterations >= 1, "{m:?}");
+        for (i, p) in mesh.positions.iter().enumerate() {
+            let e = field(p);
+            for c in 0..3 {
+                assert!(
+                    (x[c * n + i] - e[c]).abs() < 1e-10,
+                    "{m:?}: vertex {i} at {}, the field says {}",
+                    x[c * n + i],
+                    e[c]
+                );
+            }
+        }
+        let p_exact = pk1(m, model.material().lame(), &a);
+        let scale = max_abs(&p_exact);
+        for e in 0..model.tets().len() {
+            let p = model.stress(e, &x);
+            for k in 0..9 {
+                assert!(
+                    (p[k] - p_exact[k]).abs() <= 1e-10 * scale,
+                    "{m:?}: element {e}"
+                );
+            }
+        }
+    }
+}
+
+/// A cantilever (L = 1 m, square 0.1 m section, E = 10 MPa, nu = 0.3, 1000 kg/m^3, clamped
+/// at x = 0) under its own weight, solved statically with linear elasticity, against
+/// Timoshenko beam theory's tip deflection `q L^4 / (8 E I) + q L^2 / (2 kappa G A)` (q =
+/// rho g A, kappa = 10 (1 + nu) / (12 + 11 nu) for a rectangle). Linear tetrahedra are
+/// stiff on coarse meshes (shear locking in bending) and converge from below as the mesh
+/// is refined: the ratio rises with every refinement and the finest mesh is within 10%.
+/// The table is printed (`cargo test --test fem cantilever -- --nocapture`).
+#[test]
+fn the_cantilever_converges_to_timoshenko_from_below() {
+    let (l, h, e, nu, rho, g): (f64, f64, f64, f64, f64, f64) = (1.0, 0.1, 1e7, 0.3, 1000.0, 9.81);
+    let area = h * h;
+    let inertia = h.powi(4) / 12.0;
+    let shear_modulus = e / (2.0 * (1.0 + nu));
+    let kappa = 10.0 * (1.0 + nu) / (12.0 + 11.0 * nu);
+    let q = rho * g * area;
+    let bending = q * l.powi(4) / (8.0 * e * inertia);
+    let shear = q * l * l / (2.0 * kappa * shear_modulus * area);
+    let theory = bending + shear;
+    let mut ratios = Vec::new();
+    println!("cantilever tip deflection, linear tetrahedra, against Timoshenko ({theory:.5e} m: bending {bending:.5e}, shear {shear:.3e})");
+    println!("| cubes | vertices | tetrahedra | tip deflection (m) | FEM / Timoshenko |");
+    for k in [1usize, 2, 4, 8] {
+        let mesh = box_mesh([10 * k, k, k], [l, h, h], [0.0, -h / 2.0, -h / 2.0]);
+        let mut d = FemDesc::new(
+            mesh.positions.clone(),
+            mesh.tets.clone(),
+            FemMaterial {
+                model: Material::Linear,
+                young: e,
+                poisson: nu,
+                density: rho,
+            },
+        );
+        d.gravity = [0.0, -g, 0.0];
+        d.pinned = (0..mesh.positions.len())
+            .filter(|&i| mesh.positions[i][0] == 0.0)
+            .collect();
+        let (model, state) = d.build().unwrap();
+        let mut x = state.x.as_slice().to_vec();
+        model.solve_static(&mut x, 1, 1e-10).unwrap();
+        let n = mesh.positions.len();
+        // The tip: the mean deflection of the end face's vertices.
+        let tip: Vec<usize> = (0..n).filter(|&i| mesh.positions[i][0] == l).collect();
+        let defl = -tip
+            .iter()
+            .map(|&i| x[n + i] - mesh.positions[i][1])
+            .sum::<f64>()
+            / tip.len() as f64;
+        let ratio = defl / theory;
+        println!(
+            "| {} x {k} x {k} | {n} | {} | {defl:.5e} | {ratio:.4} |",
+            10 * k,
+            mesh.tets.len()
+        );
+        ratios.push(ratio);
+    }
+    assert!(ratios.windows(2).all(|w| w[1] > w[0]), "{ratios:?}");
+    assert!(ratios[0] < 0.9, "the coarse mesh is stiff: {ratios:?}");
+    let last = *ratios.last().unwrap();
+    assert!(last > 0.9 && last < 1.05, "{ratios:?}");
+}

@@ -19,6 +19,8 @@
 
 pub mod mesh;
 pub mod scene;
+mod statics;
+pub use statics::StaticInfo;
 
 use crate::collide::Obstacle;
 use crate::integrate::{IntegrateError, MechState};
