@@ -743,3 +743,58 @@ fn the_cantilever_converges_to_timoshenko_from_below() {
     let last = *ratios.last().unwrap();
     assert!(last > 0.9 && last < 1.05, "{ratios:?}");
 }
+
+/// The static cantilever scene applies its weight in ten increments, one per frame, and
+/// ends at the equilibrium `solve_static` finds in one call (same mesh and material),
+/// which for this small deflection is within 2% of linear elasticity's.
+#[test]
+fn the_static_cantilever_scene_reaches_the_equilibrium() {
+    use largestep::fem::StaticSimulation;
+    use largestep::scene::Scene;
+    let scene = Scene::load(&scene_path("fem-cantilever-static.toml")).unwrap();
+    let mut sim = scene.into_simulation().unwrap();
+    for _ in 0..12 {
+        sim.step(0.1).unwrap();
+    }
+    let st = sim.downcast_ref::<StaticSimulation>().unwrap();
+    assert_eq!(st.load_fraction(), 1.0);
+    let model = st.model();
+    let n = model.vertex_count();
+    let mut rest = vec![0.0; 3 * n];
+    let mesh = box_mesh([20, 2, 2], [1.0, 0.1, 0.1], [0.0, -0.05, -0.05]);
+    for (i, p) in mesh.positions.iter().enumerate() {
+        for c in 0..3 {
+            rest[c * n + i] = p[c];
+        }
+    }
+    let mut x = rest.clone();
+    model.solve_static(&mut x, 1, 1e-10).unwrap();
+    let tip: Vec<usize> = (0..n).filter(|&i| mesh.positions[i][0] == 1.0).collect();
+    let defl =
+        |y: &[f64]| tip.iter().map(|&i| y[n + i] - rest[n + i]).sum::<f64>() / tip.len() as f64;
+    let (scene_tip, one_call) = (defl(st.positions()), defl(&x));
+    assert!(
+        (scene_tip - one_call).abs() < 1e-6 * one_call.abs(),
+        "{scene_tip} against {one_call}"
+    );
+    let mut d = FemDesc::new(
+        mesh.positions.clone(),
+        mesh.tets.clone(),
+        FemMaterial {
+            model: Material::Linear,
+            young: 1e7,
+            poisson: 0.3,
+            density: 1000.0,
+        },
+    );
+    d.gravity = [0.0, -9.81, 0.0];
+    d.pinned = (0..n).filter(|&i| mesh.positions[i][0] == 0.0).collect();
+    let (linear, _) = d.build().unwrap();
+    let mut xl = rest.clone();
+    linear.solve_static(&mut xl, 1, 1e-10).unwrap();
+    let lin = defl(&xl);
+    assert!(
+        scene_tip < 0.0 && (scene_tip / lin - 1.0).abs() < 0.02,
+        "corotational {scene_tip}, linear {lin}"
+    );
+}

@@ -20,7 +20,7 @@
 pub mod mesh;
 pub mod scene;
 mod statics;
-pub use statics::StaticInfo;
+pub use statics::{StaticInfo, StaticSimulation, StaticSolver};
 
 use crate::collide::Obstacle;
 use crate::integrate::{IntegrateError, MechState};

@@ -20,6 +20,9 @@
 //! [fem.beam]                    # or [fem.mesh] file = "nut.node" (TetGen; .ele beside it)
 //! cells = [20, 2, 2]            #    scale, offset, reorient optional
 //! size = [1.0, 0.1, 0.1]        # (m); origin optional
+//! # [fem.static]                # equilibrium instead of dynamics: step k applies load
+//! # increments = 10             # increment k of `increments` (default 10)
+//! # tolerance = 1e-8            # residual relative to the largest load on a vertex
 //! [fem.material]
 //! model = "corotational"        # linear, corotational, stvk, neo-hookean, stable-neo-hookean
 //! preset = "rubber"             # steel, aluminium, rubber, soft-tissue; or give:
@@ -78,6 +81,21 @@ pub struct FemTable {
     pub mesh: Option<MeshTable>,
     /// `[fem.material]`
     pub material: MaterialTable,
+    /// `[fem.static]`: solve for equilibrium instead of stepping in time.
+    #[serde(default, rename = "static")]
+    pub statics: Option<StaticTable>,
+}
+
+/// `[fem.static]`
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StaticTable {
+    /// Load increments, one per step (default 10).
+    #[serde(default)]
+    pub increments: Option<i64>,
+    /// Residual to reach, relative to the largest load on a vertex (default 1e-8).
+    #[serde(default)]
+    pub tolerance: Option<f64>,
 }
 
 /// `[[fem.pin_box]]`
@@ -190,6 +208,29 @@ pub fn build(ctx: &Context<'_>) -> Result<Box<dyn Simulation>, SceneError> {
     let (model, state) = desc
         .build()
         .map_err(|e| ctx.model_error(&e, &error_key(&e, mesh_key)))?;
+    if let Some(st) = &t.statics {
+        let at = |k: &str| path(&[&"static", &k]);
+        if !desc.obstacles.is_empty() {
+            return Err(ctx.error(&path(&[&"static"]), "static solves do not handle obstacle contact yet: remove the obstacles or [fem.static]"));
+        }
+        let increments = st.increments.unwrap_or(10);
+        if !(1..=100_000).contains(&increments) {
+            return Err(ctx.error(
+                &at("increments"),
+                format!("1..=100000 load increments, not {increments}"),
+            ));
+        }
+        let tolerance =
+            ctx.positive(st.tolerance.unwrap_or(1e-8), &at("tolerance"), "tolerance")?;
+        let sim = super::StaticSimulation::new(
+            model,
+            state.x.as_slice().to_vec(),
+            increments as usize,
+            tolerance,
+        )
+        .map_err(|e| ctx.error(&path(&[&"static"]), e.to_string()))?;
+        return Ok(Box::new(sim));
+    }
     let sim = MechSimulation::new(model, state, ctx.settings)
         .map_err(|e| ctx.error_at(&path(&[&"scene", &"integrator"]), e.to_string()))?;
     Ok(Box::new(sim))

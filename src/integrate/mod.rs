@@ -176,6 +176,16 @@ pub enum IntegrateError {
         /// What to try (may be empty).
         hint: &'static str,
     },
+    /// A static solve (equilibrium under a load increment) failed.
+    #[error("load increment {increment} of {increments} (static equilibrium): {source}; apply the load in more increments, or pin the body so that it cannot move freely")]
+    Static {
+        /// The increment (1-based).
+        increment: usize,
+        /// Increments in all.
+        increments: usize,
+        /// The solver's error.
+        source: SolveError,
+    },
     /// Step-size control gave up: the step still failed at the smallest size allowed.
     #[error("step {step}: still failing after halving the time step {halvings} times (last try dt = {dt:e} s): {why}")]
     StepControl {

@@ -195,13 +195,23 @@ impl std::fmt::Display for Summary {
                 human(self.external_work)
             )?;
         }
-        writeln!(
-            f,
-            "                 change{} {} of the energy scale {} J (the larger of the start's energy and the most kinetic energy)",
-            if self.external_work != 0.0 { " less that work" } else { "" },
-            pct(self.energy_drift),
-            human(self.energy_scale)
-        )?;
+        if self.energy_scale <= 1e-12 * self.energy.1.abs() {
+            // Nothing to measure a change against (a static solve: no motion, and a
+            // start with no energy): the change itself.
+            writeln!(
+                f,
+                "                 change {} J (no energy scale: the start has none and nothing moved)",
+                human(self.energy.1 - self.energy.0 - self.external_work)
+            )?;
+        } else {
+            writeln!(
+                f,
+                "                 change{} {} of the energy scale {} J (the larger of the start's energy and the most kinetic energy)",
+                if self.external_work != 0.0 { " less that work" } else { "" },
+                pct(self.energy_drift),
+                human(self.energy_scale)
+            )?;
+        }
         if self.energy_drift > 0.1 {
             writeln!(
                 f,
