@@ -573,8 +573,10 @@ fn scene_path(name: &str) -> PathBuf {
 #[test]
 fn fem_scenes_load_and_the_cantilever_runs() {
     use largestep::scene::{Runner, Scene};
-    let ball = Scene::load(&scene_path("fem-ball.toml")).unwrap();
-    assert!(ball.into_simulation().is_some());
+    for name in ["fem-ball.toml", "fem-nut.toml"] {
+        let scene = Scene::load(&scene_path(name)).unwrap();
+        assert!(scene.into_simulation().is_some(), "{name}");
+    }
     let scene = Scene::load(&scene_path("fem-cantilever.toml")).unwrap();
     let out = std::env::temp_dir().join(format!("largestep-fem-{}", std::process::id()));
     let mut runner = Runner::new(scene, &out);
@@ -797,4 +799,99 @@ fn the_static_cantilever_scene_reaches_the_equilibrium() {
         scene_tip < 0.0 && (scene_tip / lin - 1.0).abs() < 0.02,
         "corotational {scene_tip}, linear {lin}"
     );
+}
+
+/// Inverted elements recover with the stable neo-Hookean material: a block mirrored
+/// through its middle plane and squashed (every element at J = -0.2) and released comes
+/// back to its rest shape under backward Euler (Newton with the definiteness fix): every
+/// element positive again and the elastic energy gone. Plain neo-Hookean has no energy
+/// there (NaN), which the step reports as an error rather than a silent NaN.
+#[test]
+fn inverted_elements_recover_with_the_stable_neo_hookean_material() {
+    let mesh = box_mesh([3, 2, 2], [0.3, 0.2, 0.2], [0.0; 3]);
+    let cy = 0.1;
+    let initial: Vec<[f64; 3]> = mesh
+        .positions
+        .iter()
+        .map(|p| [p[0], cy - 0.2 * (p[1] - cy), p[2]])
+        .collect();
+    let build = |m: Material| {
+        let mut d = FemDesc::new(
+            mesh.positions.clone(),
+            mesh.tets.clone(),
+            FemMaterial::rubber(m),
+        );
+        d.initial = initial.clone();
+        d.build().unwrap()
+    };
+    let (model, state) = build(Material::StableNeoHookean);
+    let start = model.min_volume_ratio(state.x.as_slice()).0;
+    assert!((start + 0.2).abs() < 1e-12, "J = {start}");
+    let w0 = model.elastic_energy(state.x.as_slice());
+    let mut sim =
+        MechSimulation::new(model, state, MechSettings::new(Method::BackwardEuler)).unwrap();
+    sim.set_step_control(None);
+    for _ in 0..120 {
+        sim.step(1.0 / 240.0).unwrap();
+    }
+    let x = sim.state().x.as_slice();
+    let (j, e) = sim.model().min_volume_ratio(x);
+    assert!(j > 0.9, "element {e} still at J = {j}");
+    assert!(sim.model().elastic_energy(x) < 1e-6 * w0);
+    let (nh, state) = build(Material::NeoHookean);
+    let mut sim = MechSimulation::new(nh, state, MechSettings::new(Method::BackwardEuler)).unwrap();
+    assert!(
+        sim.step(1.0 / 240.0).is_err(),
+        "neo-Hookean is undefined for J <= 0"
+    );
+}
+
+/// Locking as Poisson's ratio nears 0.5, reported: the 20 x 2 x 2 cantilever's static tip
+/// deflection under its weight against Timoshenko's (which depends on nu only through
+/// the shear term) falls as nu -> 0.5, because linear tetrahedra cannot deform at
+/// constant volume (volumetric locking), and the volume change of the beam falls with
+/// it. The table is printed (`-- --nocapture`).
+#[test]
+fn linear_tetrahedra_lock_as_poissons_ratio_nears_one_half() {
+    let (l, h, e, rho, g): (f64, f64, f64, f64, f64) = (1.0, 0.1, 1e7, 1000.0, 9.81);
+    let mesh = box_mesh([20, 2, 2], [l, h, h], [0.0, -h / 2.0, -h / 2.0]);
+    let n = mesh.positions.len();
+    println!("| nu | tip deflection (m) | FEM / Timoshenko | volume change |");
+    let mut ratios = Vec::new();
+    for nu in [0.3, 0.45, 0.49, 0.499] {
+        let (area, inertia) = (h * h, h.powi(4) / 12.0);
+        let kappa = 10.0 * (1.0 + nu) / (12.0 + 11.0 * nu);
+        let q = rho * g * area;
+        let theory = q * l.powi(4) / (8.0 * e * inertia)
+            + q * l * l / (2.0 * kappa * e / (2.0 * (1.0 + nu)) * area);
+        let mut d = FemDesc::new(
+            mesh.positions.clone(),
+            mesh.tets.clone(),
+            FemMaterial {
+                model: Material::Linear,
+                young: e,
+                poisson: nu,
+                density: rho,
+            },
+        );
+        d.gravity = [0.0, -g, 0.0];
+        d.pinned = (0..n).filter(|&i| mesh.positions[i][0] == 0.0).collect();
+        let (model, state) = d.build().unwrap();
+        let mut x = state.x.as_slice().to_vec();
+        model.solve_static(&mut x, 1, 1e-10).unwrap();
+        let tip: Vec<usize> = (0..n).filter(|&i| mesh.positions[i][0] == l).collect();
+        let defl = -tip
+            .iter()
+            .map(|&i| x[n + i] - mesh.positions[i][1])
+            .sum::<f64>()
+            / tip.len() as f64;
+        let dv: f64 = (0..model.tets().len())
+            .map(|t| (det(&model.deformation_gradient(t, &x)) - 1.0) * model.volumes()[t])
+            .sum::<f64>()
+            / model.volumes().iter().sum::<f64>();
+        println!("| {nu} | {defl:.5e} | {:.4} | {dv:.3e} |", defl / theory);
+        ratios.push(defl / theory);
+    }
+    assert!(ratios.windows(2).all(|w| w[1] < w[0]), "{ratios:?}");
+    assert!(ratios[3] < 0.5 * ratios[0], "{ratios:?}");
 }

@@ -124,6 +124,9 @@ pub struct FemDesc {
     pub positions: Vec<[f64; 3]>,
     /// Initial velocities (m/s); empty means zero.
     pub velocities: Vec<[f64; 3]>,
+    /// Initial positions (m) when they differ from the rest positions (a body squashed or
+    /// stretched at the start); empty means the rest positions.
+    pub initial: Vec<[f64; 3]>,
     /// Tetrahedra, four vertex indices each, with positive rest volume.
     pub tets: Vec<[u32; 4]>,
     /// The material of every element.
@@ -150,6 +153,7 @@ impl FemDesc {
         Self {
             positions,
             velocities: Vec::new(),
+            initial: Vec::new(),
             tets,
             material,
             gravity: [0.0; 3],
@@ -187,13 +191,29 @@ impl FemDesc {
         if self.tets.is_empty() {
             return Err(ModelError::Empty { what: "tetrahedra" });
         }
-        if !self.velocities.is_empty() && self.velocities.len() != n {
-            return Err(ModelError::Length {
-                what: "velocities",
-                got: self.velocities.len(),
-                expected: n,
-                per: "vertex",
-            });
+        for (what, got) in [
+            ("velocities", self.velocities.len()),
+            ("initial", self.initial.len()),
+        ] {
+            if got != 0 && got != n {
+                return Err(ModelError::Length {
+                    what,
+                    got,
+                    expected: n,
+                    per: "vertex",
+                });
+            }
+        }
+        for (i, p) in self.initial.iter().enumerate() {
+            for (c, &x) in p.iter().enumerate() {
+                check(
+                    "vertex",
+                    i,
+                    ["initial x", "initial y", "initial z"][c],
+                    x,
+                    Rule::Coordinate,
+                )?;
+            }
         }
         for (i, p) in self.positions.iter().enumerate() {
             for (c, &x) in p.iter().enumerate() {
@@ -314,7 +334,11 @@ impl FemDesc {
             definiteness_fix: self.definiteness_fix,
             gather,
         };
-        let x = Vec3s::from_aos(&self.positions);
+        let x = Vec3s::from_aos(if self.initial.is_empty() {
+            &self.positions
+        } else {
+            &self.initial
+        });
         let v = if self.velocities.is_empty() {
             Vec3s::zeros(n)
         } else {
@@ -422,6 +446,19 @@ impl Fem {
             self.lame,
             &self.deformation_gradient(e, x),
         )
+    }
+
+    /// The smallest volume ratio `J = det F` of any element at positions x (negative when
+    /// an element is inverted), and that element.
+    pub fn min_volume_ratio(&self, x: &[f64]) -> (f64, usize) {
+        (0..self.tets.len())
+            .map(|e| {
+                (
+                    largestep_kernels::fem::det(&self.deformation_gradient(e, x)),
+                    e,
+                )
+            })
+            .fold((f64::INFINITY, 0), |a, b| if b.0 < a.0 { b } else { a })
     }
 
     /// The elastic energy (J) at positions x, without loads.

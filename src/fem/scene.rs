@@ -8,6 +8,7 @@
 //! pinned = [0, 5]               # vertex indices
 //! friction = 0.3                # of contacts
 //! definiteness_fix = true       # project element tangents to semi-definite (default)
+//! initial_stretch = [1.0, 0.1, 1.0]  # start squashed to a tenth in y (rest shape kept)
 //! [[fem.pin_box]]               # every vertex inside [min, max] (m) is held
 //! min = [-0.01, -1.0, -1.0]
 //! max = [0.01, 1.0, 1.0]
@@ -55,6 +56,11 @@ pub struct FemTable {
     /// Friction of contacts (default 0).
     #[serde(default)]
     pub friction: f64,
+    /// Start from the rest shape stretched by these factors along x, y, z about its
+    /// centre (default none: at rest); 0.1 squashes it to a tenth, a negative factor
+    /// mirrors it (every element inverted).
+    #[serde(default)]
+    pub initial_stretch: Option<[f64; 3]>,
     /// Project each element's tangent to semi-definite (default true).
     #[serde(default)]
     pub definiteness_fix: Option<bool>,
@@ -378,6 +384,22 @@ pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
         },
     )?;
     desc.friction = ctx.non_negative(t.friction, &at(&[&"friction"]), "friction")?;
+    if let Some(s) = t.initial_stretch {
+        if !s.iter().all(|c| c.is_finite() && c.abs() <= 1e3) {
+            return Err(ctx.error(
+                &at(&[&"initial_stretch"]),
+                "factors must be finite, within -1000 to 1000",
+            ));
+        }
+        let nf = n.max(1) as f64;
+        let centre: [f64; 3] =
+            std::array::from_fn(|c| desc.positions.iter().map(|p| p[c]).sum::<f64>() / nf);
+        desc.initial = desc
+            .positions
+            .iter()
+            .map(|p| std::array::from_fn(|c| centre[c] + s[c] * (p[c] - centre[c])))
+            .collect();
+    }
     desc.gravity = ctx.gravity;
     desc.definiteness_fix = t.definiteness_fix.unwrap_or(true);
     Ok(desc)
