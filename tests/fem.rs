@@ -375,7 +375,7 @@ fn tetmesh(stem: &str) -> PathBuf {
     );
     let p = data.join("tetmesh").join(stem);
     assert!(
-        p.with_extension("node").is_file(),
+        ["node", "vtk"].iter().any(|e| p.with_extension(e).is_file()),
         "{} is missing: these tests read TetGen meshes from ../shared/data (or $LARGESTEP_SHARED_DATA)",
         p.display()
     );
@@ -894,4 +894,110 @@ fn linear_tetrahedra_lock_as_poissons_ratio_nears_one_half() {
     }
     assert!(ratios.windows(2).all(|w| w[1] < w[0]), "{ratios:?}");
     assert!(ratios[3] < 0.5 * ratios[0], "{ratios:?}");
+}
+
+/// The shared hexahedral beam (legacy VTK, 40 hexahedra) reads as 24 tetrahedra per
+/// hexahedron around cell and face centres: conforming (the boundary is the beam's
+/// surface only, four triangles per boundary quad) and of the beam's volume.
+#[test]
+fn a_vtk_hexahedral_beam_is_split_conformingly() {
+    use largestep::fem::vtk::read_vtk;
+    let path = tetmesh("hexbeam").with_extension("vtk");
+    let mesh = read_vtk(&path, 1 << 24).unwrap();
+    assert_eq!(mesh.tets.len(), 40 * 24);
+    let (model, _) = FemDesc::new(
+        mesh.positions.clone(),
+        mesh.tets.clone(),
+        FemMaterial::steel(Material::Linear),
+    )
+    .build()
+    .unwrap();
+    let vol: f64 = model.volumes().iter().sum();
+    assert!((vol - 5.0).abs() < 1e-12, "volume {vol}");
+    // The beam is 2 x 2 x 10 hexahedra (1 x 1 x 5): 2 * (2*2 + 2*10 + 2*10) = 88 boundary
+    // quads, four triangles each; an interior face split differently from its two sides
+    // would show up here as extra boundary triangles.
+    assert_eq!(model.triangles().len(), 4 * 88);
+}
+
+/// A model written as VTK reads back: the same points and tetrahedra, and a von Mises
+/// stress per element that is zero at rest and matches the uniaxial value under a
+/// uniaxial stretch.
+#[test]
+fn vtk_frames_round_trip_with_von_mises_stress() {
+    use largestep::fem::vtk::parse_vtk;
+    let mesh = box_mesh([2, 2, 2], [1.0, 1.0, 1.0], [0.0; 3]);
+    let (model, state) = FemDesc::new(
+        mesh.positions.clone(),
+        mesh.tets.clone(),
+        FemMaterial::steel(Material::Linear),
+    )
+    .build()
+    .unwrap();
+    let rest = state.x.as_slice().to_vec();
+    let n = mesh.positions.len();
+    // x stretched by 0.1% with free lateral contraction: sigma_xx = E eps, von Mises = |sigma_xx|.
+    let eps = 1e-3;
+    let nu = 0.3;
+    let mut x = rest.clone();
+    for i in 0..n {
+        x[i] *= 1.0 + eps;
+        x[n + i] *= 1.0 - nu * eps;
+        x[2 * n + i] *= 1.0 - nu * eps;
+    }
+    let vm = model.von_mises(0, &x);
+    assert!((vm / (200e9 * eps) - 1.0).abs() < 2e-3, "von Mises {vm}");
+    assert!(model.von_mises(0, &rest).abs() < 1e-6);
+    let mut out = Vec::new();
+    model
+        .write_vtk(&mut out, &rest, &x, &vec![0.0; 3 * n])
+        .unwrap();
+    let text = String::from_utf8(out).unwrap();
+    let back = parse_vtk(&text, "frame.vtk").unwrap();
+    assert_eq!(back.tets, mesh.tets);
+    for (i, p) in back.positions.iter().enumerate() {
+        for c in 0..3 {
+            assert_eq!(p[c], x[c * n + i]);
+        }
+    }
+    assert!(
+        text.contains("SCALARS von_mises double 1") && text.contains("VECTORS displacement double")
+    );
+}
+
+/// Malformed VTK files are errors with file and line.
+#[test]
+fn bad_vtk_files_are_errors_with_file_and_line() {
+    use largestep::fem::vtk::parse_vtk;
+    let good = "# vtk DataFile Version 3.0\nt\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 4 double\n0 0 0\n1 0 0\n0 1 0\n0 0 1\nCELLS 1 5\n4 0 1 2 3\nCELL_TYPES 1\n10\n";
+    assert_eq!(parse_vtk(good, "g.vtk").unwrap().tets.len(), 1);
+    let cases: [(&str, &str, &str); 5] = [
+        (
+            "4 0 1 2 3",
+            "4 0 1 2 9",
+            "g.vtk:11: point 9 is out of range",
+        ),
+        (
+            "CELL_TYPES 1\n10",
+            "CELL_TYPES 1\n9",
+            "g.vtk:13: cell type 9 is not read",
+        ),
+        ("0 1 0\n", "0 x 0\n", "g.vtk:8: `x` is not a number"),
+        (
+            "POINTS 4 double",
+            "POINTS 400000000 double",
+            "more than the file can hold",
+        ),
+        ("CELLS 1 5", "CELLS 1 6", "claims a list of 6"),
+    ];
+    for (from, to, says) in cases {
+        let e = parse_vtk(&good.replacen(from, to, 1), "g.vtk")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(says), "{e}");
+    }
+    assert!(parse_vtk("hello", "g.vtk")
+        .unwrap_err()
+        .to_string()
+        .contains("not a legacy VTK"));
 }

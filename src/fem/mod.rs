@@ -20,6 +20,7 @@
 pub mod mesh;
 pub mod scene;
 mod statics;
+pub mod vtk;
 pub use statics::{StaticInfo, StaticSimulation, StaticSolver};
 
 use crate::collide::Obstacle;

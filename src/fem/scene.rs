@@ -19,6 +19,7 @@
 //! point = [0.0, -0.5, 0.0]
 //! normal = [0.0, 1.0, 0.0]
 //! [fem.beam]                    # or [fem.mesh] file = "nut.node" (TetGen; .ele beside it)
+//!                               #    or file = "beam.vtk" (legacy VTK, tets and hexes)
 //! cells = [20, 2, 2]            #    scale, offset, reorient optional
 //! size = [1.0, 0.1, 0.1]        # (m); origin optional
 //! # [fem.static]                # equilibrium instead of dynamics: step k applies load
@@ -141,7 +142,8 @@ pub struct BeamTable {
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MeshTable {
-    /// The TetGen `.node` file (its `.ele` beside it), relative to the scene file.
+    /// The mesh file, relative to the scene file: a TetGen `.node` (its `.ele` beside it)
+    /// or a legacy VTK unstructured grid `.vtk` (tetrahedra and hexahedra).
     pub file: String,
     /// Multiplies the positions (default 1).
     #[serde(default)]
@@ -278,9 +280,16 @@ pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
         }
         (None, Some(m)) => {
             let file = ctx.base.join(&m.file);
-            let stem = file.with_extension("");
-            let TetMesh { positions, tets } = read_tetgen(&stem, ctx.limits.max_file_bytes)
-                .map_err(|e| ctx.error(&at(&[&"mesh", &"file"]), e.to_string()))?;
+            let vtk = file
+                .extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("vtk"));
+            let read = if vtk {
+                super::vtk::read_vtk(&file, ctx.limits.max_file_bytes)
+            } else {
+                read_tetgen(&file.with_extension(""), ctx.limits.max_file_bytes)
+            };
+            let TetMesh { positions, tets } =
+                read.map_err(|e| ctx.error(&at(&[&"mesh", &"file"]), e.to_string()))?;
             ctx.memory(
                 &at(&[&"mesh", &"file"]),
                 &format!("a mesh of {} vertices", positions.len()),
