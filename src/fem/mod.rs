@@ -140,6 +140,10 @@ pub struct FemDesc {
     pub obstacles: Vec<Obstacle>,
     /// Coulomb friction coefficient of contacts, >= 0.
     pub friction: f64,
+    /// Rayleigh damping `C = alpha M + beta K` (1/s and s, >= 0): the damping force is
+    /// `-C v` with K the stiffness at the current positions (definiteness-fixed), as in
+    /// Vega's Rayleigh damping.
+    pub rayleigh: [f64; 2],
     /// Make each element's tangent positive semi-definite (the definiteness fix,
     /// `largestep_kernels::fem::project_psd`), so implicit systems stay definite under
     /// compression and inversion; the Jacobian is then exact only where the material's
@@ -161,6 +165,7 @@ impl FemDesc {
             pinned: Vec::new(),
             obstacles: Vec::new(),
             friction: 0.0,
+            rayleigh: [0.0, 0.0],
             definiteness_fix: true,
         }
     }
@@ -231,6 +236,14 @@ impl FemDesc {
             check("gravity", c, "g", g, Rule::Finite)?;
         }
         check("contact", 0, "friction", self.friction, Rule::NonNegative)?;
+        check("damping", 0, "mass", self.rayleigh[0], Rule::NonNegative)?;
+        check(
+            "damping",
+            0,
+            "stiffness",
+            self.rayleigh[1],
+            Rule::NonNegative,
+        )?;
         for (k, &p) in self.pinned.iter().enumerate() {
             if p >= n {
                 return Err(ModelError::Missing {
@@ -313,6 +326,7 @@ impl FemDesc {
         let surface = boundary_faces(&self.tets);
         let sparse = |e: SparseError| ModelError::TooLarge(e.to_string());
         let gather = VectorGather::new(n, &self.tets, &LocalLayout::dense(4)).map_err(sparse)?;
+        let damping_mass: Vec<f64> = mass.iter().map(|m| -self.rayleigh[0] * m).collect();
         let model = Fem {
             n,
             tets: self.tets.clone(),
@@ -333,6 +347,8 @@ impl FemDesc {
             obstacles: self.obstacles.clone(),
             friction: self.friction,
             definiteness_fix: self.definiteness_fix,
+            rayleigh: self.rayleigh,
+            damping_mass,
             gather,
         };
         let x = Vec3s::from_aos(if self.initial.is_empty() {
@@ -373,6 +389,27 @@ pub fn boundary_faces(tets: &[[u32; 4]]) -> Vec<[u32; 3]> {
         .collect()
 }
 
+/// `f_a += beta sum_b J_ab v_b` for an element's force Jacobian blocks `J_ab = df_a/dx_b`
+/// stored as the ten blocks `a <= b` (`J_ba = J_ab^T`): the stiffness-proportional
+/// Rayleigh damping force `-beta K v` with `K = -J`.
+fn add_stiffness_damping(f: &mut [[f64; 3]; 4], k: &[f64], beta: f64, v: &[[f64; 3]; 4]) {
+    let mut blk = 0;
+    for a in 0..4 {
+        for b in a..4 {
+            let j = &k[9 * blk..9 * blk + 9];
+            for i in 0..3 {
+                f[a][i] +=
+                    beta * (j[3 * i] * v[b][0] + j[3 * i + 1] * v[b][1] + j[3 * i + 2] * v[b][2]);
+                if b != a {
+                    // J_ba = J_ab^T: row i of J_ba is column i of J_ab.
+                    f[b][i] += beta * (j[i] * v[a][0] + j[3 + i] * v[a][1] + j[6 + i] * v[a][2]);
+                }
+            }
+            blk += 1;
+        }
+    }
+}
+
 /// An immutable tetrahedral model (see the module docs).
 #[derive(Clone, Debug)]
 pub struct Fem {
@@ -394,6 +431,9 @@ pub struct Fem {
     obstacles: Vec<Obstacle>,
     friction: f64,
     definiteness_fix: bool,
+    rayleigh: [f64; 2],
+    /// `-alpha m_i`: the mass-proportional damping's diagonal in df/dv.
+    damping_mass: Vec<f64>,
     gather: VectorGather,
 }
 
@@ -465,14 +505,19 @@ impl Fem {
     /// The elastic energy (J) at positions x, without loads.
     pub fn elastic_energy(&self, x: &[f64]) -> f64 {
         let m = self.material.model;
-        (0..self.tets.len())
+        // Summed in fixed chunks, then in order: the same bits for any thread count.
+        let chunks: Vec<f64> = (0..self.tets.len().div_ceil(CHUNK))
             .into_par_iter()
-            .with_min_len(CHUNK)
-            .map(|e| {
-                let f = self.deformation_gradient(e, x);
-                self.volume[e] * largestep_kernels::fem::energy_density(m, self.lame, &f)
+            .map(|c| {
+                (c * CHUNK..((c + 1) * CHUNK).min(self.tets.len()))
+                    .map(|e| {
+                        let f = self.deformation_gradient(e, x);
+                        self.volume[e] * largestep_kernels::fem::energy_density(m, self.lame, &f)
+                    })
+                    .sum::<f64>()
             })
-            .sum::<f64>()
+            .collect();
+        chunks.iter().sum()
     }
 
     fn body(&self) -> Body<'_> {
@@ -482,26 +527,59 @@ impl Fem {
         }
     }
 
-    /// Element forces into `out` (12 per element, element-major), in fixed chunks.
-    fn element_forces_into(&self, out: &mut [f64], x: &[f64]) {
+    /// Element forces into `out` (12 per element, element-major), in fixed chunks: the
+    /// elastic ones, and with stiffness damping (`v` given, beta > 0) `beta K_e v_e`.
+    fn element_forces_into(&self, out: &mut [f64], x: &[f64], v: Option<&[f64]>) {
         let (m, l, n) = (self.material.model, self.lame, self.n);
+        let beta = self.rayleigh[1];
         out.par_chunks_mut(12 * CHUNK)
             .enumerate()
             .for_each(|(c, o)| {
+                let mut k = [0.0; TET_K];
                 for (le, oe) in o.chunks_exact_mut(12).enumerate() {
                     let e = c * CHUNK + le;
+                    let el = &self.tets[e];
                     let mut f = [[0.0; 3]; 4];
-                    element_forces(
-                        &mut f,
-                        m,
-                        l,
-                        &gather_nodes(x, n, &self.tets[e]),
-                        &self.dm_inv(e),
-                        self.volume[e],
-                    );
+                    match v {
+                        Some(v) if beta > 0.0 => {
+                            element_stiffness(
+                                &mut f,
+                                &mut k,
+                                m,
+                                l,
+                                &gather_nodes(x, n, el),
+                                &self.dm_inv(e),
+                                self.volume[e],
+                                self.definiteness_fix,
+                            );
+                            add_stiffness_damping(&mut f, &k, beta, &gather_nodes(v, n, el));
+                        }
+                        _ => {
+                            element_forces(
+                                &mut f,
+                                m,
+                                l,
+                                &gather_nodes(x, n, el),
+                                &self.dm_inv(e),
+                                self.volume[e],
+                            );
+                        }
+                    }
                     oe.copy_from_slice(f.as_flattened());
                 }
             });
+    }
+
+    /// `f -= alpha m_i v_i`: mass-proportional damping.
+    fn add_mass_damping(&self, v: &[f64], f: &mut [f64]) {
+        let (alpha, n) = (self.rayleigh[0], self.n);
+        if alpha > 0.0 {
+            for c in 0..3 {
+                for i in 0..n {
+                    f[c * n + i] -= alpha * self.mass[i] * v[c * n + i];
+                }
+            }
+        }
     }
 }
 
@@ -531,8 +609,9 @@ impl MechModel for Fem {
 
     fn force(&self, work: &mut FemWork, t: f64, x: &[f64], v: &[f64], f: &mut [f64]) {
         self.loads.forces(t, &self.body(), x, v, f);
-        self.element_forces_into(&mut work.f, x);
+        self.element_forces_into(&mut work.f, x, Some(v));
         self.gather.gather_vectors_add(&work.f, f);
+        self.add_mass_damping(v, f);
     }
 
     fn potential_energy(&self, _t: f64, x: &[f64]) -> Option<f64> {
@@ -558,12 +637,13 @@ impl MechModel for Fem {
         v: &[f64],
         f: &mut [f64],
         dfdx: &mut Bsr3,
-        _dfdv: Option<&mut Bsr3>,
+        dfdv: Option<&mut Bsr3>,
     ) -> Result<(), IntegrateError> {
         self.prepare_jacobians(work)
             .map_err(IntegrateError::Sparse)?;
         self.loads.forces(t, &self.body(), x, v, f);
         let (m, l, n) = (self.material.model, self.lame, self.n);
+        let beta = self.rayleigh[1];
         let FemWork { f: ef, jac } = work;
         let (kbuf, asm) = jac.as_mut().expect("prepared above");
         ef.par_chunks_mut(12 * CHUNK)
@@ -573,9 +653,10 @@ impl MechModel for Fem {
                 for le in 0..fo.len() / 12 {
                     let e = c * CHUNK + le;
                     let mut fe = [[0.0; 3]; 4];
+                    let k = &mut ko[TET_K * le..TET_K * (le + 1)];
                     element_stiffness(
                         &mut fe,
-                        &mut ko[TET_K * le..TET_K * (le + 1)],
+                        k,
                         m,
                         l,
                         &gather_nodes(x, n, &self.tets[e]),
@@ -583,12 +664,63 @@ impl MechModel for Fem {
                         self.volume[e],
                         self.definiteness_fix,
                     );
+                    if beta > 0.0 {
+                        add_stiffness_damping(&mut fe, k, beta, &gather_nodes(v, n, &self.tets[e]));
+                    }
                     fo[12 * le..12 * le + 12].copy_from_slice(fe.as_flattened());
                 }
             });
         self.gather.gather_vectors_add(ef, f);
+        self.add_mass_damping(v, f);
         asm.gather_blocks(kbuf, dfdx);
+        // df/dv of the damping force -(alpha M + beta K) v, K = -df_el/dx: beta dfdx -
+        // alpha M (its dependence on x through K is left out, as usual for Rayleigh
+        // damping).
+        if let Some(d) = dfdv {
+            d.assign_lincomb(&[(beta, dfdx)]);
+            d.add_diagonal(&self.damping_mass);
+        }
         Ok(())
+    }
+
+    fn has_velocity_jacobian(&self) -> bool {
+        self.rayleigh.iter().any(|&c| c > 0.0)
+    }
+
+    fn dissipation(&self, x: &[f64], v: &[f64]) -> f64 {
+        // Psi = 1/2 v^T (alpha M + beta K) v, so that -dPsi/dv is the damping force.
+        let (alpha, beta, n) = (self.rayleigh[0], self.rayleigh[1], self.n);
+        let mass: f64 = (0..n)
+            .map(|i| self.mass[i] * (0..3).map(|c| v[c * n + i].powi(2)).sum::<f64>())
+            .sum();
+        let mut psi = 0.5 * alpha * mass;
+        if beta > 0.0 {
+            let (m, l) = (self.material.model, self.lame);
+            let mut k = [0.0; TET_K];
+            for (e, el) in self.tets.iter().enumerate() {
+                let mut f = [[0.0; 3]; 4];
+                element_stiffness(
+                    &mut f,
+                    &mut k,
+                    m,
+                    l,
+                    &gather_nodes(x, n, el),
+                    &self.dm_inv(e),
+                    self.volume[e],
+                    self.definiteness_fix,
+                );
+                let ve = gather_nodes(v, n, el);
+                let mut fd = [[0.0; 3]; 4];
+                add_stiffness_damping(&mut fd, &k, 1.0, &ve);
+                // fd = dfdx_e v_e = -K_e v_e: Psi_e = -1/2 v_e . fd.
+                psi -= 0.5
+                    * beta
+                    * (0..4)
+                        .map(|a| (0..3).map(|c| ve[a][c] * fd[a][c]).sum::<f64>())
+                        .sum::<f64>();
+            }
+        }
+        psi
     }
 
     fn obstacles(&self) -> &[Obstacle] {
@@ -623,6 +755,15 @@ impl MechModel for Fem {
             )
         } else {
             Stage::left_out("definiteness fix", "definiteness_fix = false")
+        });
+        let [alpha, beta] = self.rayleigh;
+        stages.push(if alpha > 0.0 || beta > 0.0 {
+            Stage::built(
+                "Rayleigh damping",
+                format!("alpha = {alpha} 1/s (mass), beta = {beta} s (stiffness)"),
+            )
+        } else {
+            Stage::left_out("Rayleigh damping", "no [fem.damping]")
         });
         stages.extend(self.loads.stages());
         stages.push(Stage::pinned(self.pinned));

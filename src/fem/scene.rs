@@ -22,6 +22,9 @@
 //!                               #    or file = "beam.vtk" (legacy VTK, tets and hexes)
 //! cells = [20, 2, 2]            #    scale, offset, reorient optional
 //! size = [1.0, 0.1, 0.1]        # (m); origin optional
+//! # [fem.damping]               # Rayleigh: C = mass M + stiffness K
+//! # mass = 0.5                  # 1/s
+//! # stiffness = 0.001            # s
 //! # [fem.static]                # equilibrium instead of dynamics: step k applies load
 //! # increments = 10             # increment k of `increments` (default 10)
 //! # tolerance = 1e-8            # residual relative to the largest load on a vertex
@@ -88,9 +91,24 @@ pub struct FemTable {
     pub mesh: Option<MeshTable>,
     /// `[fem.material]`
     pub material: MaterialTable,
+    /// `[fem.damping]`: Rayleigh damping.
+    #[serde(default)]
+    pub damping: Option<DampingTable>,
     /// `[fem.static]`: solve for equilibrium instead of stepping in time.
     #[serde(default, rename = "static")]
     pub statics: Option<StaticTable>,
+}
+
+/// `[fem.damping]`: Rayleigh damping `C = mass M + stiffness K`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DampingTable {
+    /// Mass-proportional coefficient alpha (1/s, default 0).
+    #[serde(default)]
+    pub mass: f64,
+    /// Stiffness-proportional coefficient beta (s, default 0).
+    #[serde(default)]
+    pub stiffness: f64,
 }
 
 /// `[fem.static]`
@@ -408,6 +426,16 @@ pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
             .iter()
             .map(|p| std::array::from_fn(|c| centre[c] + s[c] * (p[c] - centre[c])))
             .collect();
+    }
+    if let Some(d) = &t.damping {
+        desc.rayleigh = [
+            ctx.non_negative(d.mass, &at(&[&"damping", &"mass"]), "mass damping")?,
+            ctx.non_negative(
+                d.stiffness,
+                &at(&[&"damping", &"stiffness"]),
+                "stiffness damping",
+            )?,
+        ];
     }
     desc.gravity = ctx.gravity;
     desc.definiteness_fix = t.definiteness_fix.unwrap_or(true);

@@ -62,7 +62,7 @@ impl Equilibrium<'_> {
     fn forces(&mut self, y: &[f64]) {
         let s = &mut *self.s;
         s.f.fill(0.0);
-        self.model.element_forces_into(&mut s.work.f, y);
+        self.model.element_forces_into(&mut s.work.f, y, None);
         self.model.gather.gather_vectors_add(&s.work.f, &mut s.f);
         kv::axpy(&mut s.f, self.lambda, &s.gravity);
     }
