@@ -1116,3 +1116,66 @@ fn rayleigh_damping_is_consistent_and_damps() {
         "damped {damped}, undamped {undamped}"
     );
 }
+
+/// Forces, stiffness, damping and energy have the same bits on 1 and 3 threads (fixed
+/// element chunks, gathers in a fixed order), on a mesh large enough to span several
+/// chunks; the elastic forces of a free body sum to zero.
+#[test]
+fn fem_results_do_not_depend_on_the_thread_count() {
+    use largestep::sparse::Bsr3;
+    let mesh = box_mesh([12, 6, 6], [1.2, 0.6, 0.6], [0.0; 3]);
+    let n = mesh.positions.len();
+    let mut d = FemDesc::new(
+        mesh.positions.clone(),
+        mesh.tets.clone(),
+        FemMaterial::rubber(Material::Corotational),
+    );
+    d.rayleigh = [0.1, 0.01];
+    let (model, state) = d.build().unwrap();
+    assert!(model.tets().len() > 2 * 1024);
+    let x: Vec<f64> = state
+        .x
+        .as_slice()
+        .iter()
+        .enumerate()
+        .map(|(k, &v)| v + 0.02 * ((k * 7 % 11) as f64 / 11.0 - 0.5))
+        .collect();
+    let v: Vec<f64> = (0..3 * n)
+        .map(|k| (k * 5 % 13) as f64 / 13.0 - 0.5)
+        .collect();
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            let mut work = model.work();
+            let pattern = model.prepare_jacobians(&mut work).unwrap().unwrap();
+            let (mut kx, mut kv) = (Bsr3::zeros(pattern.clone()), Bsr3::zeros(pattern));
+            let mut f = vec![0.0; 3 * n];
+            model
+                .force_jacobians(&mut work, 0.0, &x, &v, &mut f, &mut kx, Some(&mut kv))
+                .unwrap();
+            let mut fe = vec![0.0; 3 * n];
+            model.force(&mut work, 0.0, &x, &vec![0.0; 3 * n], &mut fe);
+            (
+                f,
+                kx.values().to_vec(),
+                kv.values().to_vec(),
+                fe,
+                model.elastic_energy(&x),
+            )
+        })
+    };
+    let (a, b) = (run(1), run(3));
+    assert_eq!(a.0, b.0);
+    assert_eq!(a.1, b.1);
+    assert_eq!(a.2, b.2);
+    assert_eq!(a.3, b.3);
+    assert_eq!(a.4.to_bits(), b.4.to_bits());
+    let scale: f64 = a.3.iter().map(|f| f.abs()).sum();
+    for c in 0..3 {
+        let s: f64 = a.3[c * n..(c + 1) * n].iter().sum();
+        assert!(s.abs() < 1e-10 * scale, "net elastic force {s}");
+    }
+}
