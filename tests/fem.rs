@@ -1179,3 +1179,107 @@ fn fem_results_do_not_depend_on_the_thread_count() {
         assert!(s.abs() < 1e-10 * scale, "net elastic force {s}");
     }
 }
+
+/// A box mesh written as Gmsh 2.2 and 4.1 text (node tags with gaps, boundary triangles
+/// and points mixed in, as Gmsh writes them) reads back as the same mesh.
+#[test]
+fn gmsh_meshes_read_in_versions_2_2_and_4_1() {
+    use largestep::fem::gmsh::parse_msh;
+    use std::fmt::Write as _;
+    let mesh = box_mesh([2, 1, 1], [2.0, 1.0, 1.0], [0.0; 3]);
+    let tag = |i: usize| 10 + 3 * i; // tags with gaps
+    let mut v2 = String::from("$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n");
+    writeln!(v2, "{}", mesh.positions.len()).unwrap();
+    for (i, p) in mesh.positions.iter().enumerate() {
+        writeln!(v2, "{} {} {} {}", tag(i), p[0], p[1], p[2]).unwrap();
+    }
+    writeln!(v2, "$EndNodes\n$Elements\n{}", mesh.tets.len() + 2).unwrap();
+    writeln!(v2, "1 15 2 0 1 {}", tag(0)).unwrap();
+    writeln!(v2, "2 2 2 0 1 {} {} {}", tag(0), tag(1), tag(2)).unwrap();
+    for (e, t) in mesh.tets.iter().enumerate() {
+        writeln!(
+            v2,
+            "{} 4 2 0 1 {} {} {} {}",
+            e + 3,
+            tag(t[0] as usize),
+            tag(t[1] as usize),
+            tag(t[2] as usize),
+            tag(t[3] as usize)
+        )
+        .unwrap();
+    }
+    v2.push_str("$EndElements\n");
+    let back = parse_msh(&v2, "m.msh").unwrap();
+    assert_eq!(
+        (back.positions.clone(), back.tets.clone()),
+        (mesh.positions.clone(), mesh.tets.clone())
+    );
+
+    let n = mesh.positions.len();
+    let half = n / 2;
+    let mut v4 = String::from("$MeshFormat\n4.1 0 8\n$EndMeshFormat\n$Entities\n0 0 0 1\n1 0 0 0 2 1 1 0\n$EndEntities\n$Nodes\n");
+    writeln!(v4, "2 {n} {} {}", tag(0), tag(n - 1)).unwrap();
+    for (lo, hi) in [(0, half), (half, n)] {
+        writeln!(v4, "3 1 0 {}", hi - lo).unwrap();
+        for i in lo..hi {
+            writeln!(v4, "{}", tag(i)).unwrap();
+        }
+        for p in &mesh.positions[lo..hi] {
+            writeln!(v4, "{} {} {}", p[0], p[1], p[2]).unwrap();
+        }
+    }
+    writeln!(
+        v4,
+        "$EndNodes\n$Elements\n2 {} 1 {}",
+        mesh.tets.len() + 1,
+        mesh.tets.len() + 1
+    )
+    .unwrap();
+    writeln!(v4, "2 1 2 1\n1 {} {} {}", tag(0), tag(1), tag(2)).unwrap();
+    writeln!(v4, "3 1 4 {}", mesh.tets.len()).unwrap();
+    for (e, t) in mesh.tets.iter().enumerate() {
+        writeln!(
+            v4,
+            "{} {} {} {} {}",
+            e + 2,
+            tag(t[0] as usize),
+            tag(t[1] as usize),
+            tag(t[2] as usize),
+            tag(t[3] as usize)
+        )
+        .unwrap();
+    }
+    v4.push_str("$EndElements\n");
+    let back = parse_msh(&v4, "m.msh").unwrap();
+    assert_eq!(
+        (back.positions, back.tets),
+        (mesh.positions.clone(), mesh.tets.clone())
+    );
+
+    // Errors name the line.
+    let bad = v2.replacen(
+        &format!("{} 4 2 0 1 {}", 3, tag(mesh.tets[0][0] as usize)),
+        "3 4 2 0 1 99999",
+        1,
+    );
+    let e = parse_msh(&bad, "m.msh").unwrap_err().to_string();
+    assert!(
+        e.contains("node 99999 is not in $Nodes") && e.starts_with("m.msh:"),
+        "{e}"
+    );
+    let e = parse_msh(&v2.replacen("2.2 0 8", "2.2 1 8", 1), "m.msh")
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("binary"), "{e}");
+    let e = parse_msh(
+        &v2.replacen(&format!("$Nodes\n{}", n), "$Nodes\n900000000", 1),
+        "m.msh",
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("more than the file"), "{e}");
+    let e = parse_msh(&v4.replacen("3 1 4 ", "3 1 11 ", 1), "m.msh")
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("quadratic"), "{e}");
+}

@@ -17,6 +17,7 @@
 //! inverted one first, for meshes written with the other orientation). Nodes no element
 //! uses carry no mass; they are held fixed and listed in [`Fem::unused_nodes`].
 
+pub mod gmsh;
 pub mod mesh;
 pub mod scene;
 mod statics;

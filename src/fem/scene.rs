@@ -20,6 +20,7 @@
 //! normal = [0.0, 1.0, 0.0]
 //! [fem.beam]                    # or [fem.mesh] file = "nut.node" (TetGen; .ele beside it)
 //!                               #    or file = "beam.vtk" (legacy VTK, tets and hexes)
+//!                               #    or file = "part.msh" (Gmsh 2.2 or 4.1, ASCII)
 //! cells = [20, 2, 2]            #    scale, offset, reorient optional
 //! size = [1.0, 0.1, 0.1]        # (m); origin optional
 //! # [fem.damping]               # Rayleigh: C = mass M + stiffness K
@@ -161,7 +162,8 @@ pub struct BeamTable {
 #[serde(deny_unknown_fields)]
 pub struct MeshTable {
     /// The mesh file, relative to the scene file: a TetGen `.node` (its `.ele` beside it)
-    /// or a legacy VTK unstructured grid `.vtk` (tetrahedra and hexahedra).
+    /// or a legacy VTK unstructured grid `.vtk` (tetrahedra and hexahedra), or a Gmsh
+    /// `.msh` (ASCII 2.2 or 4.1).
     pub file: String,
     /// Multiplies the positions (default 1).
     #[serde(default)]
@@ -301,8 +303,13 @@ pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
             let vtk = file
                 .extension()
                 .is_some_and(|e| e.eq_ignore_ascii_case("vtk"));
+            let msh = file
+                .extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("msh"));
             let read = if vtk {
                 super::vtk::read_vtk(&file, ctx.limits.max_file_bytes)
+            } else if msh {
+                super::gmsh::read_msh(&file, ctx.limits.max_file_bytes)
             } else {
                 read_tetgen(&file.with_extension(""), ctx.limits.max_file_bytes)
             };

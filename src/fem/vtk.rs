@@ -227,11 +227,6 @@ pub fn parse_vtk(text: &str, name: &str) -> Result<TetMesh, ReadError> {
             }
         }
     }
-    for t in &mut mesh.tets {
-        if signed_volume(&t.map(|i| mesh.positions[i as usize])) < 0.0 {
-            t.swap(2, 3);
-        }
-    }
     Ok(mesh)
 }
 
@@ -264,7 +259,13 @@ fn split_hexahedron(mesh: &mut TetMesh, v: &[u32], face_centre: &mut HashMap<[u3
             (mesh.positions.len() - 1) as u32
         });
         for e in 0..4 {
-            mesh.tets.push([ids[e], ids[(e + 1) % 4], fc, centre]);
+            // Oriented here (the file's tetrahedra keep the file's orientation: VTK's is
+            // positive, and an inverted one is the model's to report).
+            let mut t = [ids[e], ids[(e + 1) % 4], fc, centre];
+            if signed_volume(&t.map(|i| mesh.positions[i as usize])) < 0.0 {
+                t.swap(2, 3);
+            }
+            mesh.tets.push(t);
         }
     }
 }
