@@ -1283,3 +1283,36 @@ fn gmsh_meshes_read_in_versions_2_2_and_4_1() {
         .to_string();
     assert!(e.contains("quadratic"), "{e}");
 }
+
+/// The quick `fem-accuracy` study writes its report, says it was quick, and its error
+/// falls as the mesh is refined.
+#[cfg(feature = "cli")]
+#[test]
+fn the_quick_fem_accuracy_study_reports_convergence() {
+    let out = std::env::temp_dir().join(format!("largestep-fem-study-{}", std::process::id()));
+    let summary = largestep::study::run(
+        "fem-accuracy",
+        &out,
+        true,
+        &largestep::study::Progress::silent(),
+    )
+    .unwrap();
+    assert!(summary.contains("fem-accuracy"));
+    let md = std::fs::read_to_string(out.join("fem-accuracy.md")).unwrap();
+    assert!(
+        md.contains("fem-accuracy --quick") && md.contains("1 to 4 cubes across"),
+        "{md}"
+    );
+    let json: Vec<serde_json::Value> =
+        serde_json::from_str(&std::fs::read_to_string(out.join("fem-accuracy.json")).unwrap())
+            .unwrap();
+    let errors: Vec<f64> = json[0]["points"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p["error"].as_f64().unwrap())
+        .collect();
+    assert!(errors.windows(2).all(|w| w[1] < w[0]), "{errors:?}");
+    assert!(out.join("fem-accuracy.png").is_file());
+    let _ = std::fs::remove_dir_all(&out);
+}

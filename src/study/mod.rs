@@ -4,6 +4,8 @@
 
 #[cfg(feature = "cloth")]
 mod cloth;
+#[cfg(feature = "fem")]
+mod fem;
 mod integrators;
 #[cfg(feature = "mass-spring")]
 mod jello;
@@ -83,6 +85,8 @@ const STUDIES: &[Study] = &[
     ("cloth-accuracy", cloth::accuracy),
     #[cfg(feature = "cloth")]
     ("cloth-stability", cloth::stability),
+    #[cfg(feature = "fem")]
+    ("fem-accuracy", fem::accuracy),
 ];
 
 /// The names of the studies built in.
