@@ -1316,3 +1316,31 @@ fn the_quick_fem_accuracy_study_reports_convergence() {
     assert!(out.join("fem-accuracy.png").is_file());
     let _ = std::fs::remove_dir_all(&out);
 }
+
+/// The quick `fem-stability` study finds symplectic Euler's largest stable step within 2%
+/// of `2 / omega_max` for every material constant, and a smaller one from an inverted
+/// start.
+#[cfg(feature = "cli")]
+#[test]
+fn the_explicit_step_limit_is_two_over_the_highest_frequency() {
+    let out = std::env::temp_dir().join(format!("largestep-fem-stab-{}", std::process::id()));
+    largestep::study::run(
+        "fem-stability",
+        &out,
+        true,
+        &largestep::study::Progress::silent(),
+    )
+    .unwrap();
+    let rows: Vec<serde_json::Value> =
+        serde_json::from_str(&std::fs::read_to_string(out.join("fem-stability.json")).unwrap())
+            .unwrap();
+    for r in &rows {
+        let ratio = r["measured_dt"].as_f64().unwrap() / r["predicted_dt"].as_f64().unwrap();
+        if r["inverted_start"].as_bool().unwrap() {
+            assert!(ratio < 0.9, "{r}");
+        } else {
+            assert!((ratio - 1.0).abs() < 0.02, "{r}");
+        }
+    }
+    let _ = std::fs::remove_dir_all(&out);
+}

@@ -87,6 +87,8 @@ const STUDIES: &[Study] = &[
     ("cloth-stability", cloth::stability),
     #[cfg(feature = "fem")]
     ("fem-accuracy", fem::accuracy),
+    #[cfg(feature = "fem")]
+    ("fem-stability", fem::stability),
 ];
 
 /// The names of the studies built in.
