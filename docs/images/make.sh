@@ -22,4 +22,6 @@ cloth-drape scenes/cloth-drape.toml 1280x720 contact-sheet.png
 flag scenes/flag.toml 1280x720 contact-sheet.png
 tablecloth scenes/tablecloth.toml 1280x720 contact-sheet.png
 hanging-chain scenes/hanging-chain.toml 640x360 animation.gif
+fem-nut scenes/fem-nut.toml 1280x720 contact-sheet.png
+fem-ball scenes/fem-ball.toml 640x360 animation.gif
 LIST
