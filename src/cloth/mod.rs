@@ -964,15 +964,7 @@ impl MechModel for Cloth {
             stages.push(Stage::left_out("wind", "no [cloth.wind]"));
         }
         stages.push(Stage::pinned(self.pinned.len()));
-        stages.push(if self.obstacles.is_empty() {
-            Stage::left_out("collision structures", "the scene has no colliders")
-        } else {
-            let kinds: Vec<&str> = self.obstacles.iter().map(|o| o.kind()).collect();
-            Stage::built(
-                "obstacle contacts (constraint filter + position correction)",
-                kinds.join(", "),
-            )
-        });
+        stages.push(Stage::obstacle_contacts(&self.obstacles));
         stages.push(if self.paths.is_empty() {
             Stage::left_out("prescribed paths", "no [[cloth.path]]")
         } else {

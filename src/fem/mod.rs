@@ -774,15 +774,7 @@ impl MechModel for Fem {
                 format!("{} nodes in no element", self.unused.len()),
             ));
         }
-        stages.push(if self.obstacles.is_empty() {
-            Stage::left_out("collision structures", "the scene has no colliders")
-        } else {
-            let kinds: Vec<&str> = self.obstacles.iter().map(|o| o.kind()).collect();
-            Stage::built(
-                "obstacle contacts (constraint filter + position correction)",
-                kinds.join(", "),
-            )
-        });
+        stages.push(Stage::obstacle_contacts(&self.obstacles));
         stages
     }
 

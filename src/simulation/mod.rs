@@ -38,6 +38,20 @@ pub struct Stage {
 pub const NEWTON_STAGE: &str = "Newton iteration";
 
 impl Stage {
+    /// The constraint contacts with `obstacles` (`collide::VertexContacts`), or why they
+    /// are left out.
+    pub fn obstacle_contacts(obstacles: &[crate::collide::Obstacle]) -> Stage {
+        if obstacles.is_empty() {
+            Stage::left_out("collision structures", "the scene has no colliders")
+        } else {
+            let kinds: Vec<&str> = obstacles.iter().map(|o| o.kind()).collect();
+            Stage::built(
+                "obstacle contacts (constraint filter + position correction)",
+                kinds.join(", "),
+            )
+        }
+    }
+
     /// A stage built, with what it holds.
     pub fn built(name: &'static str, detail: impl Into<String>) -> Stage {
         Stage {

@@ -18,8 +18,8 @@
 //! shrinks like 1/sqrt(k); the implicit step allows steps hundreds of times larger, and
 //! with the paper's step-size control (third series) any dt tried.
 
-use super::{log_slope, max_distance, write_file, Progress, StudyError};
-use crate::plot::{write_panels, Curve, Panel, Scale};
+use super::{log_slope, max_distance, write_file, write_plot_and_numbers, Progress, StudyError};
+use crate::plot::{Curve, Panel, Scale};
 use crate::scene::Scene;
 use crate::simulation::FrameData;
 use serde::Serialize;
@@ -191,15 +191,7 @@ pub(super) fn accuracy(
             })
             .collect(),
     }];
-    let stem = out.join("cloth-accuracy");
-    write_panels(&stem, &panels, 1, (760, 520)).map_err(|message| StudyError::Write {
-        path: stem.display().to_string(),
-        message,
-    })?;
-    write_file(
-        &out.join("cloth-accuracy.json"),
-        &serde_json::to_string_pretty(&sweeps).expect("serialize"),
-    )?;
+    write_plot_and_numbers(out, "cloth-accuracy", &panels, 1, (760, 520), &sweeps)?;
     let mut md = String::new();
     let _ = writeln!(
         md,
@@ -398,15 +390,7 @@ pub(super) fn stability(
         scale: Scale::LogLog,
         curves,
     }];
-    let stem = out.join("cloth-stability");
-    write_panels(&stem, &panels, 1, (760, 520)).map_err(|message| StudyError::Write {
-        path: stem.display().to_string(),
-        message,
-    })?;
-    write_file(
-        &out.join("cloth-stability.json"),
-        &serde_json::to_string_pretty(&rows).expect("serialize"),
-    )?;
+    write_plot_and_numbers(out, "cloth-stability", &panels, 1, (760, 520), &rows)?;
     let mut md = String::new();
     let _ = writeln!(
         md,

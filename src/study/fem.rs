@@ -12,10 +12,10 @@
 //! 15% of the length, so the nonlinear materials also see the geometric stiffening that
 //! small-deflection beam theory leaves out (about 1% here).
 
-use super::{write_file, Progress, StudyError};
+use super::{write_file, write_plot_and_numbers, Progress, StudyError};
 use crate::fem::mesh::box_mesh;
 use crate::fem::{FemDesc, FemMaterial, Material};
-use crate::plot::{write_panels, Curve, Panel, Scale};
+use crate::plot::{Curve, Panel, Scale};
 use serde::Serialize;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -167,15 +167,7 @@ pub(super) fn accuracy(
             })
             .collect(),
     }];
-    let stem = out.join("fem-accuracy");
-    write_panels(&stem, &panels, 1, (820, 520)).map_err(|message| StudyError::Write {
-        path: stem.display().to_string(),
-        message,
-    })?;
-    write_file(
-        &out.join("fem-accuracy.json"),
-        &serde_json::to_string_pretty(&sweeps).expect("serialize"),
-    )?;
+    write_plot_and_numbers(out, "fem-accuracy", &panels, 1, (820, 520), &sweeps)?;
     let mut md = String::new();
     let _ = writeln!(
         md,
@@ -450,15 +442,7 @@ pub(super) fn stability(
             ),
         ],
     }];
-    let stem = out.join("fem-stability");
-    write_panels(&stem, &panels, 1, (760, 520)).map_err(|message| StudyError::Write {
-        path: stem.display().to_string(),
-        message,
-    })?;
-    write_file(
-        &out.join("fem-stability.json"),
-        &serde_json::to_string_pretty(&rows).expect("serialize"),
-    )?;
+    write_plot_and_numbers(out, "fem-stability", &panels, 1, (760, 520), &rows)?;
     let mut md = String::new();
     let _ = writeln!(
         md,

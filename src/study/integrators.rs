@@ -22,11 +22,11 @@
 //! stability analysis (see `theory`).
 
 use super::problems::{Oscillator, Pendulum, StiffScalar};
-use super::{write_file, Progress, StudyError};
+use super::{write_file, write_plot_and_numbers, Progress, StudyError};
 use crate::integrate::{
     LinearSolverKind, MechSettings, MechStepper, Mechanical, Method, OdeStepper,
 };
-use crate::plot::{write_panels, Curve, Panel, Scale};
+use crate::plot::{Curve, Panel, Scale};
 use crate::solve::{PcgParams, Preconditioner};
 use serde::Serialize;
 use std::fmt::Write as _;
@@ -496,13 +496,7 @@ fn write_outputs(out: &Path, r: &Report) -> Result<String, StudyError> {
                 .collect(),
         })
         .collect();
-    let stem = out.join("integrators");
-    write_panels(&stem, &panels, 2, (620, 460)).map_err(|message| StudyError::Write {
-        path: stem.display().to_string(),
-        message,
-    })?;
-    let json = serde_json::to_string_pretty(r).expect("the report serializes");
-    write_file(&out.join("integrators.json"), &json)?;
+    write_plot_and_numbers(out, "integrators", &panels, 2, (620, 460), r)?;
 
     let mut md = String::new();
     let mut summary = String::new();

@@ -23,10 +23,10 @@
 //! hits a wall at 25 m/s, is too chaotic for this: after 1 s runs differing by rounding
 //! end metres apart.) Run time: wall time of the whole run on this machine.
 
-use super::{log_slope, max_distance, write_file, Progress, StudyError};
+use super::{log_slope, max_distance, write_file, write_plot_and_numbers, Progress, StudyError};
 use crate::integrate::{MechSettings, Method};
 use crate::mass_spring::{lattice, CollisionDesc, LatticeOptions, MassSpringDesc};
-use crate::plot::{write_panels, Curve, Panel, Scale};
+use crate::plot::{Curve, Panel, Scale};
 use crate::simulation::{MechModel, MechSimulation};
 use crate::sparse::Bsr3;
 use serde::Serialize;
@@ -333,15 +333,7 @@ pub(super) fn stability(
             &|r| r.mass,
         ),
     ];
-    let stem = out.join("jello-stability");
-    write_panels(&stem, &panels, 2, (640, 480)).map_err(|message| StudyError::Write {
-        path: stem.display().to_string(),
-        message,
-    })?;
-    write_file(
-        &out.join("jello-stability.json"),
-        &serde_json::to_string_pretty(&rows).expect("rows serialize"),
-    )?;
+    write_plot_and_numbers(out, "jello-stability", &panels, 2, (640, 480), &rows)?;
     let mut md = String::new();
     let _ = writeln!(
         md,
@@ -531,15 +523,7 @@ pub(super) fn accuracy(
             })
             .collect(),
     }];
-    let stem = out.join("jello-accuracy");
-    write_panels(&stem, &panels, 1, (760, 520)).map_err(|message| StudyError::Write {
-        path: stem.display().to_string(),
-        message,
-    })?;
-    write_file(
-        &out.join("jello-accuracy.json"),
-        &serde_json::to_string_pretty(&series).expect("series serialize"),
-    )?;
+    write_plot_and_numbers(out, "jello-accuracy", &panels, 1, (760, 520), &series)?;
     let mut md = String::new();
     let _ = writeln!(
         md,

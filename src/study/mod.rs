@@ -114,6 +114,25 @@ pub fn run(
     }
 }
 
+/// Writes a study's `NAME.svg` and `NAME.png` (the panels, `cols` per row, each `size`
+/// pixels) and `NAME.json` (its numbers) into `out`.
+pub(crate) fn write_plot_and_numbers(
+    out: &Path,
+    name: &str,
+    panels: &[crate::plot::Panel],
+    cols: usize,
+    size: (u32, u32),
+    numbers: &impl serde::Serialize,
+) -> Result<(), StudyError> {
+    let stem = out.join(name);
+    crate::plot::write_panels(&stem, panels, cols, size).map_err(|message| StudyError::Write {
+        path: stem.display().to_string(),
+        message,
+    })?;
+    let json = serde_json::to_string_pretty(numbers).expect("study numbers serialize");
+    write_file(&out.join(format!("{name}.json")), &json)
+}
+
 pub(crate) fn write_file(path: &Path, text: &str) -> Result<(), StudyError> {
     crate::io::write_atomically(path, |w| w.write_all(text.as_bytes())).map_err(|e| {
         StudyError::Write {
