@@ -1392,3 +1392,28 @@ fn dynamic_solvers_on_a_vibrating_beam() {
     let (end, _) = run(Method::BackwardEuler, 2e-3);
     assert!(end < 0.8, "backward Euler keeps {end} of the energy");
 }
+
+/// A mesh file with a node no element uses runs (the node held, massless) and the run
+/// summary says so in a warning naming the node.
+#[test]
+fn unused_nodes_are_a_warning_in_the_run_summary() {
+    use largestep::scene::{Runner, Scene};
+    let dir = std::env::temp_dir().join(format!("largestep-fem-unused-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(
+        dir.join("t.node"),
+        "5 3 0 0\n0 0 0 0\n1 1 0 0\n2 0 1 0\n3 0 0 1\n4 5 5 5\n",
+    )
+    .unwrap();
+    std::fs::write(dir.join("t.ele"), "1 4 0\n0 0 1 2 3\n").unwrap();
+    let scene = "[scene]\nname = \"unused\"\ndt = 0.01\nduration = 0.03\nintegrator = \"backward-euler\"\n[fem]\n[fem.mesh]\nfile = \"t.node\"\n[fem.material]\nmodel = \"linear\"\npreset = \"rubber\"\n[output]\nframes = \"none\"\n";
+    std::fs::write(dir.join("s.toml"), scene).unwrap();
+    let mut runner = Runner::new(Scene::load(&dir.join("s.toml")).unwrap(), &dir.join("out"));
+    let summary = runner.run(None, &mut |_| {}).unwrap().to_string();
+    assert!(
+        summary.contains("warning")
+            && summary.contains("1 of 5 nodes belong to no element (first: node 4)"),
+        "{summary}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

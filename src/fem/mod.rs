@@ -781,4 +781,16 @@ impl MechModel for Fem {
     fn triangles(&self) -> &[[u32; 3]] {
         &self.surface
     }
+
+    fn warnings(&self) -> Vec<String> {
+        match self.unused.as_slice() {
+            [] => Vec::new(),
+            u => vec![format!(
+                "{} of {} nodes belong to no element (first: node {}): they carry no mass and are held where they are",
+                u.len(),
+                self.n,
+                u[0]
+            )],
+        }
+    }
 }

@@ -354,4 +354,8 @@ impl crate::simulation::Simulation for StaticSimulation {
     fn as_any(&self) -> &dyn std::any::Any {
         self
     }
+
+    fn warnings(&self) -> Vec<String> {
+        self.model.warnings()
+    }
 }

@@ -157,6 +157,8 @@ pub struct Summary {
     pub linear_iterations: usize,
     /// Most linear-solver iterations in one step.
     pub max_linear_iterations: usize,
+    /// What the systems found questionable in their input but ran with.
+    pub warnings: Vec<String>,
     /// The output folder.
     pub out_dir: PathBuf,
 }
@@ -225,6 +227,9 @@ impl std::fmt::Display for Summary {
                 pct(self.energy_peak.0),
                 human(self.energy_peak.1)
             )?;
+        }
+        for w in &self.warnings {
+            writeln!(f, "  warning        {w}")?;
         }
         if self.max_penetration > 0.5 * self.size {
             writeln!(
@@ -659,6 +664,7 @@ impl Runner {
             newton_iterations: 0,
             linear_iterations: 0,
             max_linear_iterations: 0,
+            warnings: self.systems.iter().flat_map(|s| s.sim.warnings()).collect(),
             out_dir: self.out_dir.clone(),
         };
         let mut steps_done = 0usize;
@@ -811,6 +817,7 @@ mod tests {
             newton_iterations: 480,
             linear_iterations: 0,
             max_linear_iterations: 0,
+            warnings: Vec::new(),
             out_dir: PathBuf::from("out/s"),
         }
     }

@@ -169,6 +169,11 @@ pub trait MechModel: Send + Sync + 'static {
     fn step_control(&self) -> Option<StepControl> {
         None
     }
+    /// What the model found questionable in its input but runs with (see
+    /// [`Simulation::warnings`]).
+    fn warnings(&self) -> Vec<String> {
+        Vec::new()
+    }
     /// Whether loads without a potential (wind, force fields) act on the model.
     fn does_external_work(&self) -> bool {
         false
@@ -697,5 +702,9 @@ impl<M: MechModel> Simulation for MechSimulation<M> {
 
     fn as_any(&self) -> &dyn std::any::Any {
         self
+    }
+
+    fn warnings(&self) -> Vec<String> {
+        self.model.warnings()
     }
 }

@@ -152,6 +152,11 @@ pub trait Simulation: Send {
     /// `self` as `Any`, to reach the concrete simulation (see
     /// `<dyn Simulation>::downcast_ref`).
     fn as_any(&self) -> &dyn std::any::Any;
+    /// What the model found questionable in its input but could run with (nodes no
+    /// element uses, say), one line each, for the run summary.
+    fn warnings(&self) -> Vec<String> {
+        Vec::new()
+    }
 }
 
 impl dyn Simulation + '_ {
