@@ -217,8 +217,51 @@ fn green_strain(f: &M3) -> M3 {
     std::array::from_fn(|i| 0.5 * (c[i] - I3[i]))
 }
 
+/// What the stress and its differential need of one F, computed once: the polar factors
+/// (corotational), `F^-1` and `log J` (neo-Hookean), the cofactor matrix (stable
+/// neo-Hookean), the second Piola-Kirchhoff stress (St. Venant-Kirchhoff). The tangent
+/// takes nine differentials at one F; recomputing these for each (a polar decomposition
+/// by iteration, for the corotational model) cost more than the differentials.
+#[derive(Clone, Copy, Debug)]
+struct AtF {
+    f: M3,
+    j: f64,
+    /// R (corotational), F^-1 (neo-Hookean), cof F (stable neo-Hookean), S (StVK).
+    a: M3,
+    /// S of the polar decomposition (corotational).
+    b: M3,
+}
+
+impl AtF {
+    fn new(m: Material, l: Lame, f: &M3) -> Self {
+        let mut at = AtF {
+            f: *f,
+            j: det(f),
+            a: [0.0; 9],
+            b: [0.0; 9],
+        };
+        match m {
+            Material::Linear => {}
+            Material::Corotational => (at.a, at.b) = polar(f),
+            Material::StVenantKirchhoff => {
+                let e = green_strain(f);
+                let tr = trace(&e);
+                at.a = std::array::from_fn(|i| 2.0 * l.mu * e[i] + l.lambda * tr * I3[i]);
+            }
+            Material::NeoHookean => at.a = inverse(f),
+            Material::StableNeoHookean => at.a = cofactor(f),
+        }
+        at
+    }
+}
+
 /// The first Piola-Kirchhoff stress `P = dPsi/dF` (Pa).
 pub fn pk1(m: Material, l: Lame, f: &M3) -> M3 {
+    pk1_at(m, l, &AtF::new(m, l, f))
+}
+
+fn pk1_at(m: Material, l: Lame, at: &AtF) -> M3 {
+    let f = &at.f;
     match m {
         Material::Linear => {
             let tr = trace(f) - 3.0;
@@ -227,29 +270,23 @@ pub fn pk1(m: Material, l: Lame, f: &M3) -> M3 {
             })
         }
         Material::Corotational => {
-            let (r, s) = polar(f);
-            let c = l.lambda * (trace(&s) - 3.0);
+            let (r, s) = (&at.a, &at.b);
+            let c = l.lambda * (trace(s) - 3.0);
             std::array::from_fn(|i| 2.0 * l.mu * (f[i] - r[i]) + c * r[i])
         }
-        Material::StVenantKirchhoff => {
-            let e = green_strain(f);
-            let tr = trace(&e);
-            let s: M3 = std::array::from_fn(|i| 2.0 * l.mu * e[i] + l.lambda * tr * I3[i]);
-            mul(f, &s)
-        }
+        Material::StVenantKirchhoff => mul(f, &at.a),
         Material::NeoHookean => {
-            let j = det(f);
+            let j = at.j;
             if j.is_nan() || j <= 0.0 {
                 return [f64::NAN; 9];
             }
-            let fit = transpose(&inverse(f));
+            let fit = transpose(&at.a);
             let c = l.lambda * j.ln() - l.mu;
             std::array::from_fn(|i| l.mu * f[i] + c * fit[i])
         }
         Material::StableNeoHookean => {
-            let j = det(f);
-            let cof = cofactor(f);
-            let c = (l.lambda + l.mu) * (j - 1.0) - l.mu;
+            let cof = &at.a;
+            let c = (l.lambda + l.mu) * (at.j - 1.0) - l.mu;
             std::array::from_fn(|i| l.mu * f[i] + c * cof[i])
         }
     }
@@ -257,6 +294,11 @@ pub fn pk1(m: Material, l: Lame, f: &M3) -> M3 {
 
 /// The differential of P at F in the direction dF: `dP = (dP/dF)[dF]`.
 pub fn pk1_differential(m: Material, l: Lame, f: &M3, df: &M3) -> M3 {
+    pk1_differential_at(m, l, &AtF::new(m, l, f), df)
+}
+
+fn pk1_differential_at(m: Material, l: Lame, at: &AtF, df: &M3) -> M3 {
+    let f = &at.f;
     match m {
         Material::Linear => {
             let tr = trace(df);
@@ -265,54 +307,51 @@ pub fn pk1_differential(m: Material, l: Lame, f: &M3, df: &M3) -> M3 {
             })
         }
         Material::Corotational => {
-            let (r, s) = polar(f);
+            let (r, s) = (&at.a, &at.b);
             // dR = R W, W = [w]x with (tr(S) I - S) w = axial(R^T dF - dF^T R) (from
             // R^T dF = W S + dS, S and dS symmetric: R^T dF - dF^T R = W S + S W).
-            let rt_df = mul(&transpose(&r), df);
+            let rt_df = mul(&transpose(r), df);
             let axial = [
                 rt_df[7] - rt_df[5],
                 rt_df[2] - rt_df[6],
                 rt_df[3] - rt_df[1],
             ];
-            let ts = trace(&s);
+            let ts = trace(s);
             let a: M3 = std::array::from_fn(|i| ts * I3[i] - s[i]);
             let w = solve3(&a, axial);
-            let dr = mul(&r, &cross_matrix(w));
+            let dr = mul(r, &cross_matrix(w));
             let c = l.lambda * (ts - 3.0);
             let dc = l.lambda * trace(&rt_df);
             std::array::from_fn(|i| 2.0 * l.mu * (df[i] - dr[i]) + dc * r[i] + c * dr[i])
         }
         Material::StVenantKirchhoff => {
-            let e = green_strain(f);
-            let tr = trace(&e);
-            let s: M3 = std::array::from_fn(|i| 2.0 * l.mu * e[i] + l.lambda * tr * I3[i]);
+            let s = &at.a;
             let ftdf = mul(&transpose(f), df);
             let de: M3 = std::array::from_fn(|i| 0.5 * (ftdf[i] + ftdf[3 * (i % 3) + i / 3]));
             let dtr = trace(&de);
             let ds: M3 = std::array::from_fn(|i| 2.0 * l.mu * de[i] + l.lambda * dtr * I3[i]);
-            add(&mul(df, &s), &mul(f, &ds))
+            add(&mul(df, s), &mul(f, &ds))
         }
         Material::NeoHookean => {
-            let j = det(f);
+            let j = at.j;
             if j.is_nan() || j <= 0.0 {
                 return [f64::NAN; 9];
             }
-            let fi = inverse(f);
-            let fit = transpose(&fi);
+            let fi = &at.a;
+            let fit = transpose(fi);
             // dP = mu dF + (mu - lambda log J) F^-T dF^T F^-T + lambda tr(F^-1 dF) F^-T.
             let t = mul(&mul(&fit, &transpose(df)), &fit);
             let c = l.mu - l.lambda * j.ln();
-            let tr = l.lambda * trace(&mul(&fi, df));
+            let tr = l.lambda * trace(&mul(fi, df));
             std::array::from_fn(|i| l.mu * df[i] + c * t[i] + tr * fit[i])
         }
         Material::StableNeoHookean => {
-            let j = det(f);
-            let cof = cofactor(f);
+            let cof = &at.a;
             let dcof = cofactor_differential(f, df);
             let lam = l.lambda + l.mu;
             // dJ = cof(F) : dF.
-            let dj = ddot(&cof, df);
-            let c = lam * (j - 1.0) - l.mu;
+            let dj = ddot(cof, df);
+            let c = lam * (at.j - 1.0) - l.mu;
             std::array::from_fn(|i| l.mu * df[i] + lam * dj * cof[i] + c * dcof[i])
         }
     }
@@ -320,11 +359,15 @@ pub fn pk1_differential(m: Material, l: Lame, f: &M3, df: &M3) -> M3 {
 
 /// The tangent `dP/dF` as 81 values: entry `(3 i + j) * 9 + 3 k + l` is `dP_ij / dF_kl`.
 pub fn pk1_derivative(m: Material, l: Lame, f: &M3) -> [f64; 81] {
+    pk1_derivative_at(m, l, &AtF::new(m, l, f))
+}
+
+fn pk1_derivative_at(m: Material, l: Lame, at: &AtF) -> [f64; 81] {
     let mut out = [0.0; 81];
     for kl in 0..9 {
         let mut d = [0.0; 9];
         d[kl] = 1.0;
-        let dp = pk1_differential(m, l, f, &d);
+        let dp = pk1_differential_at(m, l, at, &d);
         for ij in 0..9 {
             out[ij * 9 + kl] = dp[ij];
         }
@@ -439,8 +482,18 @@ pub fn shape_gradients(dm_inv: &M3) -> [[f64; 3]; 4] {
     [g0, g1, g2, g3]
 }
 
-/// An element's forces `f_a = -V P g_a` (N) into `f` (four 3-vectors) and its energy
-/// `V Psi` (J), for current vertices x.
+/// `f_a = -V P g_a` (N) for the shape gradients of `dm_inv`.
+fn write_forces(f: &mut [[f64; 3]; 4], p: &M3, dm_inv: &M3, volume: f64) {
+    let g = shape_gradients(dm_inv);
+    for (fa, ga) in f.iter_mut().zip(&g) {
+        for (i, fai) in fa.iter_mut().enumerate() {
+            *fai = -volume * (p[3 * i] * ga[0] + p[3 * i + 1] * ga[1] + p[3 * i + 2] * ga[2]);
+        }
+    }
+}
+
+/// An element's forces `f_a = -V P g_a` (N) into `f` (four 3-vectors), for current
+/// vertices x.
 pub fn element_forces(
     f: &mut [[f64; 3]; 4],
     m: Material,
@@ -448,23 +501,26 @@ pub fn element_forces(
     x: &[[f64; 3]; 4],
     dm_inv: &M3,
     volume: f64,
-) -> f64 {
-    let fg = deformation_gradient(x, dm_inv);
-    let p = pk1(m, l, &fg);
-    let g = shape_gradients(dm_inv);
-    for (fa, ga) in f.iter_mut().zip(&g) {
-        for (i, fai) in fa.iter_mut().enumerate() {
-            *fai = -volume * (p[3 * i] * ga[0] + p[3 * i + 1] * ga[1] + p[3 * i + 2] * ga[2]);
-        }
-    }
-    volume * energy_density(m, l, &fg)
+) {
+    write_forces(
+        f,
+        &pk1(m, l, &deformation_gradient(x, dm_inv)),
+        dm_inv,
+        volume,
+    );
+}
+
+/// An element's energy `V Psi(F)` (J) at current vertices x.
+pub fn element_energy(m: Material, l: Lame, x: &[[f64; 3]; 4], dm_inv: &M3, volume: f64) -> f64 {
+    volume * energy_density(m, l, &deformation_gradient(x, dm_inv))
 }
 
 /// An element's forces (as [`element_forces`]) and its ten stiffness blocks `K_ab =
 /// df_a/dx_b`, `a <= b`, in row order `(0,0) (0,1) (0,2) (0,3) (1,1) (1,2) (1,3) (2,2)
 /// (2,3) (3,3)`, each 3x3 row-major, into `k` (90 values). With `project`, the tangent is
 /// made positive semi-definite first ([`project_psd`], the definiteness fix): the blocks
-/// are then exact only where the material's tangent is already definite.
+/// are then exact only where the material's tangent is already definite. What the stress
+/// and the tangent need of F (a polar decomposition, an inverse) is computed once.
 #[allow(clippy::too_many_arguments)]
 pub fn element_stiffness(
     f: &mut [[f64; 3]; 4],
@@ -477,9 +533,9 @@ pub fn element_stiffness(
     project: bool,
 ) {
     assert_eq!(k.len(), 90, "ten 3x3 blocks");
-    element_forces(f, m, l, x, dm_inv, volume);
-    let fg = deformation_gradient(x, dm_inv);
-    let mut dp = pk1_derivative(m, l, &fg);
+    let at = AtF::new(m, l, &deformation_gradient(x, dm_inv));
+    write_forces(f, &pk1_at(m, l, &at), dm_inv, volume);
+    let mut dp = pk1_derivative_at(m, l, &at);
     if project {
         project_psd(&mut dp);
     }

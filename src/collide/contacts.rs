@@ -82,9 +82,11 @@ pub struct VertexContacts {
     /// Scratch: the previous step's contacts while resolving new ones.
     prev: Vec<Contact>,
     /// Speculative contacts for the next step: vertex, outward unit normal and the normal
-    /// velocity that brings it to the thickness (m/s, <= 0) and the pull tolerated before
-    /// the solve frees it (thickness / h, m/s: `solve::Approach::slack`), in vertex order.
-    approach: Vec<(u32, [f64; 3], f64, f64)>,
+    /// velocity that brings it to the thickness (m/s, <= 0), in vertex order.
+    approach: Vec<(u32, [f64; 3], f64)>,
+    /// The pull the approaches tolerate before the solve frees them (m/s,
+    /// `solve::Approach::slack`): thickness / h of the step they were predicted from.
+    approach_slack: f64,
     /// Scratch, per vertex: whether the model pulled it off its contacts at the last step.
     released: Vec<bool>,
     /// Triangles an obstacle edge was pushed out of at the last resolve.
@@ -124,6 +126,7 @@ impl VertexContacts {
         std::mem::swap(&mut self.contacts, &mut self.prev);
         self.contacts.clear();
         self.approach.clear();
+        self.approach_slack = CONTACT_THICKNESS / h;
         self.edge_contacts = 0;
         if obstacles.is_empty() {
             return 0;
@@ -215,8 +218,7 @@ impl VertexContacts {
                 }
             }
             if let Some((nrm, speed, _)) = first {
-                self.approach
-                    .push((i as u32, nrm, speed, CONTACT_THICKNESS / h));
+                self.approach.push((i as u32, nrm, speed));
             }
         }
         let before = self.contacts.len();
@@ -423,12 +425,12 @@ impl VertexContacts {
         }
         // A vertex an edge contact took after its speculative one keeps the contact.
         let mut held = self.contacts.iter().map(|c| c.vertex).peekable();
-        for &(i, nrm, speed, slack) in &self.approach {
+        for &(i, nrm, speed) in &self.approach {
             while held.next_if(|&h| h < i).is_some() {}
             if held.peek() == Some(&i) {
                 continue;
             }
-            filter.approach(i as usize, nrm, speed, slack);
+            filter.approach(i as usize, nrm, speed, self.approach_slack);
         }
     }
 

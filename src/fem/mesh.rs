@@ -55,6 +55,46 @@ fn field<T: std::str::FromStr>(
         .map_err(|_| err(format!("field {} (`{s}`) is not {what}", k + 1)))
 }
 
+/// `Ok` when a header's count `n` (at line `hl`) fits the lines the file has: what is
+/// allocated is sized by what the file can hold, not by what its header claims.
+fn claim_fits(text: &str, name: &str, hl: usize, n: usize, what: &str) -> Result<(), ReadError> {
+    let lines = text.lines().count();
+    if n > lines {
+        return Err(ReadError {
+            path: name.to_string(),
+            line: hl,
+            message: format!("the header claims {n} {what}, but the file has only {lines} lines"),
+        });
+    }
+    Ok(())
+}
+
+/// `Ok` when the file held the `n` items its header claimed (`got` read) and nothing
+/// after them (`after`: the next data line, if any).
+fn held_as_claimed(
+    name: &str,
+    n: usize,
+    got: usize,
+    after: Option<(usize, Vec<&str>)>,
+    what: &str,
+) -> Result<(), ReadError> {
+    let (line, message) = if got < n {
+        (
+            0,
+            format!("the header claims {n} {what}, the file holds {got}"),
+        )
+    } else if let Some((line, _)) = after {
+        (line, format!("data after the {n} {what} the header claims"))
+    } else {
+        return Ok(());
+    };
+    Err(ReadError {
+        path: name.to_string(),
+        line,
+        message,
+    })
+}
+
 /// Parses a `.node` file: the positions and the index base (0 or 1).
 pub fn parse_node(text: &str, name: &str) -> Result<(Vec<[f64; 3]>, u32), ReadError> {
     let mut lines = data_lines(text);
@@ -76,16 +116,7 @@ pub fn parse_node(text: &str, name: &str) -> Result<(Vec<[f64; 3]>, u32), ReadEr
     }
     let attrs: usize = field(name, hl, &header, 2, "an attribute count")?;
     let markers: usize = field(name, hl, &header, 3, "a boundary marker flag (0 or 1)")?;
-    // Sized by what the file can hold, not by what its header claims.
-    if n > text.lines().count() {
-        return Err(err(
-            hl,
-            format!(
-                "the header claims {n} points, but the file has only {} lines",
-                text.lines().count()
-            ),
-        ));
-    }
+    claim_fits(text, name, hl, n, "points")?;
     let mut positions = Vec::with_capacity(n);
     let mut base = 0u32;
     for (k, (line, fields)) in lines.by_ref().take(n).enumerate() {
@@ -128,21 +159,7 @@ pub fn parse_node(text: &str, name: &str) -> Result<(Vec<[f64; 3]>, u32), ReadEr
         }
         positions.push(p);
     }
-    if positions.len() < n {
-        return Err(err(
-            0,
-            format!(
-                "the header claims {n} points, the file holds {}",
-                positions.len()
-            ),
-        ));
-    }
-    if let Some((line, _)) = lines.next() {
-        return Err(err(
-            line,
-            format!("data after the {n} points the header claims"),
-        ));
-    }
+    held_as_claimed(name, n, positions.len(), lines.next(), "points")?;
     Ok((positions, base))
 }
 
@@ -171,15 +188,7 @@ pub fn parse_ele(
         ));
     }
     let attrs: usize = field(name, hl, &header, 2, "a region attribute flag")?;
-    if n > text.lines().count() {
-        return Err(err(
-            hl,
-            format!(
-                "the header claims {n} tetrahedra, but the file has only {} lines",
-                text.lines().count()
-            ),
-        ));
-    }
+    claim_fits(text, name, hl, n, "tetrahedra")?;
     let mut tets = Vec::with_capacity(n);
     for (k, (line, fields)) in lines.by_ref().take(n).enumerate() {
         let index: u64 = field(name, line, &fields, 0, "a tetrahedron index")?;
@@ -214,21 +223,7 @@ pub fn parse_ele(
         }
         tets.push(t);
     }
-    if tets.len() < n {
-        return Err(err(
-            0,
-            format!(
-                "the header claims {n} tetrahedra, the file holds {}",
-                tets.len()
-            ),
-        ));
-    }
-    if let Some((line, _)) = lines.next() {
-        return Err(err(
-            line,
-            format!("data after the {n} tetrahedra the header claims"),
-        ));
-    }
+    held_as_claimed(name, n, tets.len(), lines.next(), "tetrahedra")?;
     Ok(tets)
 }
 

@@ -512,8 +512,13 @@ impl Fem {
             .map(|c| {
                 (c * CHUNK..((c + 1) * CHUNK).min(self.tets.len()))
                     .map(|e| {
-                        let f = self.deformation_gradient(e, x);
-                        self.volume[e] * largestep_kernels::fem::energy_density(m, self.lame, &f)
+                        largestep_kernels::fem::element_energy(
+                            m,
+                            self.lame,
+                            &gather_nodes(x, self.n, &self.tets[e]),
+                            &self.dm_inv(e),
+                            self.volume[e],
+                        )
                     })
                     .sum::<f64>()
             })
