@@ -12,6 +12,7 @@ use largestep_kernels::fem::{
     det, element_energy, element_forces, element_stiffness, energy_density, mul, pk1,
     pk1_derivative, pk1_differential, project_psd, Lame, M3,
 };
+use largestep_kernels::fem_diag::{element, element_x4, evaluate, Iso};
 use proptest::prelude::*;
 use std::path::{Path, PathBuf};
 
@@ -1419,4 +1420,245 @@ fn unused_nodes_are_a_warning_in_the_run_summary() {
         "{summary}"
     );
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+fn iso(m: Material, clamp: Option<f64>, project: bool) -> Iso {
+    Iso {
+        material: m,
+        clamp,
+        project,
+    }
+}
+
+/// A pseudo-random generator for element inputs (xorshift64*), seeded by proptest.
+struct Rand(u64);
+
+impl Rand {
+    fn next(&mut self, lo: f64, hi: f64) -> f64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        let u = (self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64;
+        lo + (hi - lo) * u
+    }
+}
+
+/// A random element: a rest tetrahedron near the unit corner tetrahedron (positive volume)
+/// and current vertices moved by up to `spread` (inverted ones included for large spreads).
+fn random_element(r: &mut Rand, spread: f64) -> ([[f64; 3]; 4], M3, f64) {
+    let mut rest = unit_tet();
+    for v in rest.iter_mut() {
+        for c in v.iter_mut() {
+            *c += r.next(-0.15, 0.15);
+        }
+    }
+    let dm_inv = largestep_kernels::fem::inverse(&largestep_kernels::fem::shape_matrix(&rest));
+    let vol = largestep_kernels::fem::signed_volume(&rest);
+    let mut x = rest;
+    for v in x.iter_mut() {
+        for c in v.iter_mut() {
+            *c += r.next(-spread, spread);
+        }
+    }
+    (x, dm_inv, vol)
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(100))]
+
+    /// The singular-value frame (the element kernels' path) reproduces every nonlinear
+    /// material's energy, stress and tangent as functions of F, inverted F included where
+    /// the material is defined; and its block-wise definiteness fix equals the projection
+    /// of the whole 9x9 tangent.
+    #[test]
+    fn the_singular_value_frame_reproduces_the_materials(f in gradient()) {
+        let l = lame();
+        for m in NONLINEAR {
+            if m == Material::NeoHookean && det(&f) <= 0.2 {
+                continue;
+            }
+            let scale = l.mu * (1.0 + max_abs(&f)).powi(3);
+            let (psi, p, t) = evaluate(&iso(m, None, false), lame(), &f);
+            let (psi0, p0, t0) = (energy_density(m, l, &f), pk1(m, l, &f), pk1_derivative(m, l, &f));
+            prop_assert!((psi - psi0).abs() <= 1e-9 * scale, "{m:?}: energy {psi} against {psi0}");
+            for k in 0..9 {
+                prop_assert!((p[k] - p0[k]).abs() <= 1e-9 * scale, "{m:?}: P[{k}] {} against {}", p[k], p0[k]);
+            }
+            // The corotational tangent is singular where two singular values cancel
+            // (an inverted element whose rotation is undefined); away from there:
+            let (_, sigma, _) = largestep_kernels::fem_diag::svd3(&f);
+            if m == Material::Corotational && (sigma[1] + sigma[2]).abs() < 0.05 {
+                continue;
+            }
+            for k in 0..81 {
+                prop_assert!((t[k] - t0[k]).abs() <= 1e-7 * scale, "{m:?}: tangent[{k}] {} against {}", t[k], t0[k]);
+            }
+            let (_, _, tp) = evaluate(&iso(m, None, true), lame(), &f);
+            let mut full = t0;
+            project_psd(&mut full);
+            for k in 0..81 {
+                prop_assert!((tp[k] - full[k]).abs() <= 1e-7 * scale, "{m:?}: projected tangent[{k}] {} against {}", tp[k], full[k]);
+            }
+        }
+    }
+
+    /// Four elements at once (f64x4 lanes) give what four scalar calls give: forces,
+    /// stiffness and energy, for every nonlinear material, clamped or not, projected or
+    /// not, on random elements including inverted ones.
+    #[test]
+    fn four_elements_at_once_equal_four_one_at_a_time(seed in any::<u64>(), mi in 0usize..4, clamp in prop::bool::ANY, project in prop::bool::ANY) {
+        let mut r = Rand(seed | 1);
+        let m = NONLINEAR[mi];
+        let is = iso(m, clamp.then_some(0.3), project);
+        let els: [_; 4] = std::array::from_fn(|_| random_element(&mut r, 0.4));
+        // A different material constant per lane (elements of different regions).
+        let lames: [Lame; 4] = std::array::from_fn(|_| Lame::from_young_poisson(1e6 * r.next(0.5, 2.0), r.next(0.0, 0.45)));
+        let (mut f4, mut k4) = ([0.0; 48], [0.0; 360]);
+        let e4 = element_x4(&mut f4, Some(&mut k4), &els.map(|e| e.0), &els.map(|e| e.1), els.map(|e| e.2), &lames, &is);
+        for (l, (x, dm_inv, vol)) in els.iter().enumerate() {
+            let (mut f, mut k) = ([[0.0; 3]; 4], [0.0; 90]);
+            let e = element(&mut f, Some(&mut k), x, dm_inv, *vol, [lames[l].mu, lames[l].lambda], &is);
+            let scale = lames[l].mu * vol;
+            if e.is_nan() {
+                // Neo-Hookean without clamping is undefined for an inverted element.
+                prop_assert!(e4[l].is_nan());
+                continue;
+            }
+            prop_assert!((e - e4[l]).abs() <= 1e-10 * scale * (1.0 + e.abs() / scale), "energy {e} against {}", e4[l]);
+            let tol = 1e-9 * scale * (1.0 + max_abs(&k) / scale);
+            for i in 0..12 {
+                prop_assert!((f.as_flattened()[i] - f4[12 * l + i]).abs() <= tol);
+            }
+            for i in 0..90 {
+                prop_assert!((k[i] - k4[90 * l + i]).abs() <= tol, "K[{i}] {} against {}", k[i], k4[90 * l + i]);
+            }
+        }
+    }
+}
+
+/// The kernel's element forces and stiffness are those of the F-form materials (minus
+/// the energy gradient and its differences, `element_forces_and_stiffness_match_...`).
+#[test]
+fn the_element_kernel_matches_the_reference_element() {
+    let mut r = Rand(7);
+    for _ in 0..50 {
+        let (x, dm_inv, vol) = random_element(&mut r, 0.2);
+        for m in NONLINEAR {
+            let l = lame();
+            let (mut f0, mut k0) = ([[0.0; 3]; 4], vec![0.0; 90]);
+            element_stiffness(&mut f0, &mut k0, m, l, &x, &dm_inv, vol, false);
+            let (mut f, mut k) = ([[0.0; 3]; 4], [0.0; 90]);
+            let e = element(
+                &mut f,
+                Some(&mut k),
+                &x,
+                &dm_inv,
+                vol,
+                [l.mu, l.lambda],
+                &iso(m, None, false),
+            );
+            let e0 = element_energy(m, l, &x, &dm_inv, vol);
+            if e0.is_nan() {
+                continue;
+            }
+            let scale = l.mu * vol * (1.0 + max_abs(&k0) / (l.mu * vol));
+            assert!((e - e0).abs() <= 1e-9 * scale, "{m:?}");
+            for i in 0..12 {
+                assert!(
+                    (f.as_flattened()[i] - f0.as_flattened()[i]).abs() <= 1e-9 * scale,
+                    "{m:?}"
+                );
+            }
+            for i in 0..90 {
+                assert!(
+                    (k[i] - k0[i]).abs() <= 1e-8 * scale,
+                    "{m:?}: K[{i}] {} against {}",
+                    k[i],
+                    k0[i]
+                );
+            }
+        }
+    }
+}
+
+/// The invertible versions: an element squashed flat or inverted gets finite forces from
+/// every nonlinear material with the clamp (neo-Hookean's energy is infinite there
+/// without it), pointing out of inversion (a small step along them raises the smallest,
+/// signed, singular value), with a
+/// semi-definite stiffness; above the clamp they are the material itself.
+#[test]
+fn clamped_singular_values_push_inverted_elements_back() {
+    let rest = unit_tet();
+    let dm_inv = largestep_kernels::fem::inverse(&largestep_kernels::fem::shape_matrix(&rest));
+    let vol = largestep_kernels::fem::signed_volume(&rest);
+    for z in [0.0, -0.3, -1.0] {
+        // Vertex 3 pushed through the opposite face (z = 0 is flat).
+        let mut x = rest;
+        x[3] = [0.2, 0.1, z];
+        for m in NONLINEAR {
+            let is = iso(m, Some(0.2), true);
+            let (mut f, mut k) = ([[0.0; 3]; 4], [0.0; 90]);
+            let e = element(
+                &mut f,
+                Some(&mut k),
+                &x,
+                &dm_inv,
+                vol,
+                [lame().mu, lame().lambda],
+                &is,
+            );
+            assert!(
+                e.is_finite() && f.as_flattened().iter().all(|v| v.is_finite()),
+                "{m:?} at z = {z}"
+            );
+            // The smallest singular value (negative when inverted) grows.
+            let smallest = |x: &[[f64; 3]; 4]| {
+                largestep_kernels::fem_diag::svd3(&largestep_kernels::fem::deformation_gradient(
+                    x, &dm_inv,
+                ))
+                .1[2]
+            };
+            let h = 1e-3 / (lame().mu * vol);
+            let moved: [[f64; 3]; 4] =
+                std::array::from_fn(|a| std::array::from_fn(|c| x[a][c] + h * f[a][c]));
+            let (s0, s1) = (smallest(&x), smallest(&moved));
+            assert!(
+                s1 > s0,
+                "{m:?} at z = {z}: smallest singular value {s0} -> {s1}"
+            );
+            // -K semi-definite: u^T K u <= 0 for random u.
+            let mut r = Rand(3);
+            for _ in 0..20 {
+                let u: [[f64; 3]; 4] =
+                    std::array::from_fn(|_| std::array::from_fn(|_| r.next(-1.0, 1.0)));
+                let mut q = 0.0;
+                for a in 0..4 {
+                    for b in 0..4 {
+                        for i in 0..3 {
+                            for c in 0..3 {
+                                let kab = if a <= b {
+                                    k[9 * block(a, b) + 3 * i + c]
+                                } else {
+                                    k[9 * block(b, a) + 3 * c + i]
+                                };
+                                q += u[a][i] * kab * u[b][c];
+                            }
+                        }
+                    }
+                }
+                assert!(q <= 1e-9 * lame().mu * vol, "{m:?} at z = {z}: u K u = {q}");
+            }
+        }
+    }
+    // Above the clamp the invertible version is the material.
+    let f: M3 = [1.1, 0.05, 0.0, 0.0, 0.9, 0.02, 0.01, 0.0, 1.05];
+    for m in NONLINEAR {
+        let (psi, p, _) = evaluate(&iso(m, Some(0.3), false), lame(), &f);
+        assert!((psi - energy_density(m, lame(), &f)).abs() < 1e-9 * lame().mu);
+        let p0 = pk1(m, lame(), &f);
+        assert!(
+            (0..9).all(|k| (p[k] - p0[k]).abs() < 1e-9 * lame().mu),
+            "{m:?}"
+        );
+    }
 }

@@ -144,27 +144,19 @@ pub fn ddot(a: &M3, b: &M3) -> f64 {
     (0..9).map(|i| a[i] * b[i]).sum()
 }
 
-/// The polar decomposition `F = R S` (R orthogonal, S symmetric) by Higham's scaled
-/// Newton iteration `X <- (g X + X^-T / g) / 2`, `g = (|X^-1| / |X|)^(1/2)` (Higham 1986),
-/// to a relative change below 1e-15 or 30 iterations. For `det F < 0` R is a reflection
-/// (the invertible materials handle inversion otherwise); for singular F, NaN.
+/// The polar decomposition `F = R S` with R a rotation and S symmetric, from the
+/// invertible SVD `F = U diag(sigma) V^T` ([`crate::fem_diag::svd3`]): `R = U V^T`, `S = V
+/// diag(sigma) V^T`. For `det F < 0` R stays a rotation and S has one negative eigenvalue
+/// (Irving et al. 2004), so the corotational model pushes an inverted element back rather
+/// than towards its mirror image.
 pub fn polar(f: &M3) -> (M3, M3) {
-    let mut x = *f;
-    for _ in 0..30 {
-        let xi = inverse(&x);
-        let g = (ddot(&xi, &xi) / ddot(&x, &x)).sqrt().sqrt();
-        let xit = transpose(&xi);
-        let next: M3 = std::array::from_fn(|i| 0.5 * (g * x[i] + xit[i] / g));
-        let change = (0..9).map(|i| (next[i] - x[i]).abs()).fold(0.0, f64::max);
-        x = next;
-        if change.is_nan() || change <= 1e-15 {
-            break;
-        }
-    }
-    let s = mul(&transpose(&x), f);
-    // Symmetric up to rounding; make it exactly so.
-    let s = std::array::from_fn(|i| 0.5 * (s[i] + s[3 * (i % 3) + i / 3]));
-    (x, s)
+    let (u, sigma, v) = crate::fem_diag::svd3(f);
+    let r = mul(&u, &transpose(&v));
+    let s = std::array::from_fn(|k| {
+        let (i, j) = (k / 3, k % 3);
+        (0..3).map(|n| v[3 * i + n] * sigma[n] * v[3 * j + n]).sum()
+    });
+    (r, s)
 }
 
 /// `[w]x`, the cross-product matrix of w.

@@ -18,6 +18,7 @@
 
 pub mod cloth;
 pub mod fem;
+pub mod fem_diag;
 pub mod interp;
 pub mod mass_spring;
 pub mod par;

@@ -1,0 +1,611 @@
+//! Tetrahedron kernels in the singular-value frame, for the isotropic materials, one
+//! element per lane: generic over [`Lane`], so the same code runs as the scalar twin
+//! (`f64`) and over four elements at once (`f64x4`, [`element_x4`]).
+//!
+//! An isotropic energy density is a symmetric function of the singular values of F:
+//! `Psi(F) = Psi^(sigma)` with `F = U diag(sigma) V^T`. Following Irving, Teran and Fedkiw
+//! (2004, "Invertible finite elements for robust simulation of large deformation") U and V
+//! are kept rotations, so an inverted element has one negative singular value, the
+//! smallest. Then (Teran, Sifakis, Irving and Fedkiw 2005, "Robust quasistatic finite
+//! elements and flesh simulation", section 5):
+//!
+//! - `P = U diag(p) V^T`, `p = dPsi^/dsigma`;
+//! - `dP = U dP^ V^T` with `dF^ = U^T dF V`, and `dP^` decouples into one 3x3 block on the
+//!   diagonal entries (the Hessian `A = d2Psi^/dsigma2`) and, for each pair i < j, a 2x2
+//!   block `[[a, b], [b, a]]` on `(dF^_ij, dF^_ji)`, `a = (q- + q+)/2`, `b = (q- - q+)/2`,
+//!   `q- = (p_i - p_j)/(sigma_i - sigma_j)`, `q+ = (p_i + p_j)/(sigma_i + sigma_j)`
+//!   (written out per material so that equal singular values divide nothing);
+//! - the definiteness fix projects each block onto the semi-definite cone (eigenvalues
+//!   `a + b`, `a - b` of a pair block; a 3x3 Jacobi eigensolve of A, only when some lane's
+//!   A is not positive definite), which projects the whole `dP/dF`;
+//! - the invertible versions evaluate `p` and the blocks at the singular values clamped
+//!   from below at a threshold c (`sigma^ = max(sigma, c)`), so the restoring stress of a
+//!   flat or inverted element stays finite and points out of inversion (Irving et al.
+//!   2004, section 5). The energy is continued past the threshold to first order,
+//!   `Psi^(sigma^) + p(sigma^) . (sigma - sigma^)`.
+//!
+//! With rest shape gradients `g_a` and `g^_a = V^T g_a`, an element's forces are
+//! `f_a = -vol U (p o g^_a)` and its stiffness blocks `K_ab = -vol U K^_ab U^T` with
+//! `K^_ab[m][m] = A_mm g^_am g^_bm + sum_{n != m} a_mn g^_an g^_bn` and `K^_ab[m][p] =
+//! A_mp g^_am g^_bp + b_mp g^_ap g^_bm` (m != p): no 9x9 tangent is formed.
+//!
+//! The SVD is branch-free (McAdams et al. 2011, "Computing the singular value
+//! decomposition of 3x3 matrices with minimal branching", in outline): a fixed number of
+//! cyclic Jacobi sweeps on `F^T F` gives V, a sort orders the singular values, and Givens
+//! QR of `F V` gives U (a rotation) and the signed singular values on R's diagonal.
+
+use crate::fem::{Lame, Material, M3};
+use std::ops::{Add, Div, Mul, Neg, Sub};
+use wide::f64x4;
+
+/// One value per element: `f64` (the scalar twin) or `f64x4` (four elements at once).
+pub trait Lane:
+    Copy
+    + Add<Output = Self>
+    + Sub<Output = Self>
+    + Mul<Output = Self>
+    + Div<Output = Self>
+    + Neg<Output = Self>
+{
+    /// Every lane `v`.
+    fn splat(v: f64) -> Self;
+    /// `self * m + a`, fused.
+    fn fma(self, m: Self, a: Self) -> Self;
+    /// Square root.
+    fn sqrt(self) -> Self;
+    /// Absolute value.
+    fn abs(self) -> Self;
+    /// Lane-wise maximum.
+    fn max(self, o: Self) -> Self;
+    /// Natural logarithm.
+    fn ln(self) -> Self;
+    /// `if a < b { x } else { y }`, lane by lane.
+    fn if_lt(a: Self, b: Self, x: Self, y: Self) -> Self;
+    /// Whether `self <= 0` (or NaN) in any lane.
+    fn any_not_positive(self) -> bool;
+}
+
+impl Lane for f64 {
+    #[inline(always)]
+    fn splat(v: f64) -> Self {
+        v
+    }
+    #[inline(always)]
+    fn fma(self, m: Self, a: Self) -> Self {
+        self.mul_add(m, a)
+    }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        f64::sqrt(self)
+    }
+    #[inline(always)]
+    fn abs(self) -> Self {
+        f64::abs(self)
+    }
+    #[inline(always)]
+    fn max(self, o: Self) -> Self {
+        f64::max(self, o)
+    }
+    #[inline(always)]
+    fn ln(self) -> Self {
+        f64::ln(self)
+    }
+    #[inline(always)]
+    fn if_lt(a: Self, b: Self, x: Self, y: Self) -> Self {
+        if a < b {
+            x
+        } else {
+            y
+        }
+    }
+    #[inline(always)]
+    fn any_not_positive(self) -> bool {
+        self.is_nan() || self <= 0.0
+    }
+}
+
+impl Lane for f64x4 {
+    #[inline(always)]
+    fn splat(v: f64) -> Self {
+        f64x4::splat(v)
+    }
+    #[inline(always)]
+    fn fma(self, m: Self, a: Self) -> Self {
+        self.mul_add(m, a)
+    }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        f64x4::sqrt(self)
+    }
+    #[inline(always)]
+    fn abs(self) -> Self {
+        f64x4::abs(self)
+    }
+    #[inline(always)]
+    fn max(self, o: Self) -> Self {
+        f64x4::max(self, o)
+    }
+    #[inline(always)]
+    fn ln(self) -> Self {
+        f64x4::ln(self)
+    }
+    #[inline(always)]
+    fn if_lt(a: Self, b: Self, x: Self, y: Self) -> Self {
+        a.simd_lt(b).bitselect(x, y)
+    }
+    #[inline(always)]
+    fn any_not_positive(self) -> bool {
+        // Not (all lanes > 0): NaN lanes compare false.
+        !f64x4::ZERO.simd_lt(self).all()
+    }
+}
+
+/// How an element's isotropic material is evaluated.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Iso {
+    /// The material; [`Material::Linear`] is not isotropic in the singular values (not
+    /// rotation invariant) and has no kernel here.
+    pub material: Material,
+    /// The invertible version's threshold c (singular values are clamped to at least c,
+    /// `0 < c < 1`), or none.
+    pub clamp: Option<f64>,
+    /// Project the tangent onto the semi-definite cone (the definiteness fix).
+    pub project: bool,
+}
+
+/// Cyclic Jacobi sweeps of the 3x3 eigensolves: convergence is quadratic, and four sweeps
+/// leave the off-diagonal below rounding for the matrices tested (random F including
+/// inverted and nearly singular ones, `tests/fem.rs`); five for margin.
+const SWEEPS: usize = 5;
+
+/// Eigenvalues and eigenvectors (columns of the row-major `q`) of the symmetric 3x3
+/// `[s00, s01, s02, s11, s12, s22]` by `SWEEPS` cyclic Jacobi sweeps (Golub and Van Loan,
+/// algorithm 8.4.3); q is a rotation.
+#[inline(always)]
+fn sym_eig3<R: Lane>(s: [R; 6]) -> ([R; 3], [R; 9]) {
+    let (zero, one) = (R::splat(0.0), R::splat(1.0));
+    // a[i][j] symmetric, kept as a full 3x3 for index clarity; q = I.
+    let mut a = [s[0], s[1], s[2], s[1], s[3], s[4], s[2], s[4], s[5]];
+    let mut q = [one, zero, zero, zero, one, zero, zero, zero, one];
+    for _ in 0..SWEEPS {
+        for (p, r) in [(0usize, 1usize), (0, 2), (1, 2)] {
+            let o = 3 - p - r;
+            let apr = a[3 * p + r];
+            let tiny = R::splat(1e-300);
+            let zero_off = apr.abs();
+            let safe = R::if_lt(zero_off, tiny, one, apr);
+            let theta = (a[3 * r + r] - a[3 * p + p]) / (safe + safe);
+            let sign = R::if_lt(theta, zero, -one, one);
+            let t = sign / (theta.abs() + theta.fma(theta, one).sqrt());
+            let t = R::if_lt(zero_off, tiny, zero, t);
+            let c = one / t.fma(t, one).sqrt();
+            let sn = t * c;
+            a[3 * p + p] = a[3 * p + p] - t * apr;
+            a[3 * r + r] = a[3 * r + r] + t * apr;
+            a[3 * p + r] = zero;
+            a[3 * r + p] = zero;
+            let (aop, aor) = (a[3 * o + p], a[3 * o + r]);
+            let nop = c * aop - sn * aor;
+            let nor = sn * aop + c * aor;
+            a[3 * o + p] = nop;
+            a[3 * p + o] = nop;
+            a[3 * o + r] = nor;
+            a[3 * r + o] = nor;
+            for k in 0..3 {
+                let (qkp, qkr) = (q[3 * k + p], q[3 * k + r]);
+                q[3 * k + p] = c * qkp - sn * qkr;
+                q[3 * k + r] = sn * qkp + c * qkr;
+            }
+        }
+    }
+    ([a[0], a[4], a[8]], q)
+}
+
+/// Swaps eigenpairs i and j where `l[i] < l[j]`, negating one column so q stays a rotation.
+#[inline(always)]
+fn order_pair<R: Lane>(l: &mut [R; 3], q: &mut [R; 9], i: usize, j: usize) {
+    let (li, lj) = (l[i], l[j]);
+    l[i] = R::if_lt(li, lj, lj, li);
+    l[j] = R::if_lt(li, lj, li, lj);
+    for k in 0..3 {
+        let (qi, qj) = (q[3 * k + i], q[3 * k + j]);
+        q[3 * k + i] = R::if_lt(li, lj, qj, qi);
+        q[3 * k + j] = R::if_lt(li, lj, -qi, qj);
+    }
+}
+
+/// Applies the Givens rotation that zeroes `b[r][c]` against `b[p][c]` to rows p and r of
+/// b and of `ut` (which accumulates `U^T`).
+#[inline(always)]
+fn givens_rows<R: Lane>(b: &mut [R; 9], ut: &mut [R; 9], p: usize, r: usize, c: usize) {
+    let (x, y) = (b[3 * p + c], b[3 * r + c]);
+    let n = x.fma(x, y * y).sqrt();
+    let degenerate = R::if_lt(n, R::splat(1e-300), R::splat(1.0), R::splat(0.0));
+    let inv = R::splat(1.0) / (n + degenerate);
+    // n = 0: (cos, sin) = (1, 0).
+    let cs = x * inv + degenerate;
+    let sn = y * inv;
+    for m in [&mut *b, &mut *ut] {
+        for k in 0..3 {
+            let (u, v) = (m[3 * p + k], m[3 * r + k]);
+            m[3 * p + k] = cs * u + sn * v;
+            m[3 * r + k] = cs * v - sn * u;
+        }
+    }
+}
+
+/// `F = U diag(sigma) V^T` with U, V rotations, `sigma_0 >= sigma_1 >= |sigma_2|` up to
+/// rounding and `sigma_2 < 0` when `det F < 0` (the invertible SVD of Irving et al. 2004).
+/// Matrices row-major.
+#[inline(always)]
+pub fn svd3<R: Lane>(f: &[R; 9]) -> ([R; 9], [R; 3], [R; 9]) {
+    // F^T F, upper triangle.
+    let col = |i: usize, j: usize| f[i].fma(f[j], f[3 + i].fma(f[3 + j], f[6 + i] * f[6 + j]));
+    let (mut l, mut v) = sym_eig3([
+        col(0, 0),
+        col(0, 1),
+        col(0, 2),
+        col(1, 1),
+        col(1, 2),
+        col(2, 2),
+    ]);
+    order_pair(&mut l, &mut v, 0, 1);
+    order_pair(&mut l, &mut v, 1, 2);
+    order_pair(&mut l, &mut v, 0, 1);
+    let mut b = mul3(f, &v);
+    let zero = R::splat(0.0);
+    let one = R::splat(1.0);
+    let mut ut = [one, zero, zero, zero, one, zero, zero, zero, one];
+    givens_rows(&mut b, &mut ut, 0, 1, 0);
+    givens_rows(&mut b, &mut ut, 0, 2, 0);
+    givens_rows(&mut b, &mut ut, 1, 2, 1);
+    (transpose3(&ut), [b[0], b[4], b[8]], v)
+}
+
+#[inline(always)]
+fn mul3<R: Lane>(a: &[R; 9], b: &[R; 9]) -> [R; 9] {
+    std::array::from_fn(|i| {
+        let (r, c) = (i / 3, i % 3);
+        a[3 * r].fma(b[c], a[3 * r + 1].fma(b[3 + c], a[3 * r + 2] * b[6 + c]))
+    })
+}
+
+#[inline(always)]
+fn transpose3<R: Lane>(a: &[R; 9]) -> [R; 9] {
+    [a[0], a[3], a[6], a[1], a[4], a[7], a[2], a[5], a[8]]
+}
+
+/// What an isotropic material gives at singular values sigma: the energy density, its
+/// gradient p, Hessian A (row-major 3x3) and, for the pairs (0,1), (0,2), (1,2), the
+/// quotients `q- = (p_i - p_j)/(sigma_i - sigma_j)` and `q+ = (p_i + p_j)/(sigma_i +
+/// sigma_j)`.
+struct Diag<R> {
+    psi: R,
+    p: [R; 3],
+    a: [R; 9],
+    qm: [R; 3],
+    qp: [R; 3],
+}
+
+const PAIRS: [(usize, usize, usize); 3] = [(0, 1, 2), (0, 2, 1), (1, 2, 0)];
+
+#[inline(always)]
+fn diag<R: Lane>(m: Material, mu: R, lambda: R, s: [R; 3]) -> Diag<R> {
+    let (one, two, half) = (R::splat(1.0), R::splat(2.0), R::splat(0.5));
+    let three = R::splat(3.0);
+    let sq = s[0] * s[0] + s[1] * s[1] + s[2] * s[2];
+    match m {
+        Material::Corotational => {
+            // Psi = mu sum (s - 1)^2 + lambda/2 (sum s - 3)^2.
+            let tr = s[0] + s[1] + s[2] - three;
+            let d: [R; 3] = std::array::from_fn(|i| s[i] - one);
+            let psi = mu * (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) + half * lambda * tr * tr;
+            let p = std::array::from_fn(|i| two * mu * d[i] + lambda * tr);
+            let a = std::array::from_fn(|k| {
+                if k % 4 == 0 {
+                    two * mu + lambda
+                } else {
+                    lambda
+                }
+            });
+            let qm = [two * mu; 3];
+            // q+ = 2 mu + (2 lambda tr - 4 mu) / (s_i + s_j); the sum vanishes only for an
+            // inverted element at the edge of the rotation's definition (kept finite).
+            let qp = PAIRS.map(|(i, j, _)| {
+                let den = s[i] + s[j];
+                let den = R::if_lt(den.abs(), R::splat(1e-12), R::splat(1e-12), den);
+                two * mu + (two * lambda * tr - two * two * mu) / den
+            });
+            Diag { psi, p, a, qm, qp }
+        }
+        Material::StVenantKirchhoff => {
+            // Psi = mu/4 sum (s^2 - 1)^2 + lambda/8 (sum s^2 - 3)^2.
+            let t = sq - three;
+            let e: [R; 3] = std::array::from_fn(|i| s[i] * s[i] - one);
+            let psi = R::splat(0.25) * mu * (e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
+                + R::splat(0.125) * lambda * t * t;
+            let c = half * lambda * t - mu;
+            let p = std::array::from_fn(|i| s[i] * (mu * s[i] * s[i] + c));
+            let a = std::array::from_fn(|k| {
+                let (i, j) = (k / 3, k % 3);
+                if i == j {
+                    three * mu * s[i] * s[i] + c + lambda * s[i] * s[i]
+                } else {
+                    lambda * s[i] * s[j]
+                }
+            });
+            let qm = PAIRS.map(|(i, j, _)| mu * (s[i] * s[i] + s[i] * s[j] + s[j] * s[j]) + c);
+            let qp = PAIRS.map(|(i, j, _)| mu * (s[i] * s[i] - s[i] * s[j] + s[j] * s[j]) + c);
+            Diag { psi, p, a, qm, qp }
+        }
+        Material::NeoHookean => {
+            // Psi = mu/2 (sum s^2 - 3) - mu log J + lambda/2 (log J)^2, NaN for J <= 0.
+            let j = s[0] * s[1] * s[2];
+            let lj = j.ln();
+            let psi = half * mu * (sq - three) - mu * lj + half * lambda * lj * lj;
+            let c = mu - lambda * lj;
+            let p = std::array::from_fn(|i| mu * s[i] - c / s[i]);
+            let a = std::array::from_fn(|k| {
+                let (i, jj) = (k / 3, k % 3);
+                if i == jj {
+                    mu + (c + lambda) / (s[i] * s[i])
+                } else {
+                    lambda / (s[i] * s[jj])
+                }
+            });
+            let qm = PAIRS.map(|(i, jj, _)| mu + c / (s[i] * s[jj]));
+            let qp = PAIRS.map(|(i, jj, _)| mu - c / (s[i] * s[jj]));
+            Diag { psi, p, a, qm, qp }
+        }
+        Material::StableNeoHookean => {
+            // Psi = mu/2 (sum s^2 - 3) - mu (J - 1) + lambda'/2 (J - 1)^2, lambda' =
+            // lambda + mu (as crate::fem::Material::StableNeoHookean).
+            let lp = lambda + mu;
+            let j = s[0] * s[1] * s[2];
+            let psi = half * mu * (sq - three) - mu * (j - one) + half * lp * (j - one) * (j - one);
+            let c = lp * (j - one) - mu;
+            // J / s_i without dividing: the product of the other two.
+            let other = [s[1] * s[2], s[0] * s[2], s[0] * s[1]];
+            let p = std::array::from_fn(|i| mu * s[i] + c * other[i]);
+            let a = std::array::from_fn(|k| {
+                let (i, jj) = (k / 3, k % 3);
+                if i == jj {
+                    mu + lp * other[i] * other[i]
+                } else {
+                    lp * other[i] * other[jj] + c * s[3 - i - jj]
+                }
+            });
+            let qm = PAIRS.map(|(_, _, k)| mu - c * s[k]);
+            let qp = PAIRS.map(|(_, _, k)| mu + c * s[k]);
+            Diag { psi, p, a, qm, qp }
+        }
+        Material::Linear => unreachable!("linear elasticity has no singular-value kernel"),
+    }
+}
+
+/// A symmetric 3x3 (row-major) projected onto the semi-definite cone, when some lane is
+/// not positive definite (Sylvester's criterion on the leading minors; a definite matrix
+/// is its own projection).
+#[inline(always)]
+fn project3<R: Lane>(a: [R; 9]) -> [R; 9] {
+    let m2 = a[0] * a[4] - a[1] * a[3];
+    let m3 = a[0] * (a[4] * a[8] - a[5] * a[7]) - a[1] * (a[3] * a[8] - a[5] * a[6])
+        + a[2] * (a[3] * a[7] - a[4] * a[6]);
+    if !(a[0].any_not_positive() || m2.any_not_positive() || m3.any_not_positive()) {
+        return a;
+    }
+    let (l, q) = sym_eig3([a[0], a[1], a[2], a[4], a[5], a[8]]);
+    let l = l.map(|v| v.max(R::splat(0.0)));
+    std::array::from_fn(|k| {
+        let (i, j) = (k / 3, k % 3);
+        q[3 * i] * l[0] * q[3 * j]
+            + q[3 * i + 1] * l[1] * q[3 * j + 1]
+            + q[3 * i + 2] * l[2] * q[3 * j + 2]
+    })
+}
+
+/// One element (outputs first, as every kernel): its forces `f_a = -vol P g_a` into f,
+/// with k its ten stiffness blocks
+/// `K_ab = df_a/dx_b` (a <= b, the order of `crate::fem::element_stiffness`, 3x3
+/// row-major each), and its energy `vol Psi` returned (J). x: current vertices, `dm_inv`:
+/// `Dm^-1` row-major, vol: rest volume, lame: `[mu, lambda]` (Pa).
+#[inline(always)]
+pub fn element<R: Lane>(
+    f: &mut [[R; 3]; 4],
+    k: Option<&mut [R; 90]>,
+    x: &[[R; 3]; 4],
+    dm_inv: &[R; 9],
+    vol: R,
+    lame: [R; 2],
+    iso: &Iso,
+) -> R {
+    // Ds and F = Ds Dm^-1.
+    let ds: [R; 9] = std::array::from_fn(|i| {
+        let (r, c) = (i / 3, i % 3);
+        x[c + 1][r] - x[0][r]
+    });
+    let fm = mul3(&ds, dm_inv);
+    let (u, sigma, v) = svd3(&fm);
+    let clamp = iso.clamp.map(R::splat);
+    let sh = match clamp {
+        Some(c) => sigma.map(|s| s.max(c)),
+        None => sigma,
+    };
+    let d = diag(iso.material, lame[0], lame[1], sh);
+    let mut psi = d.psi;
+    if clamp.is_some() {
+        for i in 0..3 {
+            psi = psi + d.p[i] * (sigma[i] - sh[i]);
+        }
+    }
+    // Shape gradients g_a (rows of Dm^-1, g_0 minus their sum) in V's frame.
+    let g1 = [dm_inv[0], dm_inv[1], dm_inv[2]];
+    let g2 = [dm_inv[3], dm_inv[4], dm_inv[5]];
+    let g3 = [dm_inv[6], dm_inv[7], dm_inv[8]];
+    let g0: [R; 3] = std::array::from_fn(|j| -(g1[j] + g2[j] + g3[j]));
+    let gh: [[R; 3]; 4] = [g0, g1, g2, g3]
+        .map(|g| std::array::from_fn(|n| g[0].fma(v[n], g[1].fma(v[3 + n], g[2] * v[6 + n]))));
+    let nvol = -vol;
+    for (fa, ga) in f.iter_mut().zip(&gh) {
+        let w: [R; 3] = std::array::from_fn(|n| d.p[n] * ga[n]);
+        for (i, fai) in fa.iter_mut().enumerate() {
+            *fai = nvol * u[3 * i].fma(w[0], u[3 * i + 1].fma(w[1], u[3 * i + 2] * w[2]));
+        }
+    }
+    let Some(k) = k else {
+        return vol * psi;
+    };
+    let zero = R::splat(0.0);
+    let half = R::splat(0.5);
+    let mut a = d.a;
+    // Pair blocks [[pa, pb], [pb, pa]] on (dF^_ij, dF^_ji), stored symmetric per pair.
+    let mut pa = [zero; 3];
+    let mut pb = [zero; 3];
+    for n in 0..3 {
+        let (e1, e2) = (d.qm[n], d.qp[n]);
+        // Eigenvalues a + b = q-, a - b = q+.
+        let (e1, e2) = if iso.project {
+            (e1.max(zero), e2.max(zero))
+        } else {
+            (e1, e2)
+        };
+        pa[n] = half * (e1 + e2);
+        pb[n] = half * (e1 - e2);
+    }
+    if iso.project {
+        a = project3(a);
+    }
+    // a_mn and b_mn by index pair.
+    let pair = |m: usize, n: usize| -> usize {
+        match (m.min(n), m.max(n)) {
+            (0, 1) => 0,
+            (0, 2) => 1,
+            _ => 2,
+        }
+    };
+    let mut out = 0;
+    for ai in 0..4 {
+        for bi in ai..4 {
+            let (ga, gb) = (&gh[ai], &gh[bi]);
+            let mut kh = [zero; 9];
+            for m in 0..3 {
+                for p in 0..3 {
+                    kh[3 * m + p] = if m == p {
+                        let mut s = a[4 * m] * ga[m] * gb[m];
+                        for n in 0..3 {
+                            if n != m {
+                                s = pa[pair(m, n)].fma(ga[n] * gb[n], s);
+                            }
+                        }
+                        s
+                    } else {
+                        a[3 * m + p].fma(ga[m] * gb[p], pb[pair(m, p)] * ga[p] * gb[m])
+                    };
+                }
+            }
+            // K_ab = -vol U K^ U^T.
+            let uk = mul3(&u, &kh);
+            for i in 0..3 {
+                for c in 0..3 {
+                    k[out + 3 * i + c] = nvol
+                        * uk[3 * i].fma(
+                            u[3 * c],
+                            uk[3 * i + 1].fma(u[3 * c + 1], uk[3 * i + 2] * u[3 * c + 2]),
+                        );
+                }
+            }
+            out += 9;
+        }
+    }
+    vol * psi
+}
+
+/// [`element`] over four elements at once, one per `f64x4` lane: `x[l]`, `dm_inv[l]`,
+/// `vol[l]`, `lame[l]` are element l's inputs; its 12 forces land at `f[12 l..]` (vertex-major) and,
+/// with k, its 90 stiffness values at `k[90 l..]`; the four energies are returned. Tested
+/// equal to four [`element`] calls at `f64` (`tests/fem.rs`).
+pub fn element_x4(
+    f: &mut [f64; 48],
+    k: Option<&mut [f64; 360]>,
+    x: &[[[f64; 3]; 4]; 4],
+    dm_inv: &[M3; 4],
+    vol: [f64; 4],
+    lame: &[Lame; 4],
+    iso: &Iso,
+) -> [f64; 4] {
+    let lanes = |g: &dyn Fn(usize) -> f64| f64x4::new([g(0), g(1), g(2), g(3)]);
+    let xl: [[f64x4; 3]; 4] =
+        std::array::from_fn(|a| std::array::from_fn(|c| lanes(&|l| x[l][a][c])));
+    let dl: [f64x4; 9] = std::array::from_fn(|i| lanes(&|l| dm_inv[l][i]));
+    let ll = [lanes(&|l| lame[l].mu), lanes(&|l| lame[l].lambda)];
+    let mut fl = [[f64x4::ZERO; 3]; 4];
+    let e = match k {
+        Some(k) => {
+            let mut kl = [f64x4::ZERO; 90];
+            let e = element(&mut fl, Some(&mut kl), &xl, &dl, f64x4::new(vol), ll, iso);
+            for (i, v) in kl.iter().enumerate() {
+                let v = v.to_array();
+                for l in 0..4 {
+                    k[90 * l + i] = v[l];
+                }
+            }
+            e
+        }
+        None => element(&mut fl, None, &xl, &dl, f64x4::new(vol), ll, iso),
+    };
+    for a in 0..4 {
+        for c in 0..3 {
+            let v = fl[a][c].to_array();
+            for l in 0..4 {
+                f[12 * l + 3 * a + c] = v[l];
+            }
+        }
+    }
+    e.to_array()
+}
+
+/// The material of `iso` at one deformation gradient F, through the singular-value frame
+/// as the element kernel evaluates it: the energy density (J/m^3, continued to first order
+/// past the clamp), the first Piola-Kirchhoff stress P (Pa) and the tangent `dP/dF` (81
+/// values, entry `(3 i + j) * 9 + 3 k + l` is `dP_ij / dF_kl`, projected when
+/// `iso.project`). Without clamping or projection these equal `crate::fem::energy_density`,
+/// `crate::fem::pk1` and `crate::fem::pk1_derivative` (tested), so the invertible versions
+/// share the materials' one interface.
+pub fn evaluate(iso: &Iso, lame: Lame, f: &M3) -> (f64, M3, [f64; 81]) {
+    let (u, sigma, v) = svd3(f);
+    let sh = match iso.clamp {
+        Some(c) => sigma.map(|s| s.max(c)),
+        None => sigma,
+    };
+    let d = diag(iso.material, lame.mu, lame.lambda, sh);
+    let psi = d.psi + (0..3).map(|i| d.p[i] * (sigma[i] - sh[i])).sum::<f64>();
+    let p: M3 = std::array::from_fn(|k| {
+        let (i, j) = (k / 3, k % 3);
+        (0..3).map(|n| u[3 * i + n] * d.p[n] * v[3 * j + n]).sum()
+    });
+    let a = if iso.project { project3(d.a) } else { d.a };
+    let mut t = [0.0; 81];
+    for kl in 0..9 {
+        let (kk, ll) = (kl / 3, kl % 3);
+        // dF^ = U^T E_kl V: dF^_pq = U_kp V_lq.
+        let dfh: M3 = std::array::from_fn(|pq| u[3 * kk + pq / 3] * v[3 * ll + pq % 3]);
+        let mut dph = [0.0; 9];
+        for m in 0..3 {
+            dph[4 * m] = (0..3).map(|q| a[3 * m + q] * dfh[4 * q]).sum();
+        }
+        for (n, &(i, j, _)) in PAIRS.iter().enumerate() {
+            let (mut e1, mut e2) = (d.qm[n], d.qp[n]);
+            if iso.project {
+                (e1, e2) = (e1.max(0.0), e2.max(0.0));
+            }
+            let (pa, pb) = (0.5 * (e1 + e2), 0.5 * (e1 - e2));
+            dph[3 * i + j] = pa * dfh[3 * i + j] + pb * dfh[3 * j + i];
+            dph[3 * j + i] = pb * dfh[3 * i + j] + pa * dfh[3 * j + i];
+        }
+        let dp = mul3(&mul3(&u, &dph), &transpose3(&v));
+        for ij in 0..9 {
+            t[ij * 9 + kl] = dp[ij];
+        }
+    }
+    (psi, p, t)
+}
