@@ -315,7 +315,7 @@ fn a_linear_field_gives_one_stress_everywhere_and_no_interior_force() {
         );
         let (model, _) = desc.build().unwrap();
         let x = largestep::soa::Vec3s::from_aos(&moved);
-        let p_exact = pk1(m, model.material().lame(), &a);
+        let p_exact = pk1(m, model.materials()[0].lame(), &a);
         let scale = max_abs(&p_exact).max(1.0);
         for e in 0..model.tets().len() {
             let p = model.stress(e, x.as_slice());
@@ -602,8 +602,12 @@ fn fem_scenes_load_and_the_cantilever_runs() {
 fn fem_scene_errors_name_the_line() {
     use largestep::scene::Scene;
     let base = std::fs::read_to_string(scene_path("fem-cantilever.toml")).unwrap();
-    let cases: [(&str, &str, &str); 5] = [
+    let region = "density = 1000.0\n[[fem.region]]\nmin = [0.5, -1.0, -1.0]\nmax = [2.0, 1.0, 1.0]";
+    let cases: [(&str, &str, &str); 8] = [
         ("model = \"corotational\"", "model = \"corotation\"", "unknown material model `corotation`"),
+        ("density = 1000.0", "density = 1000.0\ninversion_threshold = 1.5", "inversion_threshold"),
+        ("density = 1000.0", &format!("{region}\npreset = \"steel\"\npoisson = 0.5"), "region"),
+        ("density = 1000.0", "density = 1000.0\n[[fem.region]]\nmin = [5.0, 5.0, 5.0]\nmax = [6.0, 6.0, 6.0]\npreset = \"steel\"", "selects no element"),
         ("normal = [1.0, 0.0, 0.0]", "normal = [1.0, 0.0, 0.0]\n[[fem.pin_box]]\nmin = [5.0, 5.0, 5.0]\nmax = [6.0, 6.0, 6.0]", "selects no vertex"),
         ("density = 1000.0", "", "give density or a preset"),
         ("poisson = 0.3", "poisson = 0.5", "(-1, 0.5)"),
@@ -612,6 +616,12 @@ fn fem_scene_errors_name_the_line() {
     for (from, to, says) in cases {
         assert!(base.contains(from), "{from}");
         let text = base.replacen(from, to, 1);
+        if to.starts_with(region) {
+            // The region's constants load, and one out of range names the region's line.
+            let fine = base.replacen(from, &format!("{region}\npreset = \"steel\""), 1);
+            let sc = Scene::parse(&fine, "fine.toml").unwrap();
+            drop(sc);
+        }
         let e = Scene::parse(&text, "bad.toml")
             .err()
             .map(|e| e.to_string())
@@ -674,7 +684,7 @@ fn the_patch_test_holds_for_every_material() {
                 );
             }
         }
-        let p_exact = pk1(m, model.material().lame(), &a);
+        let p_exact = pk1(m, model.materials()[0].lame(), &a);
         let scale = max_abs(&p_exact);
         for e in 0..model.tets().len() {
             let p = model.stress(e, &x);
@@ -809,9 +819,10 @@ fn the_static_cantilever_scene_reaches_the_equilibrium() {
 /// through its middle plane and squashed (every element at J = -0.2) and released comes
 /// back to its rest shape under backward Euler (Newton with the definiteness fix): every
 /// element positive again and the elastic energy gone. Plain neo-Hookean has no energy
-/// there (NaN), which the step reports as an error rather than a silent NaN.
+/// there (NaN), which the step reports as an error rather than a silent NaN; its
+/// invertible version, like those of St. Venant-Kirchhoff and corotational, recovers.
 #[test]
-fn inverted_elements_recover_with_the_stable_neo_hookean_material() {
+fn inverted_elements_recover_with_stable_neo_hookean_and_the_invertible_materials() {
     let mesh = box_mesh([3, 2, 2], [0.3, 0.2, 0.2], [0.0; 3]);
     let cy = 0.1;
     let initial: Vec<[f64; 3]> = mesh
@@ -848,6 +859,108 @@ fn inverted_elements_recover_with_the_stable_neo_hookean_material() {
         sim.step(1.0 / 240.0).is_err(),
         "neo-Hookean is undefined for J <= 0"
     );
+    // The invertible versions (singular values clamped at 0.3) of neo-Hookean, St.
+    // Venant-Kirchhoff and corotational recover from the same mirrored start (nu = 0.3),
+    // stepped by linearised backward Euler at 1 ms. Full Newton converges only slowly
+    // there: past the clamp the tangent is Teran's approximation, and the clamped energies
+    // have a kink where an inverted element's two singular values cancel (the stable
+    // neo-Hookean energy has none: p_i + p_j = 0 there).
+    for m in [
+        Material::NeoHookean,
+        Material::StVenantKirchhoff,
+        Material::Corotational,
+    ] {
+        let mut d = FemDesc::new(
+            mesh.positions.clone(),
+            mesh.tets.clone(),
+            FemMaterial {
+                poisson: 0.3,
+                ..FemMaterial::rubber(m)
+            },
+        );
+        d.initial = initial.clone();
+        d.inversion_threshold = Some(0.3);
+        let (model, state) = d.build().unwrap();
+        let mut sim = MechSimulation::new(
+            model,
+            state,
+            MechSettings::new(Method::LinearizedBackwardEuler),
+        )
+        .unwrap();
+        sim.set_step_control(None);
+        for _ in 0..500 {
+            if let Err(e) = sim.step(1.0 / 1000.0) {
+                panic!("{m:?}: {e}");
+            }
+        }
+        let x = sim.state().x.as_slice();
+        let (j, e) = sim.model().min_volume_ratio(x);
+        assert!(j > 0.9, "invertible {m:?}: element {e} still at J = {j}");
+    }
+}
+
+/// Materials per region: a bar hanging under its own weight, its upper half four times
+/// stiffer than its lower half, stretches by `rho g / 2 (int over each half of (L - z)
+/// dz / E)` (nu = 0, so the bar is a 1-D rod), to 0.5% on a 2 x 2 x 40 mesh, where one
+/// material would give another answer.
+#[test]
+fn regions_carry_their_own_materials() {
+    let (l, h, e, rho, g) = (1.0, 0.1, 1e6, 1000.0, 9.81);
+    let mesh = box_mesh([2, 2, 40], [h, h, l], [0.0, 0.0, -l]);
+    let mut d = FemDesc::new(
+        mesh.positions.clone(),
+        mesh.tets.clone(),
+        FemMaterial {
+            model: Material::Linear,
+            young: e,
+            poisson: 0.0,
+            density: rho,
+        },
+    );
+    d.materials.push(FemMaterial {
+        young: 4.0 * e,
+        ..d.materials[0]
+    });
+    // Upper half (z > -L/2) stiff.
+    d.element_material = mesh
+        .tets
+        .iter()
+        .map(|t| {
+            let z = t
+                .iter()
+                .map(|&i| mesh.positions[i as usize][2])
+                .sum::<f64>()
+                / 4.0;
+            u32::from(z > -0.5 * l)
+        })
+        .collect();
+    d.gravity = [0.0, 0.0, -g];
+    d.pinned = (0..mesh.positions.len())
+        .filter(|&i| mesh.positions[i][2] > -1e-12)
+        .collect();
+    let (model, state) = d.build().unwrap();
+    let mut x = state.x.as_slice().to_vec();
+    model.solve_static(&mut x, 1, 1e-10).unwrap();
+    let n = mesh.positions.len();
+    let bottom: Vec<usize> = (0..n)
+        .filter(|&i| mesh.positions[i][2] < -l + 1e-12)
+        .collect();
+    let drop = bottom
+        .iter()
+        .map(|&i| mesh.positions[i][2] - x[2 * n + i])
+        .sum::<f64>()
+        / bottom.len() as f64;
+    // int_0^{L/2} (L - s) ds / (4E) + int_{L/2}^L (L - s) ds / E, s the depth.
+    let exact = rho * g * (3.0 * l * l / 8.0 / (4.0 * e) + l * l / 8.0 / e);
+    assert!(
+        (drop - exact).abs() < 5e-3 * exact,
+        "stretch {drop} against {exact}"
+    );
+    assert_eq!(model.materials().len(), 2);
+    let stiff = (0..mesh.tets.len())
+        .filter(|&k| model.material_of(k).young == 4.0 * e)
+        .count();
+    assert_eq!(2 * stiff, mesh.tets.len());
 }
 
 /// Locking as Poisson's ratio nears 0.5, reported: the 20 x 2 x 2 cantilever's static tip
@@ -1583,7 +1696,7 @@ fn the_element_kernel_matches_the_reference_element() {
 
 /// The invertible versions: an element squashed flat or inverted gets finite forces from
 /// every nonlinear material with the clamp (neo-Hookean's energy is infinite there
-/// without it), pointing out of inversion (a small step along them raises the smallest,
+/// without it), minus the gradient of the continued energy, pointing out of inversion (a small step along them raises the smallest,
 /// signed, singular value), with a
 /// semi-definite stiffness; above the clamp they are the material itself.
 #[test]
@@ -1611,6 +1724,25 @@ fn clamped_singular_values_push_inverted_elements_back() {
                 e.is_finite() && f.as_flattened().iter().all(|v| v.is_finite()),
                 "{m:?} at z = {z}"
             );
+            // The forces are minus the gradient of the continued energy.
+            for b in 0..4 {
+                for c in 0..3 {
+                    let hh = 1e-6;
+                    let (mut xp, mut xm) = (x, x);
+                    xp[b][c] += hh;
+                    xm[b][c] -= hh;
+                    let mut scratch = [[0.0; 3]; 4];
+                    let lm = [lame().mu, lame().lambda];
+                    let ep = element(&mut scratch, None, &xp, &dm_inv, vol, lm, &is);
+                    let em = element(&mut scratch, None, &xm, &dm_inv, vol, lm, &is);
+                    let g = (ep - em) / (2.0 * hh);
+                    assert!(
+                        (g + f[b][c]).abs() <= 1e-5 * lame().mu * vol,
+                        "{m:?} at z = {z}: dW/dx {g}, f {}",
+                        f[b][c]
+                    );
+                }
+            }
             // The smallest singular value (negative when inverted) grows.
             let smallest = |x: &[[f64; 3]; 4]| {
                 largestep_kernels::fem_diag::svd3(&largestep_kernels::fem::deformation_gradient(
@@ -1660,5 +1792,37 @@ fn clamped_singular_values_push_inverted_elements_back() {
             (0..9).all(|k| (p[k] - p0[k]).abs() < 1e-9 * lame().mu),
             "{m:?}"
         );
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(100))]
+
+    /// The invertible versions' forces are minus the gradient of their continued energy
+    /// on random elements, flat and inverted ones included.
+    #[test]
+    fn invertible_forces_are_the_energy_gradient(seed in any::<u64>(), mi in 0usize..4) {
+        let mut r = Rand(seed | 1);
+        let m = NONLINEAR[mi];
+        let is = iso(m, Some(0.3), true);
+        let (x, dm_inv, vol) = random_element(&mut r, 0.6);
+        let lm = [lame().mu, lame().lambda];
+        let mut f = [[0.0; 3]; 4];
+        let e = element(&mut f, None, &x, &dm_inv, vol, lm, &is);
+        prop_assert!(e.is_finite());
+        let scale = lame().mu * vol * (1.0 + max_abs(f.as_flattened()) / (lame().mu * vol));
+        for b in 0..4 {
+            for c in 0..3 {
+                let h = 1e-7;
+                let (mut xp, mut xm) = (x, x);
+                xp[b][c] += h;
+                xm[b][c] -= h;
+                let mut scratch = [[0.0; 3]; 4];
+                let ep = element(&mut scratch, None, &xp, &dm_inv, vol, lm, &is);
+                let em = element(&mut scratch, None, &xm, &dm_inv, vol, lm, &is);
+                let g = (ep - em) / (2.0 * h);
+                prop_assert!((g + f[b][c]).abs() <= 1e-5 * scale, "{m:?}: dW/dx[{b}][{c}] = {g}, f = {}", f[b][c]);
+            }
+        }
     }
 }

@@ -18,11 +18,12 @@
 //! - the definiteness fix projects each block onto the semi-definite cone (eigenvalues
 //!   `a + b`, `a - b` of a pair block; a 3x3 Jacobi eigensolve of A, only when some lane's
 //!   A is not positive definite), which projects the whole `dP/dF`;
-//! - the invertible versions evaluate `p` and the blocks at the singular values clamped
-//!   from below at a threshold c (`sigma^ = max(sigma, c)`), so the restoring stress of a
-//!   flat or inverted element stays finite and points out of inversion (Irving et al.
-//!   2004, section 5). The energy is continued past the threshold to first order,
-//!   `Psi^(sigma^) + p(sigma^) . (sigma - sigma^)`.
+//! - the invertible versions evaluate the material at the singular values clamped from
+//!   below at a threshold c (`sigma^ = max(sigma, c)`), so the restoring stress of a flat
+//!   or inverted element stays finite and points out of inversion (Irving et al. 2004,
+//!   section 5); the energy is continued past the threshold to first order,
+//!   `Psi^(sigma^) + p(sigma^) . (sigma - sigma^)`, and the stress is its exact gradient
+//!   (see `clamped`), so forces and energy agree for the line searches.
 //!
 //! With rest shape gradients `g_a` and `g^_a = V^T g_a`, an element's forces are
 //! `f_a = -vol U (p o g^_a)` and its stiffness blocks `K_ab = -vol U K^_ab U^T` with
@@ -383,6 +384,39 @@ fn diag<R: Lane>(m: Material, mu: R, lambda: R, s: [R; 3]) -> Diag<R> {
     }
 }
 
+/// The material at singular values sigma, for the invertible version continued past the
+/// clamp c to first order: with `s^ = max(sigma, c)` and `d = sigma - s^` (nonzero on the
+/// clamped values), `Psi~ = Psi^(s^) + p(s^) . d`, whose gradient is `p_k(s^)` on a
+/// clamped k (the constant restoring stress of Irving et al. 2004) and `p_k(s^) + sum_j
+/// A_kj(s^) d_j` on the others, so forces are exactly minus the energy's gradient (the
+/// line searches on energy rely on it). The tangent is the material's at s^, A(s^) and the
+/// pair quotients there, as Teran et al. (2005) take it: past the clamp not the exact
+/// Hessian (which has no stiffness left along a clamped value, and is singular where an
+/// inverted element's two singular values cancel), but a definite and bounded one that
+/// keeps implicit steps short there.
+#[inline(always)]
+fn clamped<R: Lane>(iso: &Iso, mu: R, lambda: R, sigma: [R; 3]) -> Diag<R> {
+    let Some(c) = iso.clamp else {
+        return diag(iso.material, mu, lambda, sigma);
+    };
+    let c = R::splat(c);
+    let (zero, one) = (R::splat(0.0), R::splat(1.0));
+    let sh = sigma.map(|s| s.max(c));
+    let mut d = diag(iso.material, mu, lambda, sh);
+    let dl: [R; 3] = std::array::from_fn(|i| sigma[i] - sh[i]);
+    // 1 where the value is free, 0 where clamped.
+    let free: [R; 3] = sigma.map(|s| R::if_lt(s, c, zero, one));
+    for (pk, dk) in d.p.iter().zip(&dl) {
+        d.psi = pk.fma(*dk, d.psi);
+    }
+    let p = d.p;
+    for k in 0..3 {
+        let corr = d.a[3 * k].fma(dl[0], d.a[3 * k + 1].fma(dl[1], d.a[3 * k + 2] * dl[2]));
+        d.p[k] = (free[k] * corr) + p[k];
+    }
+    d
+}
+
 /// A symmetric 3x3 (row-major) projected onto the semi-definite cone, when some lane is
 /// not positive definite (Sylvester's criterion on the leading minors; a definite matrix
 /// is its own projection).
@@ -426,18 +460,8 @@ pub fn element<R: Lane>(
     });
     let fm = mul3(&ds, dm_inv);
     let (u, sigma, v) = svd3(&fm);
-    let clamp = iso.clamp.map(R::splat);
-    let sh = match clamp {
-        Some(c) => sigma.map(|s| s.max(c)),
-        None => sigma,
-    };
-    let d = diag(iso.material, lame[0], lame[1], sh);
-    let mut psi = d.psi;
-    if clamp.is_some() {
-        for i in 0..3 {
-            psi = psi + d.p[i] * (sigma[i] - sh[i]);
-        }
-    }
+    let d = clamped(iso, lame[0], lame[1], sigma);
+    let psi = d.psi;
     // Shape gradients g_a (rows of Dm^-1, g_0 minus their sum) in V's frame.
     let g1 = [dm_inv[0], dm_inv[1], dm_inv[2]];
     let g2 = [dm_inv[3], dm_inv[4], dm_inv[5]];
@@ -573,12 +597,8 @@ pub fn element_x4(
 /// share the materials' one interface.
 pub fn evaluate(iso: &Iso, lame: Lame, f: &M3) -> (f64, M3, [f64; 81]) {
     let (u, sigma, v) = svd3(f);
-    let sh = match iso.clamp {
-        Some(c) => sigma.map(|s| s.max(c)),
-        None => sigma,
-    };
-    let d = diag(iso.material, lame.mu, lame.lambda, sh);
-    let psi = d.psi + (0..3).map(|i| d.p[i] * (sigma[i] - sh[i])).sum::<f64>();
+    let d = clamped(iso, lame.mu, lame.lambda, sigma);
+    let psi = d.psi;
     let p: M3 = std::array::from_fn(|k| {
         let (i, j) = (k / 3, k % 3);
         (0..3).map(|n| u[3 * i + n] * d.p[n] * v[3 * j + n]).sum()

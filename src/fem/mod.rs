@@ -34,7 +34,8 @@ use crate::sparse::{Bsr3, Bsr3Pattern, SparseError};
 use crate::sparse::{ElementAssembly, LocalLayout, VectorGather};
 use crate::validate::{check, require, ModelError, Rule};
 pub use largestep_kernels::fem::Material;
-use largestep_kernels::fem::{element_forces, element_stiffness, signed_volume, Lame, M3};
+use largestep_kernels::fem::{element_energy, element_stiffness, signed_volume, Lame, M3};
+use largestep_kernels::fem_diag::{element, element_x4, Iso};
 use largestep_kernels::gather_nodes;
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -104,13 +105,13 @@ impl FemMaterial {
         Lame::from_young_poisson(self.young, self.poisson)
     }
 
-    fn validate(&self) -> Result<(), ModelError> {
-        check("material", 0, "young", self.young, Rule::Positive)?;
-        check("material", 0, "density", self.density, Rule::Positive)?;
+    fn validate(&self, index: usize) -> Result<(), ModelError> {
+        check("material", index, "young", self.young, Rule::Positive)?;
+        check("material", index, "density", self.density, Rule::Positive)?;
         let nu = self.poisson;
         require(
             "material",
-            0,
+            index,
             "poisson",
             nu,
             nu > -1.0 && nu < 0.5,
@@ -131,8 +132,16 @@ pub struct FemDesc {
     pub initial: Vec<[f64; 3]>,
     /// Tetrahedra, four vertex indices each, with positive rest volume.
     pub tets: Vec<[u32; 4]>,
-    /// The material of every element.
-    pub material: FemMaterial,
+    /// The materials: element e's is `materials[element_material[e]]`, every element's
+    /// `materials[0]` when `element_material` is empty. They share one constitutive model
+    /// (the model is a choice of method); E, nu and the density differ per region.
+    pub materials: Vec<FemMaterial>,
+    /// Each element's material (its region), or empty for one material.
+    pub element_material: Vec<u32>,
+    /// The invertible version of the material: singular values of F below this threshold
+    /// (in (0, 1)) are clamped to it (Irving, Teran and Fedkiw 2004), so flat and inverted
+    /// elements have finite restoring forces. None: the material as it is.
+    pub inversion_threshold: Option<f64>,
     /// Gravity (m/s^2).
     pub gravity: [f64; 3],
     /// Pinned vertices.
@@ -161,7 +170,9 @@ impl FemDesc {
             velocities: Vec::new(),
             initial: Vec::new(),
             tets,
-            material,
+            materials: vec![material],
+            element_material: Vec::new(),
+            inversion_threshold: None,
             gravity: [0.0; 3],
             pinned: Vec::new(),
             obstacles: Vec::new(),
@@ -232,7 +243,60 @@ impl FemDesc {
                 check("vertex", i, ["vx", "vy", "vz"][c], x, Rule::Finite)?;
             }
         }
-        self.material.validate()?;
+        let Some(first) = self.materials.first() else {
+            return Err(ModelError::Empty { what: "materials" });
+        };
+        for (r, m) in self.materials.iter().enumerate() {
+            m.validate(r)?;
+            if m.model != first.model {
+                return Err(ModelError::Element {
+                    item: "material",
+                    index: r,
+                    what: format!(
+                        "is {:?} and material 0 is {:?}: the regions share one constitutive model",
+                        m.model, first.model
+                    ),
+                });
+            }
+        }
+        if !self.element_material.is_empty() && self.element_material.len() != self.tets.len() {
+            return Err(ModelError::Length {
+                what: "element_material",
+                got: self.element_material.len(),
+                expected: self.tets.len(),
+                per: "tetrahedron",
+            });
+        }
+        for (e, &r) in self.element_material.iter().enumerate() {
+            if r as usize >= self.materials.len() {
+                return Err(ModelError::Missing {
+                    item: "tetrahedron",
+                    index: e,
+                    target: "material",
+                    targets: "materials",
+                    named: r as usize,
+                    n: self.materials.len(),
+                });
+            }
+        }
+        if let Some(c) = self.inversion_threshold {
+            require(
+                "material",
+                0,
+                "inversion_threshold",
+                c,
+                c > 0.0 && c < 1.0,
+                "must lie in (0, 1)",
+            )?;
+            require(
+                "material",
+                0,
+                "inversion_threshold",
+                c,
+                first.model != Material::Linear,
+                "applies to the nonlinear materials (linear elasticity has no inversion)",
+            )?;
+        }
         for (c, &g) in self.gravity.iter().enumerate() {
             check("gravity", c, "g", g, Rule::Finite)?;
         }
@@ -264,7 +328,8 @@ impl FemDesc {
             std::array::from_fn(|_| Vec::with_capacity(self.tets.len()));
         let mut volume = Vec::with_capacity(self.tets.len());
         let mut mass = vec![0.0; n];
-        let rho = self.material.density;
+        let mut lame: [Vec<f64>; 2] = std::array::from_fn(|_| Vec::with_capacity(self.tets.len()));
+        let region = |e: usize| self.element_material.get(e).map_or(0, |&r| r as usize);
         for (e, t) in self.tets.iter().enumerate() {
             for &i in t {
                 if i as usize >= n {
@@ -311,8 +376,12 @@ impl FemDesc {
                 d.push(inv[k]);
             }
             volume.push(v);
+            let m = &self.materials[region(e)];
+            let l = m.lame();
+            lame[0].push(l.mu);
+            lame[1].push(l.lambda);
             for &i in t {
-                mass[i as usize] += 0.25 * rho * v;
+                mass[i as usize] += 0.25 * m.density * v;
             }
         }
         let unused: Vec<u32> = (0..n as u32).filter(|&i| mass[i as usize] == 0.0).collect();
@@ -334,8 +403,15 @@ impl FemDesc {
             dm_inv,
             volume,
             mass,
-            material: self.material,
-            lame: self.material.lame(),
+            materials: self.materials.clone(),
+            element_material: self.element_material.clone(),
+            model: first.model,
+            lame,
+            iso: (first.model != Material::Linear).then_some(Iso {
+                material: first.model,
+                clamp: self.inversion_threshold,
+                project: self.definiteness_fix,
+            }),
             surface,
             fixed,
             pinned: self.pinned.len(),
@@ -421,8 +497,14 @@ pub struct Fem {
     /// Rest volume per element (m^3).
     volume: Vec<f64>,
     mass: Vec<f64>,
-    material: FemMaterial,
-    lame: Lame,
+    materials: Vec<FemMaterial>,
+    element_material: Vec<u32>,
+    model: Material,
+    /// `[mu, lambda]` per element (Pa), from its material.
+    lame: [Vec<f64>; 2],
+    /// The singular-value kernel's settings (the nonlinear materials), or none (linear
+    /// elasticity, evaluated in the F form).
+    iso: Option<Iso>,
     surface: Vec<[u32; 3]>,
     /// Pinned and unused vertices, sorted.
     fixed: Vec<u32>,
@@ -458,9 +540,27 @@ impl Fem {
         &self.volume
     }
 
-    /// The material.
-    pub fn material(&self) -> FemMaterial {
-        self.material
+    /// The materials (one per region).
+    pub fn materials(&self) -> &[FemMaterial] {
+        &self.materials
+    }
+
+    /// The constitutive model every region shares.
+    pub fn model(&self) -> Material {
+        self.model
+    }
+
+    /// Element e's material.
+    pub fn material_of(&self, e: usize) -> &FemMaterial {
+        &self.materials[self.element_material.get(e).map_or(0, |&r| r as usize)]
+    }
+
+    /// Element e's Lamé parameters.
+    pub fn lame_of(&self, e: usize) -> Lame {
+        Lame {
+            mu: self.lame[0][e],
+            lambda: self.lame[1][e],
+        }
     }
 
     /// Nodes no element uses (held fixed, massless).
@@ -481,13 +581,19 @@ impl Fem {
         )
     }
 
-    /// The first Piola-Kirchhoff stress of element e at positions x (Pa).
+    /// The first Piola-Kirchhoff stress of element e at positions x (Pa), as the forces
+    /// see it (the invertible version's where the singular values are clamped).
     pub fn stress(&self, e: usize, x: &[f64]) -> M3 {
-        largestep_kernels::fem::pk1(
-            self.material.model,
-            self.lame,
-            &self.deformation_gradient(e, x),
-        )
+        self.stress_at(e, &self.deformation_gradient(e, x))
+    }
+
+    /// Element e's first Piola-Kirchhoff stress (Pa) at deformation gradient f.
+    pub fn stress_at(&self, e: usize, f: &M3) -> M3 {
+        let f = *f;
+        match &self.iso {
+            Some(iso) => largestep_kernels::fem_diag::evaluate(iso, self.lame_of(e), &f).1,
+            None => largestep_kernels::fem::pk1(self.model, self.lame_of(e), &f),
+        }
     }
 
     /// The smallest volume ratio `J = det F` of any element at positions x (negative when
@@ -505,22 +611,19 @@ impl Fem {
 
     /// The elastic energy (J) at positions x, without loads.
     pub fn elastic_energy(&self, x: &[f64]) -> f64 {
-        let m = self.material.model;
         // Summed in fixed chunks, then in order: the same bits for any thread count.
         let chunks: Vec<f64> = (0..self.tets.len().div_ceil(CHUNK))
             .into_par_iter()
             .map(|c| {
-                (c * CHUNK..((c + 1) * CHUNK).min(self.tets.len()))
-                    .map(|e| {
-                        largestep_kernels::fem::element_energy(
-                            m,
-                            self.lame,
-                            &gather_nodes(x, self.n, &self.tets[e]),
-                            &self.dm_inv(e),
-                            self.volume[e],
-                        )
-                    })
-                    .sum::<f64>()
+                let mut f = [0.0; 48];
+                let mut e = 0.0;
+                for g in (c * CHUNK..((c + 1) * CHUNK).min(self.tets.len())).step_by(4) {
+                    let n = (self.tets.len() - g).min(4);
+                    e += self.group(g, n, x, &mut f[..12 * n], None)[..n]
+                        .iter()
+                        .sum::<f64>();
+                }
+                e
             })
             .collect();
         chunks.iter().sum()
@@ -533,45 +636,108 @@ impl Fem {
         }
     }
 
+    /// Elements `e0..e0 + n` (n <= 4) at positions x: forces into f (12 per element,
+    /// vertex-major), stiffness blocks into k (90 per element) when given; their energies
+    /// (J) in the first n entries. Four elements of a nonlinear material go through the
+    /// four-lane kernel, others one by one (the scalar twin; linear elasticity in the F
+    /// form).
+    fn group(
+        &self,
+        e0: usize,
+        n: usize,
+        x: &[f64],
+        f: &mut [f64],
+        k: Option<&mut [f64]>,
+    ) -> [f64; 4] {
+        let xs = |e: usize| gather_nodes(x, self.n, &self.tets[e]);
+        let mut energy = [0.0; 4];
+        match &self.iso {
+            Some(iso) if n == 4 => {
+                let xe = std::array::from_fn(|l| xs(e0 + l));
+                let dm = std::array::from_fn(|l| self.dm_inv(e0 + l));
+                let vol = std::array::from_fn(|l| self.volume[e0 + l]);
+                let lame = std::array::from_fn(|l| self.lame_of(e0 + l));
+                let f4: &mut [f64; 48] = f.try_into().expect("12 forces per element");
+                let k4: Option<&mut [f64; 360]> =
+                    k.map(|k| k.try_into().expect("90 stiffness values per element"));
+                energy = element_x4(f4, k4, &xe, &dm, vol, &lame, iso);
+            }
+            Some(iso) => {
+                let mut k = k;
+                for l in 0..n {
+                    let e = e0 + l;
+                    let mut fe = [[0.0; 3]; 4];
+                    let lame = [self.lame[0][e], self.lame[1][e]];
+                    let ke: Option<&mut [f64; 90]> = k
+                        .as_mut()
+                        .map(|k| (&mut k[90 * l..90 * l + 90]).try_into().expect("90 values"));
+                    energy[l] = element(
+                        &mut fe,
+                        ke,
+                        &xs(e),
+                        &self.dm_inv(e),
+                        self.volume[e],
+                        lame,
+                        iso,
+                    );
+                    f[12 * l..12 * l + 12].copy_from_slice(fe.as_flattened());
+                }
+            }
+            None => {
+                let mut kbuf = [0.0; TET_K];
+                let mut k = k;
+                for l in 0..n {
+                    let e = e0 + l;
+                    let (xe, dm, vol, lame) =
+                        (xs(e), self.dm_inv(e), self.volume[e], self.lame_of(e));
+                    let mut fe = [[0.0; 3]; 4];
+                    let ke = match k.as_mut() {
+                        Some(k) => &mut k[90 * l..90 * l + 90],
+                        None => &mut kbuf[..],
+                    };
+                    element_stiffness(&mut fe, ke, self.model, lame, &xe, &dm, vol, false);
+                    energy[l] = element_energy(self.model, lame, &xe, &dm, vol);
+                    f[12 * l..12 * l + 12].copy_from_slice(fe.as_flattened());
+                }
+            }
+        }
+        energy
+    }
+
     /// Element forces into `out` (12 per element, element-major), in fixed chunks: the
     /// elastic ones, and with stiffness damping (`v` given, beta > 0) `beta K_e v_e`.
     fn element_forces_into(&self, out: &mut [f64], x: &[f64], v: Option<&[f64]>) {
-        let (m, l, n) = (self.material.model, self.lame, self.n);
         let beta = self.rayleigh[1];
+        let damped = v.filter(|_| beta > 0.0);
         out.par_chunks_mut(12 * CHUNK)
             .enumerate()
             .for_each(|(c, o)| {
-                let mut k = [0.0; TET_K];
-                for (le, oe) in o.chunks_exact_mut(12).enumerate() {
-                    let e = c * CHUNK + le;
-                    let el = &self.tets[e];
-                    let mut f = [[0.0; 3]; 4];
-                    match v {
-                        Some(v) if beta > 0.0 => {
-                            element_stiffness(
-                                &mut f,
-                                &mut k,
-                                m,
-                                l,
-                                &gather_nodes(x, n, el),
-                                &self.dm_inv(e),
-                                self.volume[e],
-                                self.definiteness_fix,
-                            );
-                            add_stiffness_damping(&mut f, &k, beta, &gather_nodes(v, n, el));
+                let mut k = [0.0; 4 * TET_K];
+                for (g, og) in o.chunks_mut(48).enumerate() {
+                    let (e0, n) = (c * CHUNK + 4 * g, og.len() / 12);
+                    match damped {
+                        Some(v) => {
+                            self.group(e0, n, x, og, Some(&mut k[..TET_K * n]));
+                            for l in 0..n {
+                                let e = e0 + l;
+                                let mut fe = [[0.0; 3]; 4];
+                                add_stiffness_damping(
+                                    &mut fe,
+                                    &k[TET_K * l..TET_K * (l + 1)],
+                                    beta,
+                                    &gather_nodes(v, self.n, &self.tets[e]),
+                                );
+                                for (o, d) in
+                                    og[12 * l..12 * l + 12].iter_mut().zip(fe.as_flattened())
+                                {
+                                    *o += d;
+                                }
+                            }
                         }
-                        _ => {
-                            element_forces(
-                                &mut f,
-                                m,
-                                l,
-                                &gather_nodes(x, n, el),
-                                &self.dm_inv(e),
-                                self.volume[e],
-                            );
+                        None => {
+                            self.group(e0, n, x, og, None);
                         }
                     }
-                    oe.copy_from_slice(f.as_flattened());
                 }
             });
     }
@@ -648,32 +814,32 @@ impl MechModel for Fem {
         self.prepare_jacobians(work)
             .map_err(IntegrateError::Sparse)?;
         self.loads.forces(t, &self.body(), x, v, f);
-        let (m, l, n) = (self.material.model, self.lame, self.n);
-        let beta = self.rayleigh[1];
+        let (n, beta) = (self.n, self.rayleigh[1]);
         let FemWork { f: ef, jac } = work;
         let (kbuf, asm) = jac.as_mut().expect("prepared above");
         ef.par_chunks_mut(12 * CHUNK)
             .zip(kbuf.par_chunks_mut(TET_K * CHUNK))
             .enumerate()
             .for_each(|(c, (fo, ko))| {
-                for le in 0..fo.len() / 12 {
-                    let e = c * CHUNK + le;
-                    let mut fe = [[0.0; 3]; 4];
-                    let k = &mut ko[TET_K * le..TET_K * (le + 1)];
-                    element_stiffness(
-                        &mut fe,
-                        k,
-                        m,
-                        l,
-                        &gather_nodes(x, n, &self.tets[e]),
-                        &self.dm_inv(e),
-                        self.volume[e],
-                        self.definiteness_fix,
-                    );
+                for (g, (fg, kg)) in fo.chunks_mut(48).zip(ko.chunks_mut(4 * TET_K)).enumerate() {
+                    let (e0, cnt) = (c * CHUNK + 4 * g, fg.len() / 12);
+                    self.group(e0, cnt, x, fg, Some(kg));
                     if beta > 0.0 {
-                        add_stiffness_damping(&mut fe, k, beta, &gather_nodes(v, n, &self.tets[e]));
+                        for l in 0..cnt {
+                            let e = e0 + l;
+                            let mut fe = [[0.0; 3]; 4];
+                            add_stiffness_damping(
+                                &mut fe,
+                                &kg[TET_K * l..TET_K * (l + 1)],
+                                beta,
+                                &gather_nodes(v, n, &self.tets[e]),
+                            );
+                            for (o, d) in fg[12 * l..12 * l + 12].iter_mut().zip(fe.as_flattened())
+                            {
+                                *o += d;
+                            }
+                        }
                     }
-                    fo[12 * le..12 * le + 12].copy_from_slice(fe.as_flattened());
                 }
             });
         self.gather.gather_vectors_add(ef, f);
@@ -701,29 +867,21 @@ impl MechModel for Fem {
             .sum();
         let mut psi = 0.5 * alpha * mass;
         if beta > 0.0 {
-            let (m, l) = (self.material.model, self.lame);
-            let mut k = [0.0; TET_K];
-            for (e, el) in self.tets.iter().enumerate() {
-                let mut f = [[0.0; 3]; 4];
-                element_stiffness(
-                    &mut f,
-                    &mut k,
-                    m,
-                    l,
-                    &gather_nodes(x, n, el),
-                    &self.dm_inv(e),
-                    self.volume[e],
-                    self.definiteness_fix,
-                );
-                let ve = gather_nodes(v, n, el);
-                let mut fd = [[0.0; 3]; 4];
-                add_stiffness_damping(&mut fd, &k, 1.0, &ve);
-                // fd = dfdx_e v_e = -K_e v_e: Psi_e = -1/2 v_e . fd.
-                psi -= 0.5
-                    * beta
-                    * (0..4)
-                        .map(|a| (0..3).map(|c| ve[a][c] * fd[a][c]).sum::<f64>())
-                        .sum::<f64>();
+            let (mut k, mut f) = ([0.0; 4 * TET_K], [0.0; 48]);
+            for e0 in (0..self.tets.len()).step_by(4) {
+                let cnt = (self.tets.len() - e0).min(4);
+                self.group(e0, cnt, x, &mut f[..12 * cnt], Some(&mut k[..TET_K * cnt]));
+                for l in 0..cnt {
+                    let ve = gather_nodes(v, n, &self.tets[e0 + l]);
+                    let mut fd = [[0.0; 3]; 4];
+                    add_stiffness_damping(&mut fd, &k[TET_K * l..TET_K * (l + 1)], 1.0, &ve);
+                    // fd = dfdx_e v_e = -K_e v_e: Psi_e = -1/2 v_e . fd.
+                    psi -= 0.5
+                        * beta
+                        * (0..4)
+                            .map(|a| (0..3).map(|c| ve[a][c] * fd[a][c]).sum::<f64>())
+                            .sum::<f64>();
+                }
             }
         }
         psi
@@ -742,18 +900,28 @@ impl MechModel for Fem {
     }
 
     fn stages(&self) -> Vec<Stage> {
-        let m = &self.material;
+        let m = &self.materials[0];
         let mut stages = vec![Stage::built(
             "tetrahedral elements",
             format!(
-                "{} vertices, {} tetrahedra, {:?}, E = {} Pa, nu = {}",
+                "{} vertices, {} tetrahedra, {:?}, E = {} Pa, nu = {}{}",
                 self.n,
                 self.tets.len(),
-                m.model,
+                self.model,
                 m.young,
-                m.poisson
+                m.poisson,
+                match self.materials.len() {
+                    1 => String::new(),
+                    r => format!(" and {} more regions", r - 1),
+                }
             ),
         )];
+        if let Some(c) = self.iso.and_then(|i| i.clamp) {
+            stages.push(Stage::built(
+                "invertible material",
+                format!("singular values of F clamped at {c}"),
+            ));
+        }
         stages.push(if self.definiteness_fix {
             Stage::built(
                 "definiteness fix",

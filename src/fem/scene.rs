@@ -35,6 +35,11 @@
 //! young = 1e6                   # Pa (overrides the preset's)
 //! poisson = 0.45
 //! density = 1100.0              # kg/m^3
+//! # inversion_threshold = 0.3   # the invertible version: singular values of F clamped
+//! # [[fem.region]]              # elements whose centroid lies in [min, max] (m) take
+//! # min = [0.5, -1.0, -1.0]     # these constants (the model is [fem.material]'s); later
+//! # max = [1.0, 1.0, 1.0]       # regions win; preset, young, poisson, density as above
+//! # preset = "steel"
 //! ```
 
 use super::mesh::{box_mesh, read_tetgen, TetMesh};
@@ -92,6 +97,9 @@ pub struct FemTable {
     pub mesh: Option<MeshTable>,
     /// `[fem.material]`
     pub material: MaterialTable,
+    /// `[[fem.region]]`: elements with other constants.
+    #[serde(default)]
+    pub region: Vec<RegionTable>,
     /// `[fem.damping]`: Rayleigh damping.
     #[serde(default)]
     pub damping: Option<DampingTable>,
@@ -194,6 +202,32 @@ pub struct MaterialTable {
     /// Density (kg/m^3).
     #[serde(default)]
     pub density: Option<f64>,
+    /// The invertible version's clamp of the singular values of F, in (0, 1).
+    #[serde(default)]
+    pub inversion_threshold: Option<f64>,
+}
+
+/// `[[fem.region]]`: the elements whose centroid lies in `[min, max]` take these
+/// constants.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RegionTable {
+    /// Lower corner (m).
+    pub min: [f64; 3],
+    /// Upper corner (m).
+    pub max: [f64; 3],
+    /// Published constants to start from.
+    #[serde(default)]
+    pub preset: Option<String>,
+    /// Young's modulus (Pa).
+    #[serde(default)]
+    pub young: Option<f64>,
+    /// Poisson's ratio.
+    #[serde(default)]
+    pub poisson: Option<f64>,
+    /// Density (kg/m^3).
+    #[serde(default)]
+    pub density: Option<f64>,
 }
 
 const MODELS: [(&str, Material); 5] = [
@@ -267,7 +301,14 @@ pub fn build(ctx: &Context<'_>) -> Result<Box<dyn Simulation>, SceneError> {
 /// The description of a `[fem]` table; files are relative to the scene's folder.
 pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
     let at = |f: &[&dyn PathPart]| path(f);
-    let material = material(ctx, &t.material)?;
+    let m = &t.material;
+    let material = constants(
+        ctx,
+        model(ctx, &m.model)?,
+        [m.young, m.poisson, m.density],
+        &m.preset,
+        &[&"material"],
+    )?;
     let mesh = match (&t.beam, &t.mesh) {
         (Some(b), None) => {
             let mut cells = [0usize; 3];
@@ -352,6 +393,41 @@ pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
     };
     let n = mesh.positions.len();
     let mut desc = FemDesc::new(mesh.positions, mesh.tets, material);
+    desc.inversion_threshold = m.inversion_threshold;
+    for (k, r) in t.region.iter().enumerate() {
+        let key = at(&[&"region", &k]);
+        if !r.min.iter().chain(&r.max).all(|c| c.is_finite()) {
+            return Err(ctx.error(&key, "min and max must be finite"));
+        }
+        let c = constants(
+            ctx,
+            material.model,
+            [r.young, r.poisson, r.density],
+            &r.preset,
+            &[&"region", &k],
+        )?;
+        if desc.element_material.is_empty() {
+            desc.element_material = vec![0; desc.tets.len()];
+        }
+        let id = desc.materials.len() as u32;
+        let mut any = false;
+        for (e, tet) in desc.tets.iter().enumerate() {
+            let centroid: [f64; 3] = std::array::from_fn(|c| {
+                tet.iter()
+                    .map(|&i| desc.positions.get(i as usize).map_or(f64::NAN, |p| p[c]))
+                    .sum::<f64>()
+                    / 4.0
+            });
+            if (0..3).all(|c| centroid[c] >= r.min[c] && centroid[c] <= r.max[c]) {
+                desc.element_material[e] = id;
+                any = true;
+            }
+        }
+        if !any {
+            return Err(ctx.error(&key, "selects no element (by centroid)"));
+        }
+        desc.materials.push(c);
+    }
     if t.mesh.as_ref().is_some_and(|m| m.reorient) {
         desc.reorient();
     }
@@ -449,24 +525,38 @@ pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
     Ok(desc)
 }
 
-fn material(ctx: &Context<'_>, m: &MaterialTable) -> Result<FemMaterial, SceneError> {
-    let at = |f: &str| path(&[&"material", &f]);
-    let model = MODELS
+fn model(ctx: &Context<'_>, name: &str) -> Result<Material, SceneError> {
+    MODELS
         .iter()
-        .find(|(name, _)| *name == m.model)
+        .find(|(n, _)| *n == name)
         .map(|&(_, model)| model)
         .ok_or_else(|| {
             let names: Vec<&str> = MODELS.iter().map(|(n, _)| *n).collect();
             ctx.error(
-                &at("model"),
+                &path(&[&"material", &"model"]),
                 format!(
-                    "unknown material model `{}`; one of: {}",
-                    m.model,
+                    "unknown material model `{name}`; one of: {}",
                     names.join(", ")
                 ),
             )
-        })?;
-    let base = match &m.preset {
+        })
+}
+
+/// A material of `model` from a preset and `[young, poisson, density]` (each overriding
+/// the preset's), for the table at `table`.
+fn constants(
+    ctx: &Context<'_>,
+    model: Material,
+    given: [Option<f64>; 3],
+    preset: &Option<String>,
+    table: &[&dyn PathPart],
+) -> Result<FemMaterial, SceneError> {
+    let at = |f: &str| {
+        let mut p = path(table);
+        p.extend(path(&[&f]));
+        p
+    };
+    let base = match preset {
         Some(p) => {
             let make = PRESETS
                 .iter()
@@ -489,9 +579,9 @@ fn material(ctx: &Context<'_>, m: &MaterialTable) -> Result<FemMaterial, SceneEr
     };
     Ok(FemMaterial {
         model,
-        young: value(m.young, base.map(|b| b.young), "young")?,
-        poisson: value(m.poisson, base.map(|b| b.poisson), "poisson")?,
-        density: value(m.density, base.map(|b| b.density), "density")?,
+        young: value(given[0], base.map(|b| b.young), "young")?,
+        poisson: value(given[1], base.map(|b| b.poisson), "poisson")?,
+        density: value(given[2], base.map(|b| b.density), "density")?,
     })
 }
 
@@ -500,9 +590,16 @@ fn error_key(e: &ModelError, mesh: &str) -> Vec<Key> {
     match e {
         ModelError::Value {
             item: "material",
+            index: 0,
             field,
             ..
         } => path(&[&"material", field]),
+        ModelError::Value {
+            item: "material",
+            index,
+            field,
+            ..
+        } => path(&[&"region", &(index - 1), field]),
         ModelError::Value {
             item: "contact", ..
         } => path(&[&"friction"]),

@@ -284,7 +284,7 @@ impl Fem {
     /// 3 (s12^2 + s23^2 + s13^2))`.
     pub fn von_mises(&self, e: usize, x: &[f64]) -> f64 {
         let f = self.deformation_gradient(e, x);
-        let p = largestep_kernels::fem::pk1(self.material.model, self.lame, &f);
+        let p = self.stress_at(e, &f);
         let j = det(&f);
         let s = mul(&p, &transpose(&f)).map(|v| v / j);
         let d = (s[0] - s[4]).powi(2) + (s[4] - s[8]).powi(2) + (s[8] - s[0]).powi(2);
