@@ -577,7 +577,12 @@ fn scene_path(name: &str) -> PathBuf {
 #[test]
 fn fem_scenes_load_and_the_cantilever_runs() {
     use largestep::scene::{Runner, Scene};
-    for name in ["fem-ball.toml", "fem-nut.toml"] {
+    for name in [
+        "fem-ball.toml",
+        "fem-nut.toml",
+        "fem-twist.toml",
+        "fem-twist-linear.toml",
+    ] {
         let scene = Scene::load(&scene_path(name)).unwrap();
         assert!(scene.into_simulation().is_some(), "{name}");
     }
@@ -603,9 +608,12 @@ fn fem_scene_errors_name_the_line() {
     use largestep::scene::Scene;
     let base = std::fs::read_to_string(scene_path("fem-cantilever.toml")).unwrap();
     let region = "density = 1000.0\n[[fem.region]]\nmin = [0.5, -1.0, -1.0]\nmax = [2.0, 1.0, 1.0]";
-    let cases: [(&str, &str, &str); 8] = [
+    let cases: [(&str, &str, &str); 11] = [
         ("model = \"corotational\"", "model = \"corotation\"", "unknown material model `corotation`"),
         ("density = 1000.0", "density = 1000.0\ninversion_threshold = 1.5", "inversion_threshold"),
+        ("[fem]", "[fem]\n[[fem.path]]\nmin = [5.0, 5.0, 5.0]\nmax = [6.0, 6.0, 6.0]\ntimes = [0.0]", "selects no vertex"),
+        ("[fem]", "[fem]\n[[fem.path]]\nvertices = [1]\ntimes = [1.0, 0.5]", "must be increasing"),
+        ("[fem]", "[fem]\n[[fem.path]]\nvertices = [1]\ntimes = [0.0, 1.0]\nangles = [0.0, 1.0]", "both angles and axis"),
         ("density = 1000.0", &format!("{region}\npreset = \"steel\"\npoisson = 0.5"), "region"),
         ("density = 1000.0", "density = 1000.0\n[[fem.region]]\nmin = [5.0, 5.0, 5.0]\nmax = [6.0, 6.0, 6.0]\npreset = \"steel\"", "selects no element"),
         ("normal = [1.0, 0.0, 0.0]", "normal = [1.0, 0.0, 0.0]\n[[fem.pin_box]]\nmin = [5.0, 5.0, 5.0]\nmax = [6.0, 6.0, 6.0]", "selects no vertex"),
@@ -1825,4 +1833,166 @@ proptest! {
             }
         }
     }
+}
+
+/// Prescribed motion: a bar clamped at one end and turned by half a turn at the other
+/// (`VertexPath` with a `PathTurn`). The turned end sits exactly on its path (rotated by
+/// pi about the bar's axis); corotational elasticity twists the bar with its section
+/// nearly unchanged, while linear elasticity, strained by the rotation itself, swells
+/// it and stores many times the energy (the picture in the README).
+#[test]
+fn a_bar_turned_half_a_turn_twists_corotationally_and_swells_linearly() {
+    use largestep::simulation::path::{PathTurn, VertexPath};
+    let (l, h) = (0.6, 0.1);
+    let mesh = box_mesh([12, 2, 2], [l, h, h], [0.0, -0.5 * h, -0.5 * h]);
+    let n = mesh.positions.len();
+    let end: Vec<usize> = (0..n)
+        .filter(|&i| mesh.positions[i][0] > l - 1e-9)
+        .collect();
+    let run = |m: Material| {
+        let mut d = FemDesc::new(
+            mesh.positions.clone(),
+            mesh.tets.clone(),
+            FemMaterial {
+                model: m,
+                young: 1e6,
+                poisson: 0.3,
+                density: 1000.0,
+            },
+        );
+        d.pinned = (0..n).filter(|&i| mesh.positions[i][0] < 1e-9).collect();
+        d.paths = vec![VertexPath {
+            vertices: end.clone(),
+            times: vec![0.0, 1.0],
+            offsets: vec![[0.0; 3]; 2],
+            turn: Some(PathTurn {
+                center: [l, 0.0, 0.0],
+                axis: [1.0, 0.0, 0.0],
+                angles: vec![0.0, std::f64::consts::PI],
+            }),
+        }];
+        d.rayleigh = [2.0, 0.0];
+        let (model, state) = d.build().unwrap();
+        let mut sim =
+            MechSimulation::new(model, state, MechSettings::new(Method::BackwardEuler)).unwrap();
+        sim.set_step_control(None);
+        for _ in 0..90 {
+            sim.step(1.0 / 60.0).unwrap();
+        }
+        let x = sim.state().x.as_slice().to_vec();
+        // The end is where the path puts it: (x, y, z) -> (x, -y, -z).
+        for &i in &end {
+            let p = mesh.positions[i];
+            let got = [x[i], x[n + i], x[2 * n + i]];
+            let want = [p[0], -p[1], -p[2]];
+            assert!(
+                (0..3).all(|c| (got[c] - want[c]).abs() < 1e-12),
+                "{m:?}: end vertex {i} at {got:?}, path {want:?}"
+            );
+        }
+        // The widest the bar gets: the largest distance of a vertex from its axis,
+        // against the rest section's half diagonal.
+        let radius = (0..n)
+            .map(|i| (x[n + i].powi(2) + x[2 * n + i].powi(2)).sqrt())
+            .fold(0.0, f64::max);
+        (
+            radius / (0.5 * h * 2f64.sqrt()),
+            sim.model().elastic_energy(&x),
+        )
+    };
+    let (r_corot, w_corot) = run(Material::Corotational);
+    let (r_linear, w_linear) = run(Material::Linear);
+    println!("widest section against rest: corotational {r_corot:.3}, linear {r_linear:.3}; energy {w_corot:.2} J against {w_linear:.2} J");
+    assert!(r_corot < 1.05, "corotational section grew to {r_corot}");
+    assert!(r_linear > 1.2, "linear section grew to {r_linear}");
+    assert!(
+        w_linear > 5.0 * w_corot,
+        "energy {w_linear} against {w_corot}"
+    );
+}
+
+/// Vega's `.veg`: vertices, tetrahedra, ENU materials, sets and regions (each element
+/// its region's material, the first material elsewhere), cubes split conformingly, and
+/// bad files as errors naming the line; a scene reads one and its materials.
+#[test]
+fn vega_veg_files_read_with_their_materials() {
+    use largestep::fem::veg::parse_veg;
+    let text = "# two tetrahedra sharing a face\n*VERTICES\n5 3 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n5 1 1 1\n\n*ELEMENTS\nTET\n2 4 0\n1 1 2 3 4\n2 2 3 4 5\n\n*MATERIAL soft\nENU, 1000, 1e6, 0.45\n*MATERIAL stiff\nENU, 7800, 2e11, 0.3\n*SET second\n2,\n*REGION\nsecond, stiff\n";
+    let v = parse_veg(text, "two.veg").unwrap();
+    assert_eq!(v.mesh.positions.len(), 5);
+    assert_eq!(v.mesh.tets, vec![[0, 1, 2, 3], [1, 2, 3, 4]]);
+    assert_eq!(v.element_material, vec![0, 1]);
+    assert_eq!(
+        (
+            v.materials[1].young,
+            v.materials[1].poisson,
+            v.materials[1].density
+        ),
+        (2e11, 0.3, 7800.0)
+    );
+    // A cube, split into 24 tetrahedra filling its volume.
+    let cube = "*VERTICES\n8 3 0 0\n1 0 0 0\n2 1 0 0\n3 1 1 0\n4 0 1 0\n5 0 0 1\n6 1 0 1\n7 1 1 1\n8 0 1 1\n*ELEMENTS\nCUBIC\n1 8 0\n1 1 2 3 4 5 6 7 8\n*MATERIAL m\nENU, 1000, 1e6, 0.3\n";
+    let c = parse_veg(cube, "cube.veg").unwrap();
+    assert_eq!(c.mesh.tets.len(), 24);
+    let vol: f64 = c
+        .mesh
+        .tets
+        .iter()
+        .map(|t| largestep_kernels::fem::signed_volume(&t.map(|i| c.mesh.positions[i as usize])))
+        .sum();
+    assert!((vol - 1.0).abs() < 1e-12, "{vol}");
+    for (bad, line, says) in [
+        (
+            text.replace("ENU, 7800", "ORTHOTROPIC, 7800"),
+            19,
+            "only ENU",
+        ),
+        (text.replace("2 2 3 4 5", "2 2 3 4 9"), 14, "out of range"),
+        (
+            text.replace("5 3 0 0", "6 3 0 0"),
+            3,
+            "the header claims 6 vertices, the section holds 5",
+        ),
+        (
+            text.replace("second, stiff", "second, steel"),
+            23,
+            "no material `steel`",
+        ),
+        (text.replace("TET", "WEDGE"), 11, "element type"),
+    ] {
+        let e = parse_veg(&bad, "bad.veg").unwrap_err();
+        let s = e.to_string();
+        assert!(s.contains(says) && s.contains("bad.veg"), "{s}");
+        assert_eq!(e.line, line, "{s}");
+    }
+    // Through a scene: the file's materials, the scene's model.
+    use largestep::scene::{Runner, Scene};
+    let dir = std::env::temp_dir().join(format!("largestep-fem-veg-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("two.veg"), text).unwrap();
+    let scene = "[scene]\nname = \"veg\"\ndt = 0.001\nduration = 0.002\nintegrator = \"backward-euler\"\n[fem]\npinned = [0, 1, 2, 3]\n[fem.mesh]\nfile = \"two.veg\"\n[fem.material]\nmodel = \"stable-neo-hookean\"\n[output]\nframes = \"none\"\n";
+    std::fs::write(dir.join("s.toml"), scene).unwrap();
+    let mut runner = Runner::new(Scene::load(&dir.join("s.toml")).unwrap(), &dir.join("out"));
+    runner.run(None, &mut |_| {}).unwrap();
+    let with_young = scene.replace(
+        "model = \"stable-neo-hookean\"",
+        "model = \"stable-neo-hookean\"\nyoung = 1e5",
+    );
+    std::fs::write(dir.join("s2.toml"), with_young).unwrap();
+    let e = Scene::load(&dir.join("s2.toml"))
+        .map(|_| ())
+        .err()
+        .map(|e| e.to_string());
+    let e = e.unwrap_or_else(|| {
+        let mut r = Runner::new(
+            Scene::load(&dir.join("s2.toml")).unwrap(),
+            &dir.join("out2"),
+        );
+        r.run(None, &mut |_| {})
+            .map(|_| ())
+            .unwrap_err()
+            .to_string()
+    });
+    assert!(e.contains("the .veg file gives the materials"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
 }

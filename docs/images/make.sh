@@ -25,3 +25,19 @@ hanging-chain scenes/hanging-chain.toml 640x360 animation.gif
 fem-nut scenes/fem-nut.toml 1280x720 contact-sheet.png
 fem-ball scenes/fem-ball.toml 640x360 animation.gif
 LIST
+# The twisted bar: fem-twist (corotational, behind) and fem-twist-linear (linear, in
+# front, z + 0.25 m) run apart and drawn in one picture: each frame of the two runs
+# merged into one OBJ (the second's face indices shifted past the first's vertices).
+for s in fem-twist fem-twist-linear; do
+  echo "fem-twist: scenes/$s.toml"
+  "$ls" run "scenes/$s.toml" --out "$work/$s" >/dev/null
+done
+both="$work/fem-twist-both"
+rm -rf "$both" && mkdir -p "$both/frames"
+for f in "$work/fem-twist/frames"/*.obj; do
+  awk 'FNR == 1 { file++ } file == 1 && /^v / { n++ }
+       file == 2 && /^f / { print "f", $2 + n, $3 + n, $4 + n; next } { print }' \
+    "$f" "$work/fem-twist-linear/frames/$(basename "$f")" > "$both/frames/$(basename "$f")"
+done
+"$ls" render "$both/frames" --size 1280x720 --out "$both/preview" >/dev/null
+cp "$both/preview/contact-sheet.png" docs/images/fem-twist.png

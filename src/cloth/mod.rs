@@ -35,7 +35,7 @@ use crate::solve::Filter;
 use crate::sparse::{
     Bsr3, Bsr3Pattern, ElementAssembly, LocalLayout, RankOneAssembly, SparseError, VectorGather,
 };
-use crate::validate::{check, require, ModelError, Rule};
+use crate::validate::{check, ModelError, Rule};
 use largestep_kernels::cloth::{
     add_bend, add_shear, add_stretch, bend_force_gradient, bend_force_gradient_x4,
     decoupled_hinge_weight, dihedral_angle, triangle_jacobians, ConditionSink, ElementForces,
@@ -76,40 +76,7 @@ pub struct ClothMaterial {
     pub rest_stretch: [f64; 2],
 }
 
-/// Vertices moved along a prescribed path: each listed vertex sits at its initial
-/// position plus an offset interpolated linearly between keyframes (held before the first
-/// and after the last). Path vertices are fixed in the implicit solve and placed on the
-/// path after every step with the path's velocity.
-#[derive(Clone, Debug, PartialEq)]
-pub struct VertexPath {
-    /// The vertices moved.
-    pub vertices: Vec<usize>,
-    /// Keyframe times (s), increasing.
-    pub times: Vec<f64>,
-    /// Offsets from the initial positions at those times (m).
-    pub offsets: Vec<[f64; 3]>,
-}
-
-impl VertexPath {
-    /// Offset and velocity at time `t` (the velocity of the segment `t` lies in, taking
-    /// the later one at a keyframe).
-    pub fn at(&self, t: f64) -> ([f64; 3], [f64; 3]) {
-        let k = self.times.partition_point(|&tk| tk <= t);
-        if k == 0 {
-            return (self.offsets[0], [0.0; 3]);
-        }
-        if k == self.times.len() {
-            return (self.offsets[k - 1], [0.0; 3]);
-        }
-        let (t0, t1) = (self.times[k - 1], self.times[k]);
-        let (a, b) = (self.offsets[k - 1], self.offsets[k]);
-        let s = (t - t0) / (t1 - t0);
-        (
-            std::array::from_fn(|c| a[c] + s * (b[c] - a[c])),
-            std::array::from_fn(|c| (b[c] - a[c]) / (t1 - t0)),
-        )
-    }
-}
+pub use crate::simulation::path::VertexPath;
 
 /// An editable cloth description.
 #[derive(Clone, Debug, PartialEq)]
@@ -301,28 +268,7 @@ impl ClothDesc {
         }
         self.step_control.validate()?;
         for (k, p) in self.paths.iter().enumerate() {
-            if p.times.is_empty() || p.times.len() != p.offsets.len() {
-                return Err(ModelError::Value {
-                    item: "path",
-                    index: k,
-                    field: "offsets",
-                    value: p.offsets.len() as f64,
-                    why: "needs one offset per keyframe time, and at least one",
-                });
-            }
-            for w in p.times.windows(2) {
-                require("path", k, "times", w[1], w[1] > w[0], "must be increasing")?;
-            }
-            for &t in &p.times {
-                check("path", k, "times", t, Finite)?;
-            }
-            for &x in p.offsets.iter().flatten() {
-                check("path", k, "offsets", x, Finite)?;
-            }
-            for &v in &p.vertices {
-                let why = "names a vertex that does not exist";
-                require("path", k, "vertices", v as f64, v < n, why)?;
-            }
+            p.validate(k, n)?;
         }
         let nt = self.triangles.len();
         let mut rest = Vec::with_capacity(nt);
@@ -428,9 +374,8 @@ impl ClothDesc {
             v.set(p as usize, [0.0; 3]);
         }
         for path in &cloth.paths {
-            let vel = path.at(0.0).1;
             for &i in &path.vertices {
-                v.set(i, vel);
+                v.set(i, path.place(0.0, self.positions[i]).1);
             }
         }
         Ok((
@@ -901,11 +846,11 @@ impl MechModel for Cloth {
     fn prescribe(&self, t: f64, x: &mut [f64], v: &mut [f64]) {
         let n = self.n;
         for (path, rest) in self.paths.iter().zip(&self.path_rest) {
-            let (off, vel) = path.at(t);
-            for (&i, p0) in path.vertices.iter().zip(rest) {
+            for (&i, &p0) in path.vertices.iter().zip(rest) {
+                let (xi, vi) = path.place(t, p0);
                 for c in 0..3 {
-                    x[c * n + i] = p0[c] + off[c];
-                    v[c * n + i] = vel[c];
+                    x[c * n + i] = xi[c];
+                    v[c * n + i] = vi[c];
                 }
             }
         }

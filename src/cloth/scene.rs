@@ -330,11 +330,11 @@ pub fn desc(ctx: &Context<'_>, t: &ClothTable) -> Result<ClothDesc, SceneError> 
         for (j, &v) in pt.vertices.iter().enumerate() {
             vertices.push(vertex(v, at(&[&"path", &k, &"vertices", &j]))?);
         }
-        desc.paths.push(VertexPath {
+        desc.paths.push(VertexPath::translation(
             vertices,
-            times: pt.times.clone(),
-            offsets: pt.offsets.clone(),
-        });
+            pt.times.clone(),
+            pt.offsets.clone(),
+        ));
     }
     if let Some(sc) = &t.step_control {
         desc.step_control = shared::step_control(ctx, sc, StepControl::CLOTH)?;

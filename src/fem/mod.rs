@@ -21,12 +21,14 @@ pub mod gmsh;
 pub mod mesh;
 pub mod scene;
 mod statics;
+pub mod veg;
 pub mod vtk;
 pub use statics::{StaticInfo, StaticSimulation, StaticSolver};
 
 use crate::collide::Obstacle;
 use crate::integrate::{IntegrateError, MechState};
 use crate::loads::{Body, Gravity, Loads};
+use crate::simulation::path::VertexPath;
 use crate::simulation::{MechModel, Stage};
 use crate::soa::Vec3s;
 use crate::solve::Filter;
@@ -146,6 +148,9 @@ pub struct FemDesc {
     pub gravity: [f64; 3],
     /// Pinned vertices.
     pub pinned: Vec<usize>,
+    /// Vertices moved along prescribed rigid paths (a clamp twisted or pulled): fixed in
+    /// the solves and placed on their path after every step.
+    pub paths: Vec<VertexPath>,
     /// Collision obstacles, resolved as contacts ([`crate::collide::VertexContacts`]).
     pub obstacles: Vec<Obstacle>,
     /// Coulomb friction coefficient of contacts, >= 0.
@@ -175,6 +180,7 @@ impl FemDesc {
             inversion_threshold: None,
             gravity: [0.0; 3],
             pinned: Vec::new(),
+            paths: Vec::new(),
             obstacles: Vec::new(),
             friction: 0.0,
             rayleigh: [0.0, 0.0],
@@ -324,6 +330,9 @@ impl FemDesc {
         for (i, o) in self.obstacles.iter().enumerate() {
             o.validate(i)?;
         }
+        for (k, p) in self.paths.iter().enumerate() {
+            p.validate(k, n)?;
+        }
         let mut dm_inv: [Vec<f64>; 9] =
             std::array::from_fn(|_| Vec::with_capacity(self.tets.len()));
         let mut volume = Vec::with_capacity(self.tets.len());
@@ -390,9 +399,20 @@ impl FemDesc {
             .iter()
             .map(|&p| p as u32)
             .chain(unused.iter().copied())
+            .chain(
+                self.paths
+                    .iter()
+                    .flat_map(|p| p.vertices.iter().map(|&v| v as u32)),
+            )
             .collect();
         fixed.sort_unstable();
         fixed.dedup();
+        let mut on_path = vec![false; n];
+        for p in &self.paths {
+            for &i in &p.vertices {
+                on_path[i] = true;
+            }
+        }
         let surface = boundary_faces(&self.tets);
         let sparse = |e: SparseError| ModelError::TooLarge(e.to_string());
         let gather = VectorGather::new(n, &self.tets, &LocalLayout::dense(4)).map_err(sparse)?;
@@ -422,6 +442,16 @@ impl FemDesc {
                 field: None,
             },
             obstacles: self.obstacles.clone(),
+            paths: self.paths.clone(),
+            on_path: on_path.clone(),
+            path_elements: (0..self.tets.len() as u32)
+                .filter(|&e| self.tets[e as usize].iter().any(|&i| on_path[i as usize]))
+                .collect(),
+            path_rest: self
+                .paths
+                .iter()
+                .map(|p| p.vertices.iter().map(|&v| self.positions[v]).collect())
+                .collect(),
             friction: self.friction,
             definiteness_fix: self.definiteness_fix,
             rayleigh: self.rayleigh,
@@ -433,11 +463,16 @@ impl FemDesc {
         } else {
             &self.initial
         });
-        let v = if self.velocities.is_empty() {
+        let mut v = if self.velocities.is_empty() {
             Vec3s::zeros(n)
         } else {
             Vec3s::from_aos(&self.velocities)
         };
+        for p in &self.paths {
+            for &i in &p.vertices {
+                v.set(i, p.place(0.0, self.positions[i]).1);
+            }
+        }
         Ok((model, MechState { x, v }))
     }
 }
@@ -512,6 +547,13 @@ pub struct Fem {
     unused: Vec<u32>,
     loads: Loads,
     obstacles: Vec<Obstacle>,
+    paths: Vec<VertexPath>,
+    /// Each path's vertices' rest positions.
+    path_rest: Vec<Vec<[f64; 3]>>,
+    /// Whether each vertex is on a path, and the elements with a vertex on one (for the
+    /// work the paths do).
+    on_path: Vec<bool>,
+    path_elements: Vec<u32>,
     friction: f64,
     definiteness_fix: bool,
     rayleigh: [f64; 2],
@@ -899,6 +941,50 @@ impl MechModel for Fem {
         &self.fixed
     }
 
+    fn does_external_work(&self) -> bool {
+        !self.paths.is_empty()
+    }
+
+    /// The power (W) the prescribed paths put in: minus the elastic, gravity and
+    /// mass-damping forces on the path vertices dotted with their velocities (the
+    /// clamp's reaction; the path vertices' own inertia, which matters only where the
+    /// path's velocity jumps at a keyframe, and stiffness damping are left out).
+    fn external_power(&self, _t: f64, x: &[f64], v: &[f64]) -> f64 {
+        let n = self.n;
+        let g = self.loads.gravity.0;
+        let mut p = 0.0;
+        let mut f = [0.0; 12];
+        for &e in &self.path_elements {
+            let e = e as usize;
+            self.group(e, 1, x, &mut f, None);
+            for (a, &i) in self.tets[e].iter().enumerate() {
+                let i = i as usize;
+                if self.on_path[i] {
+                    p -= (0..3).map(|c| f[3 * a + c] * v[c * n + i]).sum::<f64>();
+                }
+            }
+        }
+        for i in (0..n).filter(|&i| self.on_path[i]) {
+            let vv: f64 = (0..3).map(|c| v[c * n + i] * v[c * n + i]).sum();
+            let gv: f64 = (0..3).map(|c| g[c] * v[c * n + i]).sum();
+            p += self.mass[i] * (self.rayleigh[0] * vv - gv);
+        }
+        p
+    }
+
+    fn prescribe(&self, t: f64, x: &mut [f64], v: &mut [f64]) {
+        let n = self.n;
+        for (path, rest) in self.paths.iter().zip(&self.path_rest) {
+            for (&i, &p0) in path.vertices.iter().zip(rest) {
+                let (xi, vi) = path.place(t, p0);
+                for c in 0..3 {
+                    x[c * n + i] = xi[c];
+                    v[c * n + i] = vi[c];
+                }
+            }
+        }
+    }
+
     fn stages(&self) -> Vec<Stage> {
         let m = &self.materials[0];
         let mut stages = vec![Stage::built(
@@ -941,6 +1027,11 @@ impl MechModel for Fem {
         });
         stages.extend(self.loads.stages());
         stages.push(Stage::pinned(self.pinned));
+        stages.push(if self.paths.is_empty() {
+            Stage::left_out("prescribed paths", "no [[fem.path]]")
+        } else {
+            Stage::built("prescribed paths", format!("{} paths", self.paths.len()))
+        });
         if !self.unused.is_empty() {
             stages.push(Stage::built(
                 "unused nodes held fixed",

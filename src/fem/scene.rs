@@ -15,12 +15,20 @@
 //! [[fem.pin_plane]]             # every vertex on or behind the plane (normal points out)
 //! point = [0.0, 0.0, 0.0]
 //! normal = [1.0, 0.0, 0.0]
+//! [[fem.path]]                # prescribed motion of the vertices in [min, max] (or
+//! min = [0.99, -1.0, -1.0]      # `vertices = [...]`): keyframes at `times`, each an
+//! max = [1.01, 1.0, 1.0]        # offset (m, default 0) and, with `axis`, an angle (rad)
+//! times = [0.0, 1.0]            # about the axis through `center` (default: the
+//! angles = [0.0, 3.14159]       # selection's centroid)
+//! axis = [1.0, 0.0, 0.0]
 //! [[fem.plane]]                 # obstacles: sphere, plane, box, capsule, sdf (`scene::shared`)
 //! point = [0.0, -0.5, 0.0]
 //! normal = [0.0, 1.0, 0.0]
 //! [fem.beam]                    # or [fem.mesh] file = "nut.node" (TetGen; .ele beside it)
 //!                               #    or file = "beam.vtk" (legacy VTK, tets and hexes)
 //!                               #    or file = "part.msh" (Gmsh 2.2 or 4.1, ASCII)
+//!                               #    or file = "part.veg" (Vega; its materials and
+//!                               #    regions, [fem.material] then gives only the model)
 //! cells = [20, 2, 2]            #    scale, offset, reorient optional
 //! size = [1.0, 0.1, 0.1]        # (m); origin optional
 //! # [fem.damping]               # Rayleigh: C = mass M + stiffness K
@@ -46,6 +54,7 @@ use super::mesh::{box_mesh, read_tetgen, TetMesh};
 use super::{FemDesc, FemMaterial, Material};
 use crate::scene::shared::{self, ObstacleTables};
 use crate::scene::{path, Context, Key, PathPart, SceneError};
+use crate::simulation::path::{PathTurn, VertexPath};
 use crate::simulation::{MechSimulation, Simulation};
 use crate::validate::{ModelError, MAX_COORDINATE};
 use serde::Deserialize;
@@ -60,6 +69,9 @@ pub struct FemTable {
     /// `[[fem.pin_box]]` selections.
     #[serde(default)]
     pub pin_box: Vec<PinBoxTable>,
+    /// `[[fem.path]]`: prescribed motion.
+    #[serde(default)]
+    pub path: Vec<PathTable>,
     /// `[[fem.pin_plane]]` selections.
     #[serde(default)]
     pub pin_plane: Vec<PinPlaneTable>,
@@ -140,6 +152,35 @@ pub struct PinBoxTable {
     pub min: [f64; 3],
     /// High corner (m).
     pub max: [f64; 3],
+}
+
+/// `[[fem.path]]`: vertices moved along a keyframed rigid path.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PathTable {
+    /// Vertex indices moved (or a box selection).
+    #[serde(default)]
+    pub vertices: Vec<i64>,
+    /// Low corner of the selection (m).
+    #[serde(default)]
+    pub min: Option<[f64; 3]>,
+    /// High corner of the selection (m).
+    #[serde(default)]
+    pub max: Option<[f64; 3]>,
+    /// Keyframe times (s), increasing.
+    pub times: Vec<f64>,
+    /// Offsets at the keyframes (m); default zero.
+    #[serde(default)]
+    pub offsets: Option<Vec<[f64; 3]>>,
+    /// Angles at the keyframes (rad) about `axis`.
+    #[serde(default)]
+    pub angles: Option<Vec<f64>>,
+    /// The rotation axis.
+    #[serde(default)]
+    pub axis: Option<[f64; 3]>,
+    /// A point on the axis (m); default the selection's centroid.
+    #[serde(default)]
+    pub center: Option<[f64; 3]>,
 }
 
 /// `[[fem.pin_plane]]`
@@ -302,13 +343,9 @@ pub fn build(ctx: &Context<'_>) -> Result<Box<dyn Simulation>, SceneError> {
 pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
     let at = |f: &[&dyn PathPart]| path(f);
     let m = &t.material;
-    let material = constants(
-        ctx,
-        model(ctx, &m.model)?,
-        [m.young, m.poisson, m.density],
-        &m.preset,
-        &[&"material"],
-    )?;
+    let kind = model(ctx, &m.model)?;
+    // A .veg file's materials and regions.
+    let mut veg: Option<(Vec<super::veg::VegMaterial>, Vec<u32>)> = None;
     let mesh = match (&t.beam, &t.mesh) {
         (Some(b), None) => {
             let mut cells = [0usize; 3];
@@ -347,10 +384,18 @@ pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
             let msh = file
                 .extension()
                 .is_some_and(|e| e.eq_ignore_ascii_case("msh"));
+            let is_veg = file
+                .extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("veg"));
             let read = if vtk {
                 super::vtk::read_vtk(&file, ctx.limits.max_file_bytes)
             } else if msh {
                 super::gmsh::read_msh(&file, ctx.limits.max_file_bytes)
+            } else if is_veg {
+                super::veg::read_veg(&file, ctx.limits.max_file_bytes).map(|v| {
+                    veg = Some((v.materials, v.element_material));
+                    v.mesh
+                })
             } else {
                 read_tetgen(&file.with_extension(""), ctx.limits.max_file_bytes)
             };
@@ -391,8 +436,41 @@ pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
         }
         _ => return Err(ctx.error(&[], "give exactly one of [fem.beam] or [fem.mesh]")),
     };
+    let material = match &veg {
+        None => constants(
+            ctx,
+            kind,
+            [m.young, m.poisson, m.density],
+            &m.preset,
+            &[&"material"],
+        )?,
+        Some(_) if m.preset.is_some() || m.young.is_some() || m.poisson.is_some() || m.density.is_some() => {
+            return Err(ctx.error(
+                &at(&[&"material"]),
+                "the .veg file gives the materials: [fem.material] gives only the model (and inversion_threshold)",
+            ))
+        }
+        Some((mats, _)) => FemMaterial {
+            model: kind,
+            young: mats[0].young,
+            poisson: mats[0].poisson,
+            density: mats[0].density,
+        },
+    };
     let n = mesh.positions.len();
     let mut desc = FemDesc::new(mesh.positions, mesh.tets, material);
+    if let Some((mats, element_material)) = veg {
+        desc.materials = mats
+            .iter()
+            .map(|v| FemMaterial {
+                model: kind,
+                young: v.young,
+                poisson: v.poisson,
+                density: v.density,
+            })
+            .collect();
+        desc.element_material = element_material;
+    }
     desc.inversion_threshold = m.inversion_threshold;
     for (k, r) in t.region.iter().enumerate() {
         let key = at(&[&"region", &k]);
@@ -454,6 +532,58 @@ pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
         if pinned.len() == before {
             return Err(ctx.error(&key, "selects no vertex"));
         }
+    }
+    for (k, p) in t.path.iter().enumerate() {
+        let key = at(&[&"path", &k]);
+        let mut vertices = Vec::new();
+        for (j, &v) in p.vertices.iter().enumerate() {
+            let kv = at(&[&"path", &k, &"vertices", &j]);
+            let i = ctx.index(v, &kv, "vertex")?;
+            if i >= n {
+                return Err(ctx.error(
+                    &kv,
+                    format!("vertex {i} does not exist: the mesh has {n} vertices"),
+                ));
+            }
+            vertices.push(i);
+        }
+        match (p.min, p.max) {
+            (Some(lo), Some(hi)) => {
+                if !lo.iter().chain(&hi).all(|c| c.is_finite()) {
+                    return Err(ctx.error(&key, "min and max must be finite"));
+                }
+                let inside = |q: &[f64; 3]| (0..3).all(|c| q[c] >= lo[c] && q[c] <= hi[c]);
+                vertices.extend((0..n).filter(|&i| inside(&desc.positions[i])));
+            }
+            (None, None) => {}
+            _ => return Err(ctx.error(&key, "give both min and max, or neither")),
+        }
+        if vertices.is_empty() {
+            return Err(ctx.error(&key, "selects no vertex"));
+        }
+        let turn = match (&p.angles, p.axis) {
+            (Some(angles), Some(axis)) => Some(PathTurn {
+                center: p.center.unwrap_or_else(|| {
+                    let m = vertices.len() as f64;
+                    std::array::from_fn(|c| {
+                        vertices.iter().map(|&i| desc.positions[i][c]).sum::<f64>() / m
+                    })
+                }),
+                axis,
+                angles: angles.clone(),
+            }),
+            (None, None) => None,
+            _ => return Err(ctx.error(&key, "give both angles and axis, or neither")),
+        };
+        desc.paths.push(VertexPath {
+            vertices,
+            offsets: p
+                .offsets
+                .clone()
+                .unwrap_or_else(|| vec![[0.0; 3]; p.times.len()]),
+            times: p.times.clone(),
+            turn,
+        });
     }
     for (k, p) in t.pin_plane.iter().enumerate() {
         let key = at(&[&"pin_plane", &k]);
@@ -603,6 +733,12 @@ fn error_key(e: &ModelError, mesh: &str) -> Vec<Key> {
         ModelError::Value {
             item: "contact", ..
         } => path(&[&"friction"]),
+        ModelError::Value {
+            item: "path",
+            index,
+            field,
+            ..
+        } => path(&[&"path", index, field]),
         ModelError::Element { .. }
         | ModelError::Missing {
             item: "tetrahedron",

@@ -232,7 +232,11 @@ pub fn parse_vtk(text: &str, name: &str) -> Result<TetMesh, ReadError> {
 
 /// Splits hexahedron `v` (VTK order) into 24 tetrahedra around its centre and its face
 /// centres (shared through `face_centre`, keyed by the face's sorted vertices).
-fn split_hexahedron(mesh: &mut TetMesh, v: &[u32], face_centre: &mut HashMap<[u32; 4], u32>) {
+pub(super) fn split_hexahedron(
+    mesh: &mut TetMesh,
+    v: &[u32],
+    face_centre: &mut HashMap<[u32; 4], u32>,
+) {
     const FACES: [[usize; 4]; 6] = [
         [0, 1, 2, 3],
         [4, 5, 6, 7],

@@ -140,11 +140,12 @@ pub struct Summary {
     /// The size of the scene's systems at the start: the diagonal of their bounding box
     /// (m).
     pub size: f64,
-    /// `(E_end - E_start - W) / energy_scale`, W the work of loads without a potential:
+    /// `(E_end - E_start - W) / energy_scale`, W the work of loads without a potential
+    /// and of prescribed motion:
     /// what the system gained that nothing put in.
     pub energy_drift: f64,
     /// The scale energy changes are measured against: `max(|E_start|, largest kinetic
-    /// energy at any frame)` (J).
+    /// energy at any frame, |W|)` (J).
     pub energy_scale: f64,
     /// The largest gain at any frame, `(E(t) - E_start - W(t)) / energy_scale`, and the
     /// time it was reached (s): a transient jump that the end value hides.
@@ -193,7 +194,7 @@ impl std::fmt::Display for Summary {
         if self.external_work != 0.0 {
             writeln!(
                 f,
-                "                 wind and force fields put in {} J",
+                "                 loads without a potential and prescribed motion put in {} J",
                 human(self.external_work)
             )?;
         }
@@ -208,10 +209,11 @@ impl std::fmt::Display for Summary {
         } else {
             writeln!(
                 f,
-                "                 change{} {} of the energy scale {} J (the larger of the start's energy and the most kinetic energy)",
+                "                 change{} {} of the energy scale {} J (the largest of the start's energy, the most kinetic energy{})",
                 if self.external_work != 0.0 { " less that work" } else { "" },
                 pct(self.energy_drift),
-                human(self.energy_scale)
+                human(self.energy_scale),
+                if self.external_work != 0.0 { " and that work" } else { "" }
             )?;
         }
         if self.energy_drift > 0.1 {
@@ -712,7 +714,11 @@ impl Runner {
             .iter()
             .map(|r| r.penetration)
             .fold(0.0, f64::max);
-        let scale = e_start.abs().max(max_kinetic).max(f64::MIN_POSITIVE);
+        let scale = e_start
+            .abs()
+            .max(max_kinetic)
+            .max(end.external_work.abs())
+            .max(f64::MIN_POSITIVE);
         summary.energy_scale = scale;
         summary.energy_drift = (e1 - e_start - end.external_work) / scale;
         summary.energy_peak = self

@@ -16,6 +16,7 @@
 //! ([`crate::collide::VertexContacts`]) and step-size control ([`StepControl`]).
 
 mod mech;
+pub mod path;
 
 pub use mech::{MechModel, MechSimulation, StepControl};
 

@@ -1,0 +1,367 @@
+//! Tetrahedral FEM benchmarks on the beam of issue 15: 1 m x 0.1 m x 0.1 m, 100 x 10 x 10
+//! cubes split into six tetrahedra each (12,221 vertices, 60,000 tetrahedra), clamped at
+//! x = 0, sagging under gravity; corotational elasticity (E = 10 MPa, nu = 0.3, 1000
+//! kg/m^3), the definiteness fix on. The timed state is the beam after 0.5 s of backward
+//! Euler from straight (its tip sags and swings; the elements are rotated and strained).
+//!
+//! - `fem/kernel/{scalar,x4}`: every element's forces and ten stiffness blocks
+//!   (`largestep_kernels::fem_diag::element`, the generic kernel at `f64`, and
+//!   `element_x4`, four elements per `f64x4`), on one core, positions gathered from the
+//!   state as the model does. Their flops are counted by running the same generic kernel
+//!   on a counting number type over the same elements (an FMA counts 2, every other
+//!   arithmetic operation, square root, comparison and selection 1), and reported against
+//!   one core's FMA peak, measured in the same run (`machine::peak_fma`, 4-wide, over the
+//!   threads, divided by them).
+//! - `fem/assembly`: `Fem::force_jacobians` on all threads: the kernels, the gather of
+//!   the forces and the stiffness blocks into the block-sparse matrix (deterministic, in
+//!   a fixed order). The difference from the parallel kernel time is the gather.
+//! - `fem/step/<solver>`: one backward Euler step at dt = 1/60 s, Newton iterated until
+//!   the residual falls by 1e-6 or the velocity change per iteration is below 1e-6 of the
+//!   velocities (`MechSettings::new`), with sparse Cholesky or PCG with the aggregation
+//!   multigrid preconditioner (relative tolerance 1e-6 per linear solve). The summary
+//!   gives the Newton iterations and the final residual of each timed step.
+//!
+//! The peer (`benches/peers/rapier-fem`) steps the same mesh in rapier3d's FEM soft body.
+//! Run with `cargo bench --bench fem`; the summary is printed at the end and written to
+//! `target/criterion/fem-summary.md`.
+
+use criterion::Criterion;
+use largestep::fem::mesh::box_mesh;
+use largestep::fem::{Fem, FemDesc, FemMaterial, Material};
+use largestep::integrate::{LinearSolverKind, MechSettings, Method};
+use largestep::kernels::fem_diag::{element, element_x4, Iso, Lane};
+use largestep::kernels::{four, gather_nodes};
+use largestep::simulation::{MechModel, MechSimulation};
+use largestep::solve::{PcgParams, Preconditioner};
+use largestep::sparse::Bsr3;
+use std::cell::Cell;
+use std::ops::{Add, Div, Mul, Neg, Sub};
+use std::time::{Duration, Instant};
+
+const DT: f64 = 1.0 / 60.0;
+
+fn beam() -> FemDesc {
+    let mesh = box_mesh([100, 10, 10], [1.0, 0.1, 0.1], [0.0, -0.05, -0.05]);
+    let mut d = FemDesc::new(
+        mesh.positions,
+        mesh.tets,
+        FemMaterial {
+            model: Material::Corotational,
+            young: 1e7,
+            poisson: 0.3,
+            density: 1000.0,
+        },
+    );
+    d.gravity = [0.0, -9.81, 0.0];
+    d.pinned = (0..d.positions.len())
+        .filter(|&i| d.positions[i][0] < 1e-12)
+        .collect();
+    d
+}
+
+fn settings(cholesky: bool) -> MechSettings {
+    let mut s = MechSettings::new(Method::BackwardEuler);
+    s.linear = if cholesky {
+        LinearSolverKind::Cholesky
+    } else {
+        LinearSolverKind::Pcg(PcgParams {
+            tolerance: 1e-6,
+            max_iterations: 2000,
+            preconditioner: Preconditioner::Multigrid,
+        })
+    };
+    s
+}
+
+fn simulation(cholesky: bool) -> MechSimulation<Fem> {
+    let (fem, state) = beam().build().unwrap();
+    let mut sim = MechSimulation::new(fem, state, settings(cholesky)).unwrap();
+    sim.set_step_control(None);
+    sim
+}
+
+thread_local! {
+    static FLOPS: Cell<u64> = const { Cell::new(0) };
+}
+
+/// A number that counts the operations done on it (see the module docs).
+#[derive(Clone, Copy)]
+struct Counted(f64);
+
+fn tally(n: u64) {
+    FLOPS.with(|c| c.set(c.get() + n));
+}
+
+macro_rules! counted_op {
+    ($tr:ident, $f:ident, $op:tt) => {
+        impl $tr for Counted {
+            type Output = Counted;
+            fn $f(self, o: Counted) -> Counted {
+                tally(1);
+                Counted(self.0 $op o.0)
+            }
+        }
+    };
+}
+counted_op!(Add, add, +);
+counted_op!(Sub, sub, -);
+counted_op!(Mul, mul, *);
+counted_op!(Div, div, /);
+
+impl Neg for Counted {
+    type Output = Counted;
+    fn neg(self) -> Counted {
+        tally(1);
+        Counted(-self.0)
+    }
+}
+
+impl Lane for Counted {
+    fn splat(v: f64) -> Self {
+        Counted(v)
+    }
+    fn fma(self, m: Self, a: Self) -> Self {
+        tally(2);
+        Counted(self.0.mul_add(m.0, a.0))
+    }
+    fn sqrt(self) -> Self {
+        tally(1);
+        Counted(self.0.sqrt())
+    }
+    fn abs(self) -> Self {
+        tally(1);
+        Counted(self.0.abs())
+    }
+    fn max(self, o: Self) -> Self {
+        tally(1);
+        Counted(self.0.max(o.0))
+    }
+    fn ln(self) -> Self {
+        tally(1);
+        Counted(self.0.ln())
+    }
+    fn if_lt(a: Self, b: Self, x: Self, y: Self) -> Self {
+        tally(2);
+        if a.0 < b.0 {
+            x
+        } else {
+            y
+        }
+    }
+    fn any_not_positive(self) -> bool {
+        tally(1);
+        self.0.is_nan() || self.0 <= 0.0
+    }
+}
+
+fn main() {
+    let mut c = Criterion::default()
+        .configure_from_args()
+        .measurement_time(Duration::from_secs(5))
+        .sample_size(10);
+    let filter = std::env::args().skip(1).find(|a| !a.starts_with('-'));
+    let wanted = |id: &str| filter.as_deref().is_none_or(|f| id.contains(f));
+    let threads = rayon::current_num_threads();
+    let (fma4, _) = largestep::machine::peak_fma();
+    let core_peak = fma4 / threads as f64;
+    let mut md = format!(
+        "threads: {threads}, FMA peak (4-wide) {fma4:.1} GFLOP/s, {core_peak:.1} per core\n\n"
+    );
+
+    // The timed state: 0.5 s of sagging.
+    let mut sim = simulation(true);
+    let t0 = Instant::now();
+    while sim.time() < 0.5 - 1e-9 {
+        sim.step(DT).unwrap();
+    }
+    md.push_str(&format!(
+        "state: the beam after 0.5 s of backward Euler (30 steps, {:.1} s), tip y {:.4} m\n\n",
+        t0.elapsed().as_secs_f64(),
+        tip(&sim)
+    ));
+    let x = sim.state().x.as_slice().to_vec();
+    let v = sim.state().v.as_slice().to_vec();
+    kernels(&mut c, &wanted, &mut md, sim.model(), &x, core_peak);
+
+    // Assembly: the model's force_jacobians, all threads.
+    if wanted("fem/assembly") {
+        let fem = sim.model();
+        let n = fem.vertex_count();
+        let mut work = fem.work();
+        let pattern = fem.prepare_jacobians(&mut work).unwrap().unwrap();
+        let mut k = Bsr3::zeros(pattern.clone());
+        let mut f = vec![0.0; 3 * n];
+        let mut run = || {
+            f.fill(0.0);
+            fem.force_jacobians(&mut work, 0.0, &x, &v, &mut f, &mut k, None)
+                .unwrap();
+        };
+        c.bench_function("fem/assembly", |b| b.iter(&mut run));
+        let best = best_of(10, &mut run);
+        md.push_str(&format!(
+            "\n| assembly (all threads) | best | per element |\n|---|---|---|\n| `Fem::force_jacobians`: kernels, gather of forces and {} blocks | {:.2} ms | {:.0} ns |\n",
+            pattern.nnz_blocks(),
+            1e3 * best,
+            1e9 * best / fem.tets().len() as f64
+        ));
+    }
+
+    md.push_str("\n| step (dt = 1/60, backward Euler, Newton to 1e-6) | median | best | Newton iterations | linear iterations | last linear solve, relative residual (worst) |\n|---|---|---|---|---|---|\n");
+    for cholesky in [true, false] {
+        let id = format!("fem/step/{}", if cholesky { "cholesky" } else { "pcg-mg" });
+        if !wanted(&id) {
+            continue;
+        }
+        let mut s = simulation(cholesky);
+        while s.time() < 0.5 - 1e-9 {
+            s.step(DT).unwrap();
+        }
+        c.bench_function(&id, |b| b.iter(|| s.step(DT).unwrap()));
+        let mut times = Vec::new();
+        let (mut newton, mut linear) = (0, 0);
+        let mut residual: f64 = 0.0;
+        for _ in 0..6 {
+            let t = Instant::now();
+            let info = s.step(DT).unwrap();
+            times.push(t.elapsed().as_secs_f64());
+            newton += info.newton_iterations;
+            linear += info.linear_iterations;
+            residual = residual.max(info.residual);
+        }
+        times.sort_by(f64::total_cmp);
+        md.push_str(&format!(
+            "| {id} | {:.1} ms | {:.1} ms | {:.1} | {:.0} | {residual:.1e} |\n",
+            1e3 * 0.5 * (times[2] + times[3]),
+            1e3 * times[0],
+            newton as f64 / 6.0,
+            linear as f64 / 6.0
+        ));
+    }
+    println!("\n{md}");
+    let dir = std::path::Path::new("target/criterion");
+    let _ = std::fs::create_dir_all(dir);
+    let _ = std::fs::write(dir.join("fem-summary.md"), md);
+}
+
+/// Mean y of the free end's vertices.
+fn tip(sim: &MechSimulation<Fem>) -> f64 {
+    let x = sim.state().x.as_slice();
+    let n = x.len() / 3;
+    let rest = box_mesh([100, 10, 10], [1.0, 0.1, 0.1], [0.0, -0.05, -0.05]).positions;
+    let end: Vec<usize> = (0..n).filter(|&i| rest[i][0] > 1.0 - 1e-12).collect();
+    end.iter().map(|&i| x[n + i] - rest[i][1]).sum::<f64>() / end.len() as f64
+}
+
+fn best_of(reps: usize, run: &mut dyn FnMut()) -> f64 {
+    (0..reps)
+        .map(|_| {
+            let t = Instant::now();
+            run();
+            t.elapsed().as_secs_f64()
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+/// The element kernels alone on one core (see the module docs).
+fn kernels(
+    c: &mut Criterion,
+    wanted: &dyn Fn(&str) -> bool,
+    md: &mut String,
+    fem: &Fem,
+    x: &[f64],
+    core_peak: f64,
+) {
+    let n = fem.vertex_count();
+    let tets = fem.tets();
+    let ne = tets.len() / 4 * 4;
+    let iso = Iso {
+        material: Material::Corotational,
+        clamp: None,
+        project: true,
+    };
+    let lame = |e: usize| fem.lame_of(e);
+    let xs = |e: usize| gather_nodes(x, n, &tets[e]);
+    let (mut f, mut k) = (vec![0.0; 12 * ne], vec![0.0; 90 * ne]);
+    let mut scalar = || {
+        for e in 0..ne {
+            let mut fe = [[0.0; 3]; 4];
+            let l = lame(e);
+            element(
+                &mut fe,
+                Some((&mut k[90 * e..90 * e + 90]).try_into().unwrap()),
+                &xs(e),
+                &fem.dm_inv(e),
+                fem.volumes()[e],
+                [l.mu, l.lambda],
+                &iso,
+            );
+            f[12 * e..12 * e + 12].copy_from_slice(fe.as_flattened());
+        }
+    };
+    let (mut f4, mut k4) = (vec![0.0; 12 * ne], vec![0.0; 90 * ne]);
+    let mut x4 = || {
+        for e in (0..ne).step_by(4) {
+            element_x4(
+                (&mut f4[12 * e..12 * e + 48]).try_into().unwrap(),
+                Some((&mut k4[90 * e..90 * e + 360]).try_into().unwrap()),
+                &four(e, xs),
+                &four(e, |e| fem.dm_inv(e)),
+                four(e, |e| fem.volumes()[e]),
+                &four(e, lame),
+                &iso,
+            );
+        }
+    };
+    // Flops, counted on the same elements.
+    FLOPS.with(|c| c.set(0));
+    for e in 0..ne {
+        let mut fe = [[Counted(0.0); 3]; 4];
+        let mut ke = [Counted(0.0); 90];
+        let l = lame(e);
+        element(
+            &mut fe,
+            Some(&mut ke),
+            &xs(e).map(|p| p.map(Counted)),
+            &fem.dm_inv(e).map(Counted),
+            Counted(fem.volumes()[e]),
+            [Counted(l.mu), Counted(l.lambda)],
+            &iso,
+        );
+    }
+    let flops = FLOPS.with(|c| c.get()) as f64 / ne as f64;
+    md.push_str(&format!(
+        "| kernel (one core, corotational, forces + stiffness, definiteness fix) | elements | best | elements/s | GFLOP/s ({flops:.0} flops/element, counted) | of one core's FMA peak |\n|---|---|---|---|---|---|\n"
+    ));
+    for (name, run) in [
+        ("scalar", &mut scalar as &mut dyn FnMut()),
+        ("x4", &mut x4 as &mut dyn FnMut()),
+    ] {
+        let id = format!("fem/kernel/{name}");
+        if !wanted(&id) {
+            continue;
+        }
+        c.bench_function(&id, |b| b.iter(&mut *run));
+        let t = best_of(10, run);
+        let rate = ne as f64 / t;
+        md.push_str(&format!(
+            "| {id} | {ne} | {:.2} ms | {:.2e} | {:.2} | {:.0}% |\n",
+            1e3 * t,
+            rate,
+            rate * flops / 1e9,
+            100.0 * rate * flops / 1e9 / core_peak
+        ));
+    }
+    if wanted("fem/kernel/scalar") && wanted("fem/kernel/x4") {
+        let worst = f
+            .iter()
+            .zip(&f4)
+            .chain(k.iter().zip(&k4))
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        let scale = k.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        md.push_str(&format!(
+            "\nscalar and x4 agree to {:.1e} of the largest stiffness entry\n",
+            worst / scale
+        ));
+    }
+}
