@@ -18,8 +18,11 @@
 //! - `fem/step/<solver>`: one backward Euler step at dt = 1/60 s, Newton iterated until
 //!   the residual falls by 1e-6 or the velocity change per iteration is below 1e-6 of the
 //!   velocities (`MechSettings::new`), with sparse Cholesky or PCG with the aggregation
-//!   multigrid preconditioner (relative tolerance 1e-6 per linear solve). The summary
-//!   gives the Newton iterations and the final residual of each timed step.
+//!   multigrid preconditioner (relative tolerance 1e-6 per linear solve); `-reuse`: the
+//!   Jacobian assembled and factored once per step and reused by the later iterations
+//!   (`MechSettings::reuse_jacobian`, the chord method). Measured before it: the
+//!   factorization was 75% of a Cholesky step (perf), four per step. The summary gives the
+//!   Newton iterations and the last linear solve's residual of the timed steps.
 //!
 //! The peer (`benches/peers/rapier-fem`) steps the same mesh in rapier3d's FEM soft body.
 //! Run with `cargo bench --bench fem`; the summary is printed at the end and written to
@@ -59,8 +62,9 @@ fn beam() -> FemDesc {
     d
 }
 
-fn settings(cholesky: bool) -> MechSettings {
+fn settings(cholesky: bool, reuse: bool) -> MechSettings {
     let mut s = MechSettings::new(Method::BackwardEuler);
+    s.reuse_jacobian = reuse;
     s.linear = if cholesky {
         LinearSolverKind::Cholesky
     } else {
@@ -73,9 +77,9 @@ fn settings(cholesky: bool) -> MechSettings {
     s
 }
 
-fn simulation(cholesky: bool) -> MechSimulation<Fem> {
+fn simulation(cholesky: bool, reuse: bool) -> MechSimulation<Fem> {
     let (fem, state) = beam().build().unwrap();
-    let mut sim = MechSimulation::new(fem, state, settings(cholesky)).unwrap();
+    let mut sim = MechSimulation::new(fem, state, settings(cholesky, reuse)).unwrap();
     sim.set_step_control(None);
     sim
 }
@@ -169,7 +173,7 @@ fn main() {
     );
 
     // The timed state: 0.5 s of sagging.
-    let mut sim = simulation(true);
+    let mut sim = simulation(true, true);
     let t0 = Instant::now();
     while sim.time() < 0.5 - 1e-9 {
         sim.step(DT).unwrap();
@@ -207,12 +211,17 @@ fn main() {
     }
 
     md.push_str("\n| step (dt = 1/60, backward Euler, Newton to 1e-6) | median | best | Newton iterations | linear iterations | last linear solve, relative residual (worst) |\n|---|---|---|---|---|---|\n");
-    for cholesky in [true, false] {
-        let id = format!("fem/step/{}", if cholesky { "cholesky" } else { "pcg-mg" });
+    for (name, cholesky, reuse) in [
+        ("cholesky", true, false),
+        ("cholesky-reuse", true, true),
+        ("pcg-mg", false, false),
+        ("pcg-mg-reuse", false, true),
+    ] {
+        let id = format!("fem/step/{name}");
         if !wanted(&id) {
             continue;
         }
-        let mut s = simulation(cholesky);
+        let mut s = simulation(cholesky, reuse);
         while s.time() < 0.5 - 1e-9 {
             s.step(DT).unwrap();
         }

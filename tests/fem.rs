@@ -379,7 +379,7 @@ fn tetmesh(stem: &str) -> PathBuf {
     );
     let p = data.join("tetmesh").join(stem);
     assert!(
-        ["node", "vtk"].iter().any(|e| p.with_extension(e).is_file()),
+        ["node", "vtk", "off"].iter().any(|e| p.with_extension(e).is_file()),
         "{} is missing: these tests read TetGen meshes from ../shared/data (or $LARGESTEP_SHARED_DATA)",
         p.display()
     );
@@ -1075,7 +1075,13 @@ fn vtk_frames_round_trip_with_von_mises_stress() {
     assert!(model.von_mises(0, &rest).abs() < 1e-6);
     let mut out = Vec::new();
     model
-        .write_vtk(&mut out, &rest, &x, &vec![0.0; 3 * n])
+        .write_vtk(
+            &mut out,
+            "largestep FEM frame",
+            &rest,
+            &x,
+            &vec![0.0; 3 * n],
+        )
         .unwrap();
     let text = String::from_utf8(out).unwrap();
     let back = parse_vtk(&text, "frame.vtk").unwrap();
@@ -1995,4 +2001,190 @@ fn vega_veg_files_read_with_their_materials() {
     });
     assert!(e.contains("the .veg file gives the materials"), "{e}");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The chord method (`MechSettings::reuse_jacobian`: the step's first Jacobian and its
+/// factor reused by its later Newton iterations) converges to the same backward Euler
+/// steps as full Newton, to the Newton tolerance, in more but cheaper iterations.
+#[test]
+fn reusing_the_jacobian_converges_to_the_same_steps() {
+    let mesh = box_mesh([10, 2, 2], [1.0, 0.1, 0.1], [0.0, -0.05, -0.05]);
+    let run = |reuse: bool| {
+        let mut d = FemDesc::new(
+            mesh.positions.clone(),
+            mesh.tets.clone(),
+            FemMaterial {
+                model: Material::Corotational,
+                young: 1e7,
+                poisson: 0.3,
+                density: 1000.0,
+            },
+        );
+        d.gravity = [0.0, -9.81, 0.0];
+        d.pinned = (0..mesh.positions.len())
+            .filter(|&i| mesh.positions[i][0] < 1e-12)
+            .collect();
+        let (model, state) = d.build().unwrap();
+        let mut settings = MechSettings::new(Method::BackwardEuler);
+        settings.newton.tolerance = 1e-10;
+        settings.newton.step_tolerance = 1e-10;
+        settings.reuse_jacobian = reuse;
+        let mut sim = MechSimulation::new(model, state, settings).unwrap();
+        sim.set_step_control(None);
+        let mut iterations = 0;
+        for _ in 0..20 {
+            iterations += sim.step(1.0 / 60.0).unwrap().newton_iterations;
+        }
+        (sim.state().x.as_slice().to_vec(), iterations)
+    };
+    let (full, it_full) = run(false);
+    let (chord, it_chord) = run(true);
+    let diff = full
+        .iter()
+        .zip(&chord)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    assert!(diff < 1e-7, "positions differ by {diff} m");
+    assert!(
+        it_chord > it_full,
+        "chord {it_chord}, full {it_full} iterations"
+    );
+}
+
+/// `[output] frames = "vtk"` writes each frame of an FEM scene as a legacy VTK grid
+/// (read back by the VTK reader, with the frame's time in its title); a scene without a
+/// volumetric system refuses it at the line.
+#[test]
+fn vtk_frames_from_a_scene() {
+    use largestep::fem::vtk::parse_vtk;
+    use largestep::scene::{Runner, Scene};
+    let text = std::fs::read_to_string(scene_path("fem-cantilever.toml"))
+        .unwrap()
+        .replace("frames = \"obj\"", "frames = \"vtk\"");
+    let scene = Scene::parse(
+        &text,
+        &scene_path("fem-cantilever.toml").display().to_string(),
+    )
+    .unwrap();
+    let out = std::env::temp_dir().join(format!("largestep-fem-vtk-{}", std::process::id()));
+    let mut runner = Runner::new(scene, &out);
+    runner.run(Some(2), &mut |_| {}).unwrap();
+    let f = out.join("frames/frame_00002.vtk");
+    let vtk = std::fs::read_to_string(&f).unwrap();
+    assert!(
+        vtk.lines().nth(1).unwrap().contains("frame 2 t = "),
+        "{}",
+        vtk.lines().nth(1).unwrap()
+    );
+    let mesh = parse_vtk(&vtk, "frame").unwrap();
+    assert_eq!(mesh.tets.len(), 20 * 2 * 2 * 6);
+    assert!(vtk.contains("VECTORS displacement double") && vtk.contains("SCALARS von_mises"));
+    let _ = std::fs::remove_dir_all(&out);
+    let cloth = std::fs::read_to_string(scene_path("cloth-drape.toml")).unwrap();
+    let cloth = cloth.replacen("frames = \"obj\"", "frames = \"vtk\"", 1);
+    let e = Scene::parse(&cloth, "cloth.toml")
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        e.contains("volumetric system") && e.starts_with("cloth.toml:"),
+        "{e}"
+    );
+}
+
+/// The voxel mesher on the shared nut's closed surface (OFF): every element positive,
+/// the volume within 3% of TetGen's mesh of the same surface, nearly every boundary
+/// vertex on the surface (to rounding), the others where a move would flatten an
+/// element; a scene meshes a surface file itself; a bad OFF is an error at its line.
+#[test]
+fn the_voxel_mesher_fills_a_closed_surface() {
+    use largestep::fem::voxel::{closest_on_triangle, voxel_mesh};
+    let surface =
+        largestep::io::read_off(&tetmesh("nut-surface").with_extension("off"), 1 << 26).unwrap();
+    let tetgen = read_tetgen(&tetmesh("nut"), 1 << 26).unwrap();
+    let volume = |m: &largestep::fem::mesh::TetMesh| -> f64 {
+        m.tets
+            .iter()
+            .map(|t| largestep_kernels::fem::signed_volume(&t.map(|i| m.positions[i as usize])))
+            .sum()
+    };
+    let reference = volume(&tetgen);
+    let v = voxel_mesh(&surface, 1.5, 1 << 22).unwrap();
+    let got = volume(&v.mesh);
+    println!(
+        "voxel mesh: {} vertices, {} tetrahedra, volume {got:.1} against TetGen's {reference:.1}; {} boundary vertices snapped, {} not",
+        v.mesh.positions.len(),
+        v.mesh.tets.len(),
+        v.snapped,
+        v.unsnapped
+    );
+    assert!(
+        (got / reference - 1.0).abs() < 0.03,
+        "volume {got} against {reference}"
+    );
+    assert!(v.mesh.tets.iter().all(|t| {
+        largestep_kernels::fem::signed_volume(&t.map(|i| v.mesh.positions[i as usize])) > 0.0
+    }));
+    assert!(
+        v.unsnapped * 10 < v.snapped,
+        "{} of {} left off the surface",
+        v.unsnapped,
+        v.snapped + v.unsnapped
+    );
+    // Snapped vertices lie on the surface.
+    let n = surface.positions.len() / 3;
+    let sp = |i: u32| {
+        let i = i as usize;
+        [
+            surface.positions[i],
+            surface.positions[n + i],
+            surface.positions[2 * n + i],
+        ]
+    };
+    let faces = largestep::fem::boundary_faces(&v.mesh.tets);
+    let mut on = 0;
+    for &b in faces
+        .iter()
+        .flatten()
+        .collect::<std::collections::BTreeSet<_>>()
+    {
+        let x = v.mesh.positions[b as usize];
+        let d = surface
+            .triangles
+            .iter()
+            .map(|t| {
+                let q = closest_on_triangle(x, sp(t[0]), sp(t[1]), sp(t[2]));
+                (0..3).map(|k| (q[k] - x[k]).powi(2)).sum::<f64>().sqrt()
+            })
+            .fold(f64::INFINITY, f64::min);
+        on += usize::from(d < 1e-9 * 100.0);
+    }
+    assert_eq!(on, v.snapped);
+    // Builds into a model.
+    let (model, _) = FemDesc::new(
+        v.mesh.positions.clone(),
+        v.mesh.tets.clone(),
+        FemMaterial::rubber(Material::StableNeoHookean),
+    )
+    .build()
+    .unwrap();
+    assert!(model.unused_nodes().is_empty());
+    // Through a scene: the surface file meshed on load; without `voxel`, an error.
+    let off = tetmesh("nut-surface").with_extension("off");
+    let text = format!("[scene]\nname = \"voxel\"\ndt = 0.01\nduration = 0.02\nintegrator = \"linearized-backward-euler\"\n[fem]\n[fem.mesh]\nfile = \"{}\"\nvoxel = 3.0\nscale = 0.001\n[fem.material]\nmodel = \"stable-neo-hookean\"\npreset = \"rubber\"\n[output]\nframes = \"none\"\n", off.display());
+    let scene = largestep::scene::Scene::parse(&text, "voxel.toml").unwrap();
+    assert!(scene.into_simulation().is_some());
+    let e = largestep::scene::Scene::parse(&text.replace("voxel = 3.0\n", ""), "voxel.toml")
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        e.contains("needs `voxel`") && e.starts_with("voxel.toml:"),
+        "{e}"
+    );
+    // A bad OFF.
+    let e = largestep::io::parse_off("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n", "t.off")
+        .unwrap_err();
+    assert_eq!(e.line, 6, "{e}");
+    assert!(e.to_string().contains("out of range"), "{e}");
 }

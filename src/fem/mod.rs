@@ -22,6 +22,7 @@ pub mod mesh;
 pub mod scene;
 mod statics;
 pub mod veg;
+pub mod voxel;
 pub mod vtk;
 pub use statics::{StaticInfo, StaticSimulation, StaticSolver};
 
@@ -419,6 +420,7 @@ impl FemDesc {
         let damping_mass: Vec<f64> = mass.iter().map(|m| -self.rayleigh[0] * m).collect();
         let model = Fem {
             n,
+            rest: Vec3s::from_aos(&self.positions).as_slice().to_vec(),
             tets: self.tets.clone(),
             dm_inv,
             volume,
@@ -527,6 +529,8 @@ fn add_stiffness_damping(f: &mut [[f64; 3]; 4], k: &[f64], beta: f64, v: &[[f64;
 pub struct Fem {
     n: usize,
     tets: Vec<[u32; 4]>,
+    /// Rest positions, component-major (for displacements).
+    rest: Vec<f64>,
     /// `Dm^-1` per element, entry k (row-major) in array k.
     dm_inv: [Vec<f64>; 9],
     /// Rest volume per element (m^3).
@@ -1044,6 +1048,20 @@ impl MechModel for Fem {
 
     fn triangles(&self) -> &[[u32; 3]] {
         &self.surface
+    }
+
+    fn has_volume(&self) -> bool {
+        true
+    }
+
+    fn write_volume(
+        &self,
+        w: &mut dyn std::io::Write,
+        comment: &str,
+        x: &[f64],
+        v: &[f64],
+    ) -> std::io::Result<()> {
+        self.write_vtk(w, comment, &self.rest, x, v)
     }
 
     fn warnings(&self) -> Vec<String> {

@@ -27,6 +27,8 @@
 //! [fem.beam]                    # or [fem.mesh] file = "nut.node" (TetGen; .ele beside it)
 //!                               #    or file = "beam.vtk" (legacy VTK, tets and hexes)
 //!                               #    or file = "part.msh" (Gmsh 2.2 or 4.1, ASCII)
+//!                               #    or file = "part.off" / "part.obj" with voxel = 0.05
+//!                               #    (a closed surface, voxel-meshed with cubes of 0.05)
 //!                               #    or file = "part.veg" (Vega; its materials and
 //!                               #    regions, [fem.material] then gives only the model)
 //! cells = [20, 2, 2]            #    scale, offset, reorient optional
@@ -212,8 +214,12 @@ pub struct BeamTable {
 pub struct MeshTable {
     /// The mesh file, relative to the scene file: a TetGen `.node` (its `.ele` beside it)
     /// or a legacy VTK unstructured grid `.vtk` (tetrahedra and hexahedra), or a Gmsh
-    /// `.msh` (ASCII 2.2 or 4.1).
+    /// `.msh` (ASCII 2.2 or 4.1), a Vega `.veg`, or a closed triangle surface (`.obj`,
+    /// `.off`) meshed by the voxel mesher with cubes of side `voxel`.
     pub file: String,
+    /// The voxel mesher's cube size (the file's units) for a surface file.
+    #[serde(default)]
+    pub voxel: Option<f64>,
     /// Multiplies the positions (default 1).
     #[serde(default)]
     pub scale: Option<f64>,
@@ -391,6 +397,28 @@ pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
                 super::vtk::read_vtk(&file, ctx.limits.max_file_bytes)
             } else if msh {
                 super::gmsh::read_msh(&file, ctx.limits.max_file_bytes)
+            } else if let Some(kind) = ["obj", "off"]
+                .into_iter()
+                .find(|k| file.extension().is_some_and(|e| e.eq_ignore_ascii_case(k)))
+            {
+                let h = m.voxel.ok_or_else(|| {
+                    ctx.error(
+                        &at(&[&"mesh", &"file"]),
+                        "a surface mesh needs `voxel`, the cube size of the voxel mesher",
+                    )
+                })?;
+                let surface = if kind == "obj" {
+                    crate::io::read_obj(&file, ctx.limits.max_file_bytes)
+                } else {
+                    crate::io::read_off(&file, ctx.limits.max_file_bytes)
+                }
+                .map_err(|e| ctx.error(&at(&[&"mesh", &"file"]), e.to_string()))?;
+                // About 150 bytes per grid cube while meshing (flags, corner table,
+                // vertices and six tetrahedra).
+                let max_cells = (ctx.limits.max_memory / 150).min(u32::MAX as u64 / 8) as usize;
+                let v = super::voxel::voxel_mesh(&surface, h, max_cells)
+                    .map_err(|e| ctx.error(&at(&[&"mesh", &"voxel"]), e.to_string()))?;
+                Ok(v.mesh)
             } else if is_veg {
                 super::veg::read_veg(&file, ctx.limits.max_file_bytes).map(|v| {
                     veg = Some((v.materials, v.element_material));

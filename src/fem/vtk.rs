@@ -303,6 +303,7 @@ impl Fem {
     pub fn write_vtk(
         &self,
         w: &mut dyn Write,
+        title: &str,
         rest: &[f64],
         x: &[f64],
         v: &[f64],
@@ -311,7 +312,9 @@ impl Fem {
         assert!(rest.len() == 3 * n && x.len() == 3 * n && v.len() == 3 * n);
         let m = self.tets.len();
         writeln!(w, "# vtk DataFile Version 3.0")?;
-        writeln!(w, "largestep FEM frame")?;
+        // The title is one line of at most 256 characters.
+        let title: String = title.replace(['\n', '\r'], " ").chars().take(255).collect();
+        writeln!(w, "{title}")?;
         writeln!(w, "ASCII")?;
         writeln!(w, "DATASET UNSTRUCTURED_GRID")?;
         writeln!(w, "POINTS {n} double")?;

@@ -390,3 +390,123 @@ fn parse_obj_impl(text: &str, name: &str, want_uv: bool) -> Result<MeshAndUv, Re
         uv,
     ))
 }
+
+/// Reads an OFF file (Object File Format, as Geomview and CGAL write it): `OFF`, then
+/// `<vertices> <faces> <edges>`, the vertices (`x y z`) and the faces (`k i1 .. ik`,
+/// 0-based; polygons become fans). `#` starts a comment. Counts are checked against the
+/// lines the file has before allocating; errors name the file and line.
+pub fn read_off(path: &std::path::Path, max_bytes: u64) -> Result<Mesh, ReadError> {
+    let text = super::read_text(path, max_bytes)?;
+    parse_off(&text, &path.display().to_string())
+}
+
+/// [`read_off`] on text; `name` is used in errors.
+pub fn parse_off(text: &str, name: &str) -> Result<Mesh, ReadError> {
+    let err = |line: usize, message: String| ReadError {
+        path: name.to_string(),
+        line,
+        message,
+    };
+    let mut lines = text.lines().enumerate().filter_map(|(k, l)| {
+        let l = l.split('#').next().unwrap_or("").trim();
+        (!l.is_empty()).then_some((k + 1, l))
+    });
+    let (hl, head) = lines.next().ok_or_else(|| err(0, "empty file".into()))?;
+    // The counts may follow `OFF` on the same line.
+    let rest = head
+        .strip_prefix("OFF")
+        .ok_or_else(|| err(hl, format!("expected `OFF`, found `{head}`")))?
+        .trim();
+    let (cl, counts) = if rest.is_empty() {
+        lines
+            .next()
+            .ok_or_else(|| err(hl, "no counts line".into()))?
+    } else {
+        (hl, rest)
+    };
+    let c: Vec<usize> = counts
+        .split_whitespace()
+        .map(|s| {
+            s.parse()
+                .map_err(|_| err(cl, format!("`{s}` is not a count")))
+        })
+        .collect::<Result<_, _>>()?;
+    let (nv, nf) = match c[..] {
+        [nv, nf, _] | [nv, nf] => (nv, nf),
+        _ => return Err(err(cl, "expected `<vertices> <faces> <edges>`".into())),
+    };
+    let total = text.lines().count();
+    if nv.saturating_add(nf) > total {
+        return Err(err(
+            cl,
+            format!("the counts claim {nv} vertices and {nf} faces, but the file has only {total} lines"),
+        ));
+    }
+    let mut xyz = Vec::with_capacity(nv);
+    for j in 0..nv {
+        let (l, v) = lines.next().ok_or_else(|| {
+            err(
+                0,
+                format!("the counts claim {nv} vertices, the file holds {j}"),
+            )
+        })?;
+        let f: Vec<f64> = v
+            .split_whitespace()
+            .take(3)
+            .map(|s| {
+                s.parse::<f64>()
+                    .ok()
+                    .filter(|x| x.is_finite())
+                    .ok_or_else(|| err(l, format!("`{s}` is not a finite coordinate")))
+            })
+            .collect::<Result<_, _>>()?;
+        if f.len() != 3 {
+            return Err(err(l, "a vertex needs x, y and z".into()));
+        }
+        xyz.push([f[0], f[1], f[2]]);
+    }
+    let mut triangles = Vec::with_capacity(nf);
+    for j in 0..nf {
+        let (l, face) = lines.next().ok_or_else(|| {
+            err(
+                0,
+                format!("the counts claim {nf} faces, the file holds {j}"),
+            )
+        })?;
+        let f: Vec<usize> = face
+            .split_whitespace()
+            .map(|s| {
+                s.parse()
+                    .map_err(|_| err(l, format!("`{s}` is not an index")))
+            })
+            .collect::<Result<_, _>>()?;
+        let k = *f.first().ok_or_else(|| err(l, "empty face".into()))?;
+        if k < 3 || f.len() < 1 + k {
+            return Err(err(
+                l,
+                format!("a face of {k} vertices needs {k} indices after the count"),
+            ));
+        }
+        let ids = &f[1..=k];
+        if let Some(bad) = ids.iter().find(|&&i| i >= nv) {
+            return Err(err(
+                l,
+                format!("vertex {bad} is out of range: there are {nv} vertices"),
+            ));
+        }
+        for t in 1..k - 1 {
+            triangles.push([ids[0] as u32, ids[t] as u32, ids[t + 1] as u32]);
+        }
+    }
+    let mut positions = vec![0.0; 3 * nv];
+    for (i, p) in xyz.iter().enumerate() {
+        for c in 0..3 {
+            positions[c * nv + i] = p[c];
+        }
+    }
+    Ok(Mesh {
+        positions,
+        triangles: triangles.into(),
+        segments: Vec::new().into(),
+    })
+}

@@ -482,6 +482,13 @@ impl Scene {
                 sim: (domain.build)(&ctx)?,
             });
         }
+        if output.frames == FrameFormat::Vtk && !systems.iter().any(|s| s.sim.has_volume()) {
+            return Err(err(
+                path(&[&"output", &"frames"]),
+                "VTK frames write volumes: the scene needs a volumetric system such as [fem]"
+                    .to_string(),
+            ));
+        }
         if systems.is_empty() {
             return Err(err(
                 path(&[&"scene"]),
@@ -619,6 +626,9 @@ fn solver_settings(
         }
         settings.newton.max_iterations = m as usize;
     }
+    if let Some(r) = t.reuse_jacobian {
+        settings.reuse_jacobian = r;
+    }
     Ok(settings)
 }
 
@@ -635,10 +645,11 @@ fn output_settings(
         None | Some("obj") => FrameFormat::Obj,
         Some("ply") => FrameFormat::Ply,
         Some("none") => FrameFormat::None,
+        Some("vtk") => FrameFormat::Vtk,
         Some(other) => {
             return Err(err(
                 path(&[&"output", &"frames"]),
-                format!("unknown frame format `{other}`; expected obj, ply or none"),
+                format!("unknown frame format `{other}`; expected obj, ply, vtk or none"),
             ))
         }
     };

@@ -22,6 +22,11 @@ pub enum FrameFormat {
     Obj,
     /// ASCII PLY.
     Ply,
+    /// Legacy VTK unstructured grids of the volumetric systems (FEM), with their fields
+    /// (displacement, velocity, von Mises stress), for ParaView: `frame_NNNNN.vtk`, or
+    /// `frame_NNNNN_<table>.vtk` when several systems have a volume. Surfaces of the
+    /// others are not written.
+    Vtk,
     /// No frame files.
     None,
 }
@@ -506,6 +511,7 @@ impl Runner {
         s.push_str(&match self.output.frames {
             FrameFormat::Obj => format!("  output: OBJ frames {every}\n"),
             FrameFormat::Ply => format!("  output: PLY frames {every}\n"),
+            FrameFormat::Vtk => format!("  output: VTK volume frames {every}\n"),
             FrameFormat::None => format!("  output: no frame files; energy logged {every}\n"),
         });
         s
@@ -551,6 +557,7 @@ impl Runner {
         let ext = match self.output.frames {
             FrameFormat::Obj => "obj",
             FrameFormat::Ply => "ply",
+            FrameFormat::Vtk => return self.write_volumes(k),
             FrameFormat::None => return Ok(false),
         };
         let path = self
@@ -566,6 +573,27 @@ impl Runner {
             })
         })
         .map_err(io_err(&path))?;
+        Ok(true)
+    }
+
+    /// Writes frame k of every volumetric system as legacy VTK (see [`FrameFormat::Vtk`]).
+    fn write_volumes(&self, k: usize) -> Result<bool, RunError> {
+        let volumes: Vec<&System> = self.systems.iter().filter(|s| s.sim.has_volume()).collect();
+        for s in &volumes {
+            let file = if volumes.len() == 1 {
+                format!("frame_{k:05}.vtk")
+            } else {
+                format!("frame_{k:05}_{}.vtk", s.table)
+            };
+            let path = self.out_dir.join("frames").join(file);
+            let title = format!(
+                "largestep {} [{}] frame {k} t = {}",
+                self.name,
+                s.table,
+                self.time()
+            );
+            write_atomically(&path, |w| s.sim.write_volume(w, &title)).map_err(io_err(&path))?;
+        }
         Ok(true)
     }
 

@@ -18,6 +18,7 @@
 //! preconditioner = "block-jacobi"  # none | jacobi | block-jacobi | multigrid
 //! newton_tolerance = 1e-9
 //! newton_max_iterations = 50
+//! reuse_jacobian = false      # factor once per step, reuse it in later Newton iterations
 //!
 //! [mass_spring.chain]         # one table per system: [mass_spring], [cloth], ...
 //! count = 20
@@ -76,6 +77,8 @@ pub struct SolverTable {
     pub newton_tolerance: Option<f64>,
     /// Newton iteration limit.
     pub newton_max_iterations: Option<i64>,
+    /// Reuse the step's first Jacobian in its later Newton iterations (the chord method).
+    pub reuse_jacobian: Option<bool>,
 }
 
 /// `[output]`

@@ -151,6 +151,21 @@ pub trait MechModel: Send + Sync + 'static {
     fn contact_friction(&self) -> Option<f64> {
         None
     }
+    /// Whether the model has a volume to write ([`MechModel::write_volume`]).
+    fn has_volume(&self) -> bool {
+        false
+    }
+    /// Writes the model's volume at positions x and velocities v (legacy VTK).
+    fn write_volume(
+        &self,
+        w: &mut dyn std::io::Write,
+        comment: &str,
+        x: &[f64],
+        v: &[f64],
+    ) -> std::io::Result<()> {
+        let _ = (w, comment, x, v);
+        Ok(())
+    }
     /// Vertices that contacts never move, sorted: pinned and prescribed ones.
     fn fixed_vertices(&self) -> &[u32] {
         &[]
@@ -664,6 +679,15 @@ impl<M: MechModel> Simulation for MechSimulation<M> {
 
     fn max_penetration(&self) -> f64 {
         max_penetration(self.model.obstacles(), self.state.x.as_slice())
+    }
+
+    fn has_volume(&self) -> bool {
+        self.model.has_volume()
+    }
+
+    fn write_volume(&self, w: &mut dyn std::io::Write, comment: &str) -> std::io::Result<()> {
+        self.model
+            .write_volume(w, comment, self.state.x.as_slice(), self.state.v.as_slice())
     }
 
     fn frame(&self) -> FrameData<'_> {

@@ -158,6 +158,16 @@ pub trait Simulation: Send {
     fn warnings(&self) -> Vec<String> {
         Vec::new()
     }
+    /// Whether the system has a volume to write as a frame ([`Simulation::write_volume`]).
+    fn has_volume(&self) -> bool {
+        false
+    }
+    /// Writes the system's volume now (a legacy VTK unstructured grid with its fields),
+    /// for `[output] frames = "vtk"`.
+    fn write_volume(&self, w: &mut dyn std::io::Write, comment: &str) -> std::io::Result<()> {
+        let _ = (w, comment);
+        Ok(())
+    }
 }
 
 impl dyn Simulation + '_ {
