@@ -123,6 +123,18 @@ impl FemMaterial {
     }
 }
 
+/// The mass matrix of a model.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum FemMass {
+    /// Diagonal: a quarter of each element's mass on each of its vertices.
+    #[default]
+    Lumped,
+    /// The consistent mass matrix of linear tetrahedra, `M_ab = rho V (1 + delta_ab) / 20
+    /// I` per element (Zienkiewicz and Taylor): the kinetic energy of the interpolated
+    /// velocity field. Used by the implicit integrators (the explicit ones refuse it).
+    Consistent,
+}
+
 /// An editable tetrahedral model (see the module docs).
 #[derive(Clone, Debug)]
 pub struct FemDesc {
@@ -160,6 +172,8 @@ pub struct FemDesc {
     /// `-C v` with K the stiffness at the current positions (definiteness-fixed), as in
     /// Vega's Rayleigh damping.
     pub rayleigh: [f64; 2],
+    /// Lumped or consistent mass.
+    pub mass: FemMass,
     /// Make each element's tangent positive semi-definite (the definiteness fix,
     /// `largestep_kernels::fem::project_psd`), so implicit systems stay definite under
     /// compression and inversion; the Jacobian is then exact only where the material's
@@ -185,6 +199,7 @@ impl FemDesc {
             obstacles: Vec::new(),
             friction: 0.0,
             rayleigh: [0.0, 0.0],
+            mass: FemMass::Lumped,
             definiteness_fix: true,
         }
     }
@@ -459,7 +474,12 @@ impl FemDesc {
             rayleigh: self.rayleigh,
             damping_mass,
             gather,
+            mass_matrix: None,
         };
+        let mut model = model;
+        if self.mass == FemMass::Consistent {
+            model.mass_matrix = Some(model.consistent_mass_matrix().map_err(sparse)?);
+        }
         let x = Vec3s::from_aos(if self.initial.is_empty() {
             &self.positions
         } else {
@@ -563,6 +583,8 @@ pub struct Fem {
     rayleigh: [f64; 2],
     /// `-alpha m_i`: the mass-proportional damping's diagonal in df/dv.
     damping_mass: Vec<f64>,
+    /// The consistent mass matrix, when the description asks for it.
+    mass_matrix: Option<Bsr3>,
     gather: VectorGather,
 }
 
@@ -584,6 +606,32 @@ impl Fem {
     /// Rest volume of each element (m^3).
     pub fn volumes(&self) -> &[f64] {
         &self.volume
+    }
+
+    /// The consistent mass matrix (see [`FemMass::Consistent`]), assembled over the
+    /// stiffness pattern through the deterministic element gather; its row sums are the
+    /// lumped masses.
+    pub fn consistent_mass_matrix(&self) -> Result<Bsr3, SparseError> {
+        let asm = ElementAssembly::new(self.n, &self.tets, LocalLayout::symmetric(4))?;
+        let mut blocks = vec![0.0; asm.block_buffer_len()];
+        for (e, b) in blocks.chunks_exact_mut(TET_K).enumerate() {
+            let rho = self.material_of(e).density;
+            let m = rho * self.volume[e] / 20.0;
+            // Blocks (a, b), a <= b, in the symmetric layout's order.
+            let mut k = 0;
+            for a in 0..4 {
+                for bb in a..4 {
+                    let v = if a == bb { 2.0 * m } else { m };
+                    for c in 0..3 {
+                        b[9 * k + 4 * c] = v;
+                    }
+                    k += 1;
+                }
+            }
+        }
+        let mut m = Bsr3::zeros(asm.pattern().clone());
+        asm.gather_blocks(&blocks, &mut m);
+        Ok(m)
     }
 
     /// The materials (one per region).
@@ -945,6 +993,10 @@ impl MechModel for Fem {
         &self.fixed
     }
 
+    fn mass_matrix(&self) -> Option<&Bsr3> {
+        self.mass_matrix.as_ref()
+    }
+
     fn does_external_work(&self) -> bool {
         !self.paths.is_empty()
     }
@@ -1019,6 +1071,14 @@ impl MechModel for Fem {
             )
         } else {
             Stage::left_out("definiteness fix", "definiteness_fix = false")
+        });
+        stages.push(if self.mass_matrix.is_some() {
+            Stage::built(
+                "consistent mass matrix",
+                "rho V (1 + delta_ab) / 20 per element, in the implicit systems",
+            )
+        } else {
+            Stage::left_out("consistent mass matrix", "lumped masses ([fem] mass)")
         });
         let [alpha, beta] = self.rayleigh;
         stages.push(if alpha > 0.0 || beta > 0.0 {

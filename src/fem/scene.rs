@@ -8,6 +8,7 @@
 //! pinned = [0, 5]               # vertex indices
 //! friction = 0.3                # of contacts
 //! definiteness_fix = true       # project element tangents to semi-definite (default)
+//! mass = "lumped"               # or "consistent" (implicit integrators)
 //! initial_stretch = [1.0, 0.1, 1.0]  # start squashed to a tenth in y (rest shape kept)
 //! [[fem.pin_box]]               # every vertex inside [min, max] (m) is held
 //! min = [-0.01, -1.0, -1.0]
@@ -85,6 +86,9 @@ pub struct FemTable {
     /// mirrors it (every element inverted).
     #[serde(default)]
     pub initial_stretch: Option<[f64; 3]>,
+    /// `lumped` (default) or `consistent` mass.
+    #[serde(default)]
+    pub mass: Option<String>,
     /// Project each element's tangent to semi-definite (default true).
     #[serde(default)]
     pub definiteness_fix: Option<bool>,
@@ -680,6 +684,16 @@ pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
     }
     desc.gravity = ctx.gravity;
     desc.definiteness_fix = t.definiteness_fix.unwrap_or(true);
+    desc.mass = match t.mass.as_deref() {
+        None | Some("lumped") => super::FemMass::Lumped,
+        Some("consistent") => super::FemMass::Consistent,
+        Some(other) => {
+            return Err(ctx.error(
+                &at(&[&"mass"]),
+                format!("unknown mass `{other}`; expected lumped or consistent"),
+            ))
+        }
+    };
     Ok(desc)
 }
 

@@ -50,6 +50,13 @@ pub trait Mechanical {
     fn vertex_count(&self) -> usize;
     /// Mass per vertex (kg), length n: > 0, or 0 for vertices the filter pins.
     fn mass(&self) -> &[f64];
+    /// A consistent (non-diagonal) mass matrix over the Jacobian pattern, when the system
+    /// uses one: implicit steps then use it in place of `mass` in their systems and
+    /// residuals (contacts and explicit methods keep the lumped masses; explicit methods
+    /// refuse it). Its row sums should be `mass`.
+    fn mass_matrix(&self) -> Option<&Bsr3> {
+        None
+    }
     /// Writes the current constraints on vertex velocities (pinned vertices, planes,
     /// lines) into `filter`, which the stepper owns and clears before every step. Called
     /// before every step, so constraints may change (contacts); the default adds none.
@@ -279,6 +286,8 @@ pub struct MechStepper {
     n: usize,
     inv_mass: Vec<f64>,
     mass: Vec<f64>,
+    /// The system's consistent mass matrix, if it has one.
+    mass_matrix: Option<Bsr3>,
     filter: Filter,
     y: Vec<f64>,
     rk: Option<RkWork>,
@@ -299,6 +308,13 @@ impl MechStepper {
             .iter()
             .map(|&m| if m > 0.0 { 1.0 / m } else { 0.0 })
             .collect();
+        let mass_matrix = sys.mass_matrix().cloned();
+        if mass_matrix.is_some() && !method.is_implicit() {
+            return Err(IntegrateError::Unsupported {
+                method,
+                reason: "a consistent mass matrix needs an implicit method (explicit ones divide by lumped masses)",
+            });
+        }
         let rk = matches!(
             method,
             Method::ExplicitEuler | Method::Midpoint | Method::Rk4
@@ -360,6 +376,7 @@ impl MechStepper {
             n,
             inv_mass,
             mass,
+            mass_matrix,
             filter: Filter::new(n),
             y,
             rk,
@@ -470,7 +487,15 @@ impl MechStepper {
                 for round in 0.. {
                     w.dfdx.spmv(&mut w.rhs, v);
                     kv::xpay(&mut w.rhs, &w.f, h);
-                    system_matrix(&mut w.a, &w.dfdx, w.dfdv.as_ref(), &self.mass, h * h, h);
+                    system_matrix(
+                        &mut w.a,
+                        &w.dfdx,
+                        w.dfdv.as_ref(),
+                        &self.mass,
+                        self.mass_matrix.as_ref(),
+                        h * h,
+                        h,
+                    );
                     let filter = (!self.filter.is_empty()).then_some(&self.filter);
                     let li = w
                         .linear
@@ -517,6 +542,7 @@ impl MechStepper {
                     x0: x,
                     v0: v,
                     mass: &self.mass,
+                    mass_matrix: self.mass_matrix.as_ref(),
                     filter,
                     xe,
                     ve,
@@ -619,13 +645,42 @@ fn scale_by_inverse_mass(f: &mut [f64], inv_mass: &[f64]) {
     }
 }
 
-/// `a = M - ck K - cd D` from the assembled Jacobians.
-fn system_matrix(a: &mut Bsr3, dfdx: &Bsr3, dfdv: Option<&Bsr3>, mass: &[f64], ck: f64, cd: f64) {
-    match dfdv {
-        Some(d) => a.assign_lincomb(&[(-ck, dfdx), (-cd, d)]),
-        None => a.assign_lincomb(&[(-ck, dfdx)]),
+/// `a = M - ck K - cd D` from the assembled Jacobians, M the consistent mass matrix when
+/// given, else the lumped masses.
+fn system_matrix(
+    a: &mut Bsr3,
+    dfdx: &Bsr3,
+    dfdv: Option<&Bsr3>,
+    mass: &[f64],
+    mass_matrix: Option<&Bsr3>,
+    ck: f64,
+    cd: f64,
+) {
+    match (dfdv, mass_matrix) {
+        (Some(d), Some(m)) => a.assign_lincomb(&[(1.0, m), (-ck, dfdx), (-cd, d)]),
+        (None, Some(m)) => a.assign_lincomb(&[(1.0, m), (-ck, dfdx)]),
+        (Some(d), None) => a.assign_lincomb(&[(-ck, dfdx), (-cd, d)]),
+        (None, None) => a.assign_lincomb(&[(-ck, dfdx)]),
     }
-    a.add_diagonal(mass);
+    if mass_matrix.is_none() {
+        a.add_diagonal(mass);
+    }
+}
+
+/// Kinetic energy `1/2 v^T M v` (J) with a consistent mass matrix M.
+pub fn kinetic_energy_matrix(m: &Bsr3, v: &[f64]) -> f64 {
+    0.5 * quadratic(m, v)
+}
+
+/// `sum_i x_i . (A x)_i`, without a buffer.
+fn quadratic(a: &Bsr3, x: &[f64]) -> f64 {
+    let n = a.n();
+    (0..n)
+        .map(|i| {
+            let y = a.row_times(i, x);
+            y[0] * x[i] + y[1] * x[n + i] + y[2] * x[2 * n + i]
+        })
+        .sum()
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -683,6 +738,7 @@ struct Residual<'a> {
     x0: &'a [f64],
     v0: &'a [f64],
     mass: &'a [f64],
+    mass_matrix: Option<&'a Bsr3>,
     filter: Option<&'a Filter>,
     xe: &'a mut Vec<f64>,
     ve: &'a mut Vec<f64>,
@@ -720,6 +776,13 @@ impl NewtonProblem for Residual<'_> {
         self.eval_point(v1);
         self.sys.force(self.t, self.xe, self.ve, self.f);
         let (n, h, c) = (self.mass.len(), self.h, self.c);
+        // M (v1 - v0) with the consistent mass matrix (rhs is free until newton_step).
+        if let Some(mm) = self.mass_matrix {
+            for ((d, a), b) in self.rhs.iter_mut().zip(v1).zip(self.v0) {
+                *d = a - b;
+            }
+            mm.spmv(r, self.rhs);
+        }
         let mut scale2 = 0.0f64;
         for comp in 0..3 {
             for i in 0..n {
@@ -727,7 +790,12 @@ impl NewtonProblem for Residual<'_> {
                 let m = self.mass[i];
                 let f0 = if c.w0 != 0.0 { self.f0[k] } else { 0.0 };
                 let force = h * (c.w0 * f0 + c.w1 * self.f[k]);
-                r[k] = m * (v1[k] - self.v0[k]) - force;
+                let inertia = if self.mass_matrix.is_some() {
+                    r[k]
+                } else {
+                    m * (v1[k] - self.v0[k])
+                };
+                r[k] = inertia - force;
                 let size = (m * v1[k]).abs() + (m * self.v0[k]).abs() + force.abs();
                 scale2 += size * size;
             }
@@ -770,7 +838,15 @@ impl NewtonProblem for Residual<'_> {
         }
         let (h, c) = (self.h, self.c);
         let (ck, cd) = (h * c.w1 * h * c.b, h * c.w1 * c.d);
-        system_matrix(self.a, self.dfdx, self.dfdv.as_deref(), self.mass, ck, cd);
+        system_matrix(
+            self.a,
+            self.dfdx,
+            self.dfdv.as_deref(),
+            self.mass,
+            self.mass_matrix,
+            ck,
+            cd,
+        );
         kv::scale_copy(self.rhs, -1.0, r);
         dy.fill(0.0);
         let li = self
@@ -804,6 +880,13 @@ impl NewtonProblem for Residual<'_> {
                     work0 += self.f0[k] * v1[k];
                 }
             }
+        }
+        if let Some(mm) = self.mass_matrix {
+            // rhs is scratch between Newton steps.
+            for ((d, a), b) in self.rhs.iter_mut().zip(v1).zip(self.v0) {
+                *d = a - b;
+            }
+            kinetic = 0.5 * quadratic(mm, self.rhs);
         }
         Some(kinetic - h * c.w0 * work0 + (c.w1 / c.b) * u + (h * c.w1 / c.d) * psi)
     }

@@ -22,8 +22,8 @@ mod mechanical;
 mod ode;
 
 pub use mechanical::{
-    gravity_energy, gravity_forces, kinetic_energy, LinearSolverKind, MechSettings, MechState,
-    MechStepper, Mechanical, AUTO_CHOLESKY_MAX_DOFS,
+    gravity_energy, gravity_forces, kinetic_energy, kinetic_energy_matrix, LinearSolverKind,
+    MechSettings, MechState, MechStepper, Mechanical, AUTO_CHOLESKY_MAX_DOFS,
 };
 pub use ode::{OdeStepper, OdeSystem};
 

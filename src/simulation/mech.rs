@@ -23,8 +23,8 @@
 use super::{Energy, FrameData, Simulation, Stage};
 use crate::collide::{max_penetration, Obstacle, VertexContacts};
 use crate::integrate::{
-    kinetic_energy, IntegrateError, MechSettings, MechState, MechStepper, Mechanical, Method,
-    StepInfo,
+    kinetic_energy, kinetic_energy_matrix, IntegrateError, MechSettings, MechState, MechStepper,
+    Mechanical, Method, StepInfo,
 };
 use crate::io::{Mesh, MeshRef};
 use crate::solve::Filter;
@@ -151,6 +151,11 @@ pub trait MechModel: Send + Sync + 'static {
     fn contact_friction(&self) -> Option<f64> {
         None
     }
+    /// The model's consistent mass matrix, if it uses one (see
+    /// [`Mechanical::mass_matrix`]).
+    fn mass_matrix(&self) -> Option<&Bsr3> {
+        None
+    }
     /// Whether the model has a volume to write ([`MechModel::write_volume`]).
     fn has_volume(&self) -> bool {
         false
@@ -223,6 +228,9 @@ impl<M: MechModel> Mechanical for Bound<'_, M> {
     }
     fn mass(&self) -> &[f64] {
         self.model.mass()
+    }
+    fn mass_matrix(&self) -> Option<&Bsr3> {
+        self.model.mass_matrix()
     }
     fn constraints(&self, filter: &mut Filter) {
         // Contacts first, then the model's own: a pinned vertex in contact stays fixed.
@@ -606,7 +614,10 @@ impl<M: MechModel> MechSimulation<M> {
     /// far.
     pub fn energy(&self) -> Energy {
         Energy {
-            kinetic: kinetic_energy(self.model.mass(), self.state.v.as_slice()),
+            kinetic: match self.model.mass_matrix() {
+                Some(m) => kinetic_energy_matrix(m, self.state.v.as_slice()),
+                None => kinetic_energy(self.model.mass(), self.state.v.as_slice()),
+            },
             potential: self
                 .model
                 .potential_energy(self.t, self.state.x.as_slice())
