@@ -44,22 +44,17 @@ use std::time::{Duration, Instant};
 const DT: f64 = 1.0 / 60.0;
 
 fn beam() -> FemDesc {
-    let mesh = box_mesh([100, 10, 10], [1.0, 0.1, 0.1], [0.0, -0.05, -0.05]);
-    let mut d = FemDesc::new(
-        mesh.positions,
-        mesh.tets,
+    FemDesc::cantilever(
+        [100, 10, 10],
+        [1.0, 0.1, 0.1],
         FemMaterial {
             model: Material::Corotational,
             young: 1e7,
             poisson: 0.3,
             density: 1000.0,
         },
-    );
-    d.gravity = [0.0, -9.81, 0.0];
-    d.pinned = (0..d.positions.len())
-        .filter(|&i| d.positions[i][0] < 1e-12)
-        .collect();
-    d
+        9.81,
+    )
 }
 
 fn settings(cholesky: bool, reuse: bool) -> MechSettings {

@@ -2008,23 +2008,11 @@ fn vega_veg_files_read_with_their_materials() {
 /// steps as full Newton, to the Newton tolerance, in more but cheaper iterations.
 #[test]
 fn reusing_the_jacobian_converges_to_the_same_steps() {
-    let mesh = box_mesh([10, 2, 2], [1.0, 0.1, 0.1], [0.0, -0.05, -0.05]);
     let run = |reuse: bool| {
-        let mut d = FemDesc::new(
-            mesh.positions.clone(),
-            mesh.tets.clone(),
-            FemMaterial {
-                model: Material::Corotational,
-                young: 1e7,
-                poisson: 0.3,
-                density: 1000.0,
-            },
-        );
-        d.gravity = [0.0, -9.81, 0.0];
-        d.pinned = (0..mesh.positions.len())
-            .filter(|&i| mesh.positions[i][0] < 1e-12)
-            .collect();
-        let (model, state) = d.build().unwrap();
+        let (model, state) =
+            FemDesc::cantilever([10, 2, 2], [1.0, 0.1, 0.1], corotational_beam(), 9.81)
+                .build()
+                .unwrap();
         let mut settings = MechSettings::new(Method::BackwardEuler);
         settings.newton.tolerance = 1e-10;
         settings.newton.step_tolerance = 1e-10;
@@ -2293,22 +2281,10 @@ fn pcg_iterations_as_the_fem_mesh_is_refined() {
     use largestep::sparse::Bsr3;
     let mut table = Vec::new();
     for k in [2usize, 4, 8] {
-        let mesh = box_mesh([10 * k, k, k], [1.0, 0.1, 0.1], [0.0, -0.05, -0.05]);
-        let mut d = FemDesc::new(
-            mesh.positions.clone(),
-            mesh.tets.clone(),
-            FemMaterial {
-                model: Material::Corotational,
-                young: 1e7,
-                poisson: 0.3,
-                density: 1000.0,
-            },
-        );
-        d.gravity = [0.0, -9.81, 0.0];
-        d.pinned = (0..mesh.positions.len())
-            .filter(|&i| mesh.positions[i][0] < 1e-12)
-            .collect();
-        let (model, state) = d.build().unwrap();
+        let (model, state) =
+            FemDesc::cantilever([10 * k, k, k], [1.0, 0.1, 0.1], corotational_beam(), 9.81)
+                .build()
+                .unwrap();
         let n = model.vertex_count();
         let mut work = model.work();
         let pattern = model.prepare_jacobians(&mut work).unwrap().unwrap();
@@ -2365,5 +2341,16 @@ fn pcg_iterations_as_the_fem_mesh_is_refined() {
             growth(mg),
             growth(bj)
         );
+    }
+}
+
+/// The beam material of the solver tests: corotational, E = 10 MPa, nu = 0.3, 1000
+/// kg/m^3.
+fn corotational_beam() -> FemMaterial {
+    FemMaterial {
+        model: Material::Corotational,
+        young: 1e7,
+        poisson: 0.3,
+        density: 1000.0,
     }
 }

@@ -844,16 +844,7 @@ impl MechModel for Cloth {
     /// Path vertices at their initial positions plus the path's offset at `t`, with the
     /// path's velocity.
     fn prescribe(&self, t: f64, x: &mut [f64], v: &mut [f64]) {
-        let n = self.n;
-        for (path, rest) in self.paths.iter().zip(&self.path_rest) {
-            for (&i, &p0) in path.vertices.iter().zip(rest) {
-                let (xi, vi) = path.place(t, p0);
-                for c in 0..3 {
-                    x[c * n + i] = xi[c];
-                    v[c * n + i] = vi[c];
-                }
-            }
-        }
+        crate::simulation::path::prescribe(&self.paths, &self.path_rest, t, x, v);
     }
 
     /// The largest change of any triangle's stretch strain.

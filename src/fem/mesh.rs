@@ -265,6 +265,25 @@ pub fn box_mesh(cells: [usize; 3], size: [f64; 3], origin: [f64; 3]) -> TetMesh 
             }
         }
     }
+    let mut tets = Vec::with_capacity(6 * nx * ny * nz);
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                tets.extend(cube_tets([i, j, k], |c| idx(c[0], c[1], c[2]), &positions));
+            }
+        }
+    }
+    TetMesh { positions, tets }
+}
+
+/// The six tetrahedra of the grid cube whose low corner is `ijk`, one per order of the
+/// axes along the diagonal from that corner to the opposite one (Freudenthal-Kuhn),
+/// positively oriented; `corner` numbers the grid's corners.
+pub(super) fn cube_tets(
+    ijk: [usize; 3],
+    corner: impl Fn([usize; 3]) -> u32,
+    positions: &[[f64; 3]],
+) -> [[u32; 4]; 6] {
     const ORDERS: [[usize; 3]; 6] = [
         [0, 1, 2],
         [0, 2, 1],
@@ -273,24 +292,16 @@ pub fn box_mesh(cells: [usize; 3], size: [f64; 3], origin: [f64; 3]) -> TetMesh 
         [2, 0, 1],
         [2, 1, 0],
     ];
-    let mut tets = Vec::with_capacity(6 * nx * ny * nz);
-    for k in 0..nz {
-        for j in 0..ny {
-            for i in 0..nx {
-                for order in ORDERS {
-                    let mut c = [i, j, k];
-                    let mut t = [idx(c[0], c[1], c[2]); 4];
-                    for (s, &axis) in order.iter().enumerate() {
-                        c[axis] += 1;
-                        t[s + 1] = idx(c[0], c[1], c[2]);
-                    }
-                    if signed_volume(&t.map(|v| positions[v as usize])) < 0.0 {
-                        t.swap(2, 3);
-                    }
-                    tets.push(t);
-                }
-            }
+    ORDERS.map(|order| {
+        let mut c = ijk;
+        let mut t = [corner(c); 4];
+        for (s, &axis) in order.iter().enumerate() {
+            c[axis] += 1;
+            t[s + 1] = corner(c);
         }
-    }
-    TetMesh { positions, tets }
+        if signed_volume(&t.map(|v| positions[v as usize])) < 0.0 {
+            t.swap(2, 3);
+        }
+        t
+    })
 }

@@ -204,6 +204,19 @@ impl FemDesc {
         }
     }
 
+    /// A cantilever: a beam `size` (m) along x of `cells` cubes (`mesh::box_mesh`, centred
+    /// on the x axis), every vertex at x = 0 pinned, under gravity `g` (m/s^2) along -y:
+    /// the benchmark, study and test beam.
+    pub fn cantilever(cells: [usize; 3], size: [f64; 3], material: FemMaterial, g: f64) -> Self {
+        let m = mesh::box_mesh(cells, size, [0.0, -0.5 * size[1], -0.5 * size[2]]);
+        let mut d = Self::new(m.positions, m.tets, material);
+        d.gravity = [0.0, -g, 0.0];
+        d.pinned = (0..d.positions.len())
+            .filter(|&i| d.positions[i][0] == 0.0)
+            .collect();
+        d
+    }
+
     /// Swaps the last two vertices of every element with a negative rest volume (a mesh
     /// written with the other orientation convention); returns how many. Flat elements
     /// stay as they are (and are errors at build).
@@ -1029,16 +1042,7 @@ impl MechModel for Fem {
     }
 
     fn prescribe(&self, t: f64, x: &mut [f64], v: &mut [f64]) {
-        let n = self.n;
-        for (path, rest) in self.paths.iter().zip(&self.path_rest) {
-            for (&i, &p0) in path.vertices.iter().zip(rest) {
-                let (xi, vi) = path.place(t, p0);
-                for c in 0..3 {
-                    x[c * n + i] = xi[c];
-                    v[c * n + i] = vi[c];
-                }
-            }
-        }
+        crate::simulation::path::prescribe(&self.paths, &self.path_rest, t, x, v);
     }
 
     fn stages(&self) -> Vec<Stage> {

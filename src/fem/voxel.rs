@@ -67,15 +67,7 @@ pub fn voxel_mesh(surface: &Mesh, h: f64, max_cells: usize) -> Result<VoxelMesh,
     if !(h.is_finite() && h > 0.0) {
         return Err(VoxelError::Size(h));
     }
-    let nv = surface.positions.len() / 3;
-    let p = |i: u32| -> [f64; 3] {
-        let i = i as usize;
-        [
-            surface.positions[i],
-            surface.positions[nv + i],
-            surface.positions[2 * nv + i],
-        ]
-    };
+    let p = |i: u32| surface.as_ref().vertex(i as usize);
     if surface.triangles.is_empty() || !surface.positions.iter().all(|x| x.is_finite()) {
         return Err(VoxelError::Empty);
     }
@@ -185,32 +177,16 @@ pub fn voxel_mesh(surface: &Mesh, h: f64, max_cells: usize) -> Result<VoxelMesh,
             }
         }
     }
-    const ORDERS: [[usize; 3]; 6] = [
-        [0, 1, 2],
-        [0, 2, 1],
-        [1, 0, 2],
-        [1, 2, 0],
-        [2, 0, 1],
-        [2, 1, 0],
-    ];
     let mut tets = Vec::new();
     for k in 0..n[2] {
         for j in 0..n[1] {
             for i in 0..n[0] {
-                if !inside[cell(i, j, k)] {
-                    continue;
-                }
-                for order in ORDERS {
-                    let mut c = [i, j, k];
-                    let mut t = [id[corner(i, j, k)]; 4];
-                    for (s, &axis) in order.iter().enumerate() {
-                        c[axis] += 1;
-                        t[s + 1] = id[corner(c[0], c[1], c[2])];
-                    }
-                    if signed_volume(&t.map(|v| positions[v as usize])) < 0.0 {
-                        t.swap(2, 3);
-                    }
-                    tets.push(t);
+                if inside[cell(i, j, k)] {
+                    tets.extend(super::mesh::cube_tets(
+                        [i, j, k],
+                        |c| id[corner(c[0], c[1], c[2])],
+                        &positions,
+                    ));
                 }
             }
         }
@@ -228,15 +204,7 @@ pub fn voxel_mesh(surface: &Mesh, h: f64, max_cells: usize) -> Result<VoxelMesh,
 /// Moves the boundary vertices of `mesh` onto `surface` (see the module docs); returns
 /// how many moved and how many stayed.
 fn snap(mesh: &mut TetMesh, surface: &Mesh, h: f64) -> (usize, usize) {
-    let nv = surface.positions.len() / 3;
-    let sp = |i: u32| -> [f64; 3] {
-        let i = i as usize;
-        [
-            surface.positions[i],
-            surface.positions[nv + i],
-            surface.positions[2 * nv + i],
-        ]
-    };
+    let sp = |i: u32| surface.as_ref().vertex(i as usize);
     let faces = super::boundary_faces(&mesh.tets);
     let mut on_boundary = vec![false; mesh.positions.len()];
     for f in &faces {

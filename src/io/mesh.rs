@@ -18,7 +18,8 @@ impl MeshRef<'_> {
     fn n(&self) -> usize {
         self.positions.len() / 3
     }
-    fn vertex(&self, i: usize) -> [f64; 3] {
+    /// Vertex i's position.
+    pub fn vertex(&self, i: usize) -> [f64; 3] {
         let n = self.n();
         [
             self.positions[i],

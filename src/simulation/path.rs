@@ -162,3 +162,24 @@ impl VertexPath {
         Ok(())
     }
 }
+
+/// Places every path's vertices (started at `rest[k]` for path k) at time t: positions x
+/// and velocities v, component-major.
+pub fn prescribe(
+    paths: &[VertexPath],
+    rest: &[Vec<[f64; 3]>],
+    t: f64,
+    x: &mut [f64],
+    v: &mut [f64],
+) {
+    let n = x.len() / 3;
+    for (path, rest) in paths.iter().zip(rest) {
+        for (&i, &p0) in path.vertices.iter().zip(rest) {
+            let (xi, vi) = path.place(t, p0);
+            for c in 0..3 {
+                x[c * n + i] = xi[c];
+                v[c * n + i] = vi[c];
+            }
+        }
+    }
+}

@@ -57,20 +57,19 @@ struct Sweep {
 fn cantilever(k: usize, model: Material, tolerance: f64) -> Point {
     let t0 = Instant::now();
     let cubes = [10 * k, k, k];
-    let mesh = box_mesh(cubes, [L, H, H], [0.0, -H / 2.0, -H / 2.0]);
-    let n = mesh.positions.len();
-    let mut d = FemDesc::new(
-        mesh.positions.clone(),
-        mesh.tets.clone(),
+    let d = FemDesc::cantilever(
+        cubes,
+        [L, H, H],
         FemMaterial {
             model,
             young: E,
             poisson: NU,
             density: RHO,
         },
+        G,
     );
-    d.gravity = [0.0, -G, 0.0];
-    d.pinned = (0..n).filter(|&i| mesh.positions[i][0] == 0.0).collect();
+    let mesh = &d;
+    let n = mesh.positions.len();
     let (fem, state) = d.build().expect("the study's cantilever is valid");
     let mut x = state.x.as_slice().to_vec();
     let solved = fem.solve_static(&mut x, 1, tolerance);
