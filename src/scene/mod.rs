@@ -627,7 +627,13 @@ fn solver_settings(
         settings.newton.max_iterations = m as usize;
     }
     if let Some(r) = t.reuse_jacobian {
-        settings.reuse_jacobian = r;
+        if !(0..=1000).contains(&r) {
+            return Err(err(
+                at("reuse_jacobian"),
+                format!("must be 0 (full Newton) to 1000 steps, not {r}"),
+            ));
+        }
+        settings.reuse_jacobian = r as usize;
     }
     Ok(settings)
 }

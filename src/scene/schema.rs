@@ -18,7 +18,7 @@
 //! preconditioner = "block-jacobi"  # none | jacobi | block-jacobi | multigrid
 //! newton_tolerance = 1e-9
 //! newton_max_iterations = 50
-//! reuse_jacobian = false      # factor once per step, reuse it in later Newton iterations
+//! reuse_jacobian = 0          # steps one factored Jacobian may serve (0: full Newton)
 //!
 //! [mass_spring.chain]         # one table per system: [mass_spring], [cloth], ...
 //! count = 20
@@ -77,8 +77,8 @@ pub struct SolverTable {
     pub newton_tolerance: Option<f64>,
     /// Newton iteration limit.
     pub newton_max_iterations: Option<i64>,
-    /// Reuse the step's first Jacobian in its later Newton iterations (the chord method).
-    pub reuse_jacobian: Option<bool>,
+    /// Steps one factored Jacobian may serve (the chord method; 0: full Newton).
+    pub reuse_jacobian: Option<i64>,
 }
 
 /// `[output]`

@@ -57,6 +57,12 @@ pub struct Approach {
 const FREE: u32 = u32::MAX;
 
 impl Filter {
+    /// Whether `other` constrains the same vertices in the same directions (prescribed
+    /// velocities aside): then a matrix projected by one is projected by the other.
+    pub fn same_projection(&self, other: &Filter) -> bool {
+        self.n == other.n && self.verts == other.verts && self.s == other.s
+    }
+
     /// No constraints on n vertices.
     pub fn new(n: usize) -> Self {
         Self {
