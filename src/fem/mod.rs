@@ -1,6 +1,10 @@
-//! Tetrahedral finite elements: linear tetrahedra with a hyperelastic material
+//! Tetrahedral finite elements: linear tetrahedra with hyperelastic materials
 //! (`largestep_kernels::fem`: linear, corotational, St. Venant-Kirchhoff, neo-Hookean and
-//! stable neo-Hookean), lumped masses, gravity, pinned vertices and obstacle contacts.
+//! stable neo-Hookean, and the invertible versions of the nonlinear ones) per element
+//! region, lumped or consistent mass, Rayleigh damping, gravity, pinned vertices,
+//! prescribed paths and obstacle contacts. The nonlinear materials' forces and stiffness
+//! come from the singular-value kernels (`largestep_kernels::fem_diag`), four elements
+//! per call; linear elasticity from the F-form element.
 //!
 //! [`FemDesc`] (editable) is checked and built into an immutable [`Fem`] model: per
 //! element `Dm^-1` (nine arrays, structure of arrays) and the rest volume, computed once;
@@ -174,8 +178,9 @@ pub struct FemDesc {
     pub rayleigh: [f64; 2],
     /// Lumped or consistent mass.
     pub mass: FemMass,
-    /// Make each element's tangent positive semi-definite (the definiteness fix,
-    /// `largestep_kernels::fem::project_psd`), so implicit systems stay definite under
+    /// Make each element's tangent positive semi-definite (the definiteness fix, per
+    /// block in the singular-value frame: `largestep_kernels::fem_diag`; it equals
+    /// `largestep_kernels::fem::project_psd` of the 9x9 tangent), so implicit systems stay definite under
     /// compression and inversion; the Jacobian is then exact only where the material's
     /// tangent is definite. Default on.
     pub definiteness_fix: bool,
