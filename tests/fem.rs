@@ -2164,7 +2164,14 @@ fn the_voxel_mesher_fills_a_closed_surface() {
     let off = tetmesh("nut-surface").with_extension("off");
     let text = format!("[scene]\nname = \"voxel\"\ndt = 0.01\nduration = 0.02\nintegrator = \"linearized-backward-euler\"\n[fem]\n[fem.mesh]\nfile = \"{}\"\nvoxel = 3.0\nscale = 0.001\n[fem.material]\nmodel = \"stable-neo-hookean\"\npreset = \"rubber\"\n[output]\nframes = \"none\"\n", off.display());
     let scene = largestep::scene::Scene::parse(&text, "voxel.toml").unwrap();
-    assert!(scene.into_simulation().is_some());
+    let sim = scene.into_simulation().unwrap();
+    let warnings = sim.warnings();
+    assert!(
+        warnings
+            .iter()
+            .any(|w| w.contains("voxel mesher") && w.contains("left off the surface")),
+        "{warnings:?}"
+    );
     let e = largestep::scene::Scene::parse(&text.replace("voxel = 3.0\n", ""), "voxel.toml")
         .err()
         .unwrap()

@@ -178,6 +178,9 @@ pub struct FemDesc {
     pub rayleigh: [f64; 2],
     /// Lumped or consistent mass.
     pub mass: FemMass,
+    /// What whoever made the mesh noticed (the voxel mesher's vertices left off the
+    /// surface, say): reported with the model's warnings in the run summary.
+    pub notes: Vec<String>,
     /// Make each element's tangent positive semi-definite (the definiteness fix, per
     /// block in the singular-value frame: `largestep_kernels::fem_diag`; it equals
     /// `largestep_kernels::fem::project_psd` of the 9x9 tangent), so implicit systems stay definite under
@@ -205,6 +208,7 @@ impl FemDesc {
             friction: 0.0,
             rayleigh: [0.0, 0.0],
             mass: FemMass::Lumped,
+            notes: Vec::new(),
             definiteness_fix: true,
         }
     }
@@ -493,6 +497,7 @@ impl FemDesc {
             damping_mass,
             gather,
             mass_matrix: None,
+            notes: self.notes.clone(),
         };
         let mut model = model;
         if self.mass == FemMass::Consistent {
@@ -603,6 +608,8 @@ pub struct Fem {
     damping_mass: Vec<f64>,
     /// The consistent mass matrix, when the description asks for it.
     mass_matrix: Option<Bsr3>,
+    /// `FemDesc::notes`.
+    notes: Vec<String>,
     gather: VectorGather,
 }
 
@@ -1134,14 +1141,14 @@ impl MechModel for Fem {
     }
 
     fn warnings(&self) -> Vec<String> {
-        match self.unused.as_slice() {
-            [] => Vec::new(),
-            u => vec![format!(
-                "{} of {} nodes belong to no element (first: node {}): they carry no mass and are held where they are",
-                u.len(),
+        let mut w = self.notes.clone();
+        if let [first, ..] = self.unused.as_slice() {
+            w.push(format!(
+                "{} of {} nodes belong to no element (first: node {first}): they carry no mass and are held where they are",
+                self.unused.len(),
                 self.n,
-                u[0]
-            )],
+            ));
         }
+        w
     }
 }

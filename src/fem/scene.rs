@@ -356,6 +356,7 @@ pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
     let kind = model(ctx, &m.model)?;
     // A .veg file's materials and regions.
     let mut veg: Option<(Vec<super::veg::VegMaterial>, Vec<u32>)> = None;
+    let mut notes = Vec::new();
     let mesh = match (&t.beam, &t.mesh) {
         (Some(b), None) => {
             let mut cells = [0usize; 3];
@@ -422,6 +423,13 @@ pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
                 let max_cells = (ctx.limits.max_memory / 150).min(u32::MAX as u64 / 8) as usize;
                 let v = super::voxel::voxel_mesh(&surface, h, max_cells)
                     .map_err(|e| ctx.error(&at(&[&"mesh", &"voxel"]), e.to_string()))?;
+                if v.unsnapped > 0 {
+                    notes.push(format!(
+                        "voxel mesher: {} of {} boundary vertices left off the surface (moving them would have flattened an element)",
+                        v.unsnapped,
+                        v.snapped + v.unsnapped
+                    ));
+                }
                 Ok(v.mesh)
             } else if is_veg {
                 super::veg::read_veg(&file, ctx.limits.max_file_bytes).map(|v| {
@@ -504,6 +512,7 @@ pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
         desc.element_material = element_material;
     }
     desc.inversion_threshold = m.inversion_threshold;
+    desc.notes = notes;
     for (k, r) in t.region.iter().enumerate() {
         let key = at(&[&"region", &k]);
         if !r.min.iter().chain(&r.max).all(|c| c.is_finite()) {
