@@ -2364,3 +2364,20 @@ fn corotational_beam() -> FemMaterial {
         density: 1000.0,
     }
 }
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(300))]
+
+    /// The `.veg` and OFF readers never panic: any text of their tokens, numbers (huge
+    /// ones included) and line breaks is a mesh or an error.
+    #[test]
+    fn mesh_readers_never_panic(tokens in prop::collection::vec(prop::sample::select(vec![
+        "*VERTICES", "*ELEMENTS", "TET", "CUBIC", "*MATERIAL m", "ENU, 1000, 1e6, 0.3", "*SET s",
+        "*REGION", "s, m", "allElements, m", "OFF", "0", "1", "2", "3", "4", "8", "-1", "1e300",
+        "18446744073709551615", "nan", ",", "#", "\n", "\n", "\n",
+    ]), 0..60)) {
+        let text = tokens.join(" ");
+        let _ = largestep::fem::veg::parse_veg(&text, "fuzz.veg");
+        let _ = largestep::io::parse_off(&text, "fuzz.off");
+    }
+}

@@ -482,7 +482,7 @@ pub fn parse_off(text: &str, name: &str) -> Result<Mesh, ReadError> {
             })
             .collect::<Result<_, _>>()?;
         let k = *f.first().ok_or_else(|| err(l, "empty face".into()))?;
-        if k < 3 || f.len() < 1 + k {
+        if k < 3 || f.len() - 1 < k {
             return Err(err(
                 l,
                 format!("a face of {k} vertices needs {k} indices after the count"),
