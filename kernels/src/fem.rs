@@ -64,25 +64,16 @@ impl Lame {
     }
 }
 
-/// `a b`.
+/// `a b` (the generic product of the element kernels, at `f64`).
 #[inline]
 pub fn mul(a: &M3, b: &M3) -> M3 {
-    let mut c = [0.0; 9];
-    for r in 0..3 {
-        for k in 0..3 {
-            let ark = a[3 * r + k];
-            for col in 0..3 {
-                c[3 * r + col] += ark * b[3 * k + col];
-            }
-        }
-    }
-    c
+    crate::fem_diag::mul3(a, b)
 }
 
 /// `a^T`.
 #[inline]
 pub fn transpose(a: &M3) -> M3 {
-    [a[0], a[3], a[6], a[1], a[4], a[7], a[2], a[5], a[8]]
+    crate::fem_diag::transpose3(a)
 }
 
 /// `det a`.

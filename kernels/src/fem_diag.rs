@@ -264,16 +264,18 @@ pub fn svd3<R: Lane>(f: &[R; 9]) -> ([R; 9], [R; 3], [R; 9]) {
     (transpose3(&ut), [b[0], b[4], b[8]], v)
 }
 
+/// `a b` for 3x3 matrices (row-major) of any lane type.
 #[inline(always)]
-fn mul3<R: Lane>(a: &[R; 9], b: &[R; 9]) -> [R; 9] {
+pub fn mul3<R: Lane>(a: &[R; 9], b: &[R; 9]) -> [R; 9] {
     std::array::from_fn(|i| {
         let (r, c) = (i / 3, i % 3);
         a[3 * r].fma(b[c], a[3 * r + 1].fma(b[3 + c], a[3 * r + 2] * b[6 + c]))
     })
 }
 
+/// `a^T` for a 3x3 matrix (row-major) of any lane type.
 #[inline(always)]
-fn transpose3<R: Lane>(a: &[R; 9]) -> [R; 9] {
+pub fn transpose3<R: Lane>(a: &[R; 9]) -> [R; 9] {
     [a[0], a[3], a[6], a[1], a[4], a[7], a[2], a[5], a[8]]
 }
 

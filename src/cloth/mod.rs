@@ -31,7 +31,6 @@ use crate::integrate::{IntegrateError, MechState};
 use crate::loads::{Body, Gravity, Loads, Wind};
 use crate::simulation::{MechModel, Stage, StepControl};
 use crate::soa::Vec3s;
-use crate::solve::Filter;
 use crate::sparse::{
     Bsr3, Bsr3Pattern, ElementAssembly, LocalLayout, RankOneAssembly, SparseError, VectorGather,
 };
@@ -553,12 +552,6 @@ impl MechModel for Cloth {
 
     fn mass(&self) -> &[f64] {
         &self.mass
-    }
-
-    fn constraints(&self, filter: &mut Filter) {
-        for &p in &self.pinned {
-            filter.fix(p as usize);
-        }
     }
 
     fn force(&self, work: &mut ClothWork, t: f64, x: &[f64], v: &[f64], f: &mut [f64]) {

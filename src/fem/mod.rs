@@ -31,12 +31,11 @@ pub mod vtk;
 pub use statics::{StaticInfo, StaticSimulation, StaticSolver};
 
 use crate::collide::Obstacle;
-use crate::integrate::{IntegrateError, MechState};
+use crate::integrate::{kinetic_energy, IntegrateError, MechState};
 use crate::loads::{Body, Gravity, Loads};
 use crate::simulation::path::VertexPath;
 use crate::simulation::{MechModel, Stage};
 use crate::soa::Vec3s;
-use crate::solve::Filter;
 use crate::sparse::{Bsr3, Bsr3Pattern, SparseError};
 use crate::sparse::{ElementAssembly, LocalLayout, VectorGather};
 use crate::validate::{check, require, ModelError, Rule};
@@ -454,7 +453,6 @@ impl FemDesc {
         let surface = boundary_faces(&self.tets);
         let sparse = |e: SparseError| ModelError::TooLarge(e.to_string());
         let gather = VectorGather::new(n, &self.tets, &LocalLayout::dense(4)).map_err(sparse)?;
-        let damping_mass: Vec<f64> = mass.iter().map(|m| -self.rayleigh[0] * m).collect();
         let model = Fem {
             n,
             rest: Vec3s::from_aos(&self.positions).as_slice().to_vec(),
@@ -494,7 +492,6 @@ impl FemDesc {
             friction: self.friction,
             definiteness_fix: self.definiteness_fix,
             rayleigh: self.rayleigh,
-            damping_mass,
             gather,
             mass_matrix: None,
             notes: self.notes.clone(),
@@ -604,8 +601,6 @@ pub struct Fem {
     friction: f64,
     definiteness_fix: bool,
     rayleigh: [f64; 2],
-    /// `-alpha m_i`: the mass-proportional damping's diagonal in df/dv.
-    damping_mass: Vec<f64>,
     /// The consistent mass matrix, when the description asks for it.
     mass_matrix: Option<Bsr3>,
     /// `FemDesc::notes`.
@@ -708,10 +703,9 @@ impl Fem {
 
     /// Element e's first Piola-Kirchhoff stress (Pa) at deformation gradient f.
     pub fn stress_at(&self, e: usize, f: &M3) -> M3 {
-        let f = *f;
         match &self.iso {
-            Some(iso) => largestep_kernels::fem_diag::evaluate(iso, self.lame_of(e), &f).1,
-            None => largestep_kernels::fem::pk1(self.model, self.lame_of(e), &f),
+            Some(iso) => largestep_kernels::fem_diag::evaluate(iso, self.lame_of(e), f).1,
+            None => largestep_kernels::fem::pk1(self.model, self.lame_of(e), f),
         }
     }
 
@@ -823,6 +817,26 @@ impl Fem {
         energy
     }
 
+    /// `scale dfdx_e v_e` for element e (`-scale K_e v_e`, the stiffness-damping force
+    /// for `scale = beta`) from its stiffness blocks k (90 values).
+    fn stiffness_times(&self, e: usize, k: &[f64], scale: f64, v: &[f64]) -> [[f64; 3]; 4] {
+        let mut fe = [[0.0; 3]; 4];
+        add_stiffness_damping(&mut fe, k, scale, &gather_nodes(v, self.n, &self.tets[e]));
+        fe
+    }
+
+    /// Adds the stiffness-damping forces `beta dfdx_e v_e` of elements `e0..` (their
+    /// stiffness blocks in k, 90 each) to their element forces f (12 each).
+    fn add_group_damping(&self, e0: usize, k: &[f64], v: &[f64], f: &mut [f64]) {
+        let beta = self.rayleigh[1];
+        for (l, fl) in f.chunks_exact_mut(12).enumerate() {
+            let fd = self.stiffness_times(e0 + l, &k[TET_K * l..TET_K * (l + 1)], beta, v);
+            for (o, d) in fl.iter_mut().zip(fd.as_flattened()) {
+                *o += d;
+            }
+        }
+    }
+
     /// Element forces into `out` (12 per element, element-major), in fixed chunks: the
     /// elastic ones, and with stiffness damping (`v` given, beta > 0) `beta K_e v_e`.
     fn element_forces_into(&self, out: &mut [f64], x: &[f64], v: Option<&[f64]>) {
@@ -837,21 +851,7 @@ impl Fem {
                     match damped {
                         Some(v) => {
                             self.group(e0, n, x, og, Some(&mut k[..TET_K * n]));
-                            for l in 0..n {
-                                let e = e0 + l;
-                                let mut fe = [[0.0; 3]; 4];
-                                add_stiffness_damping(
-                                    &mut fe,
-                                    &k[TET_K * l..TET_K * (l + 1)],
-                                    beta,
-                                    &gather_nodes(v, self.n, &self.tets[e]),
-                                );
-                                for (o, d) in
-                                    og[12 * l..12 * l + 12].iter_mut().zip(fe.as_flattened())
-                                {
-                                    *o += d;
-                                }
-                            }
+                            self.add_group_damping(e0, &k, v, og);
                         }
                         None => {
                             self.group(e0, n, x, og, None);
@@ -892,12 +892,6 @@ impl MechModel for Fem {
         &self.mass
     }
 
-    fn constraints(&self, filter: &mut Filter) {
-        for &p in &self.fixed {
-            filter.fix(p as usize);
-        }
-    }
-
     fn force(&self, work: &mut FemWork, t: f64, x: &[f64], v: &[f64], f: &mut [f64]) {
         self.loads.forces(t, &self.body(), x, v, f);
         self.element_forces_into(&mut work.f, x, Some(v));
@@ -933,7 +927,7 @@ impl MechModel for Fem {
         self.prepare_jacobians(work)
             .map_err(IntegrateError::Sparse)?;
         self.loads.forces(t, &self.body(), x, v, f);
-        let (n, beta) = (self.n, self.rayleigh[1]);
+        let beta = self.rayleigh[1];
         let FemWork { f: ef, jac } = work;
         let (kbuf, asm) = jac.as_mut().expect("prepared above");
         ef.par_chunks_mut(12 * CHUNK)
@@ -944,20 +938,7 @@ impl MechModel for Fem {
                     let (e0, cnt) = (c * CHUNK + 4 * g, fg.len() / 12);
                     self.group(e0, cnt, x, fg, Some(kg));
                     if beta > 0.0 {
-                        for l in 0..cnt {
-                            let e = e0 + l;
-                            let mut fe = [[0.0; 3]; 4];
-                            add_stiffness_damping(
-                                &mut fe,
-                                &kg[TET_K * l..TET_K * (l + 1)],
-                                beta,
-                                &gather_nodes(v, n, &self.tets[e]),
-                            );
-                            for (o, d) in fg[12 * l..12 * l + 12].iter_mut().zip(fe.as_flattened())
-                            {
-                                *o += d;
-                            }
-                        }
+                        self.add_group_damping(e0, kg, v, fg);
                     }
                 }
             });
@@ -969,7 +950,7 @@ impl MechModel for Fem {
         // damping).
         if let Some(d) = dfdv {
             d.assign_lincomb(&[(beta, dfdx)]);
-            d.add_diagonal(&self.damping_mass);
+            d.add_scaled_diagonal(-self.rayleigh[0], &self.mass);
         }
         Ok(())
     }
@@ -981,10 +962,7 @@ impl MechModel for Fem {
     fn dissipation(&self, x: &[f64], v: &[f64]) -> f64 {
         // Psi = 1/2 v^T (alpha M + beta K) v, so that -dPsi/dv is the damping force.
         let (alpha, beta, n) = (self.rayleigh[0], self.rayleigh[1], self.n);
-        let mass: f64 = (0..n)
-            .map(|i| self.mass[i] * (0..3).map(|c| v[c * n + i].powi(2)).sum::<f64>())
-            .sum();
-        let mut psi = 0.5 * alpha * mass;
+        let mut psi = alpha * kinetic_energy(&self.mass, v);
         if beta > 0.0 {
             let (mut k, mut f) = ([0.0; 4 * TET_K], [0.0; 48]);
             for e0 in (0..self.tets.len()).step_by(4) {
@@ -992,8 +970,7 @@ impl MechModel for Fem {
                 self.group(e0, cnt, x, &mut f[..12 * cnt], Some(&mut k[..TET_K * cnt]));
                 for l in 0..cnt {
                     let ve = gather_nodes(v, n, &self.tets[e0 + l]);
-                    let mut fd = [[0.0; 3]; 4];
-                    add_stiffness_damping(&mut fd, &k[TET_K * l..TET_K * (l + 1)], 1.0, &ve);
+                    let fd = self.stiffness_times(e0 + l, &k[TET_K * l..TET_K * (l + 1)], 1.0, v);
                     // fd = dfdx_e v_e = -K_e v_e: Psi_e = -1/2 v_e . fd.
                     psi -= 0.5
                         * beta

@@ -207,9 +207,6 @@ enum Linear {
 }
 
 impl Linear {
-    /// Solves `a x = b` under the filter. PCG starts from `x` as given (filtered), and
-    /// when `again` (the same step's system after constraints were freed) keeps the
-    /// preconditioner it built for the first solve; Cholesky projects `a`.
     /// Solves with the matrix of the last [`Linear::solve`] (its factor, or PCG's matrix
     /// and preconditioner as they are): the chord method's later iterations.
     fn solve_lagged(
@@ -237,6 +234,9 @@ impl Linear {
         }
     }
 
+    /// Solves `a x = b` under the filter. PCG starts from `x` as given (filtered), and
+    /// when `again` (the same step's system after constraints were freed) keeps the
+    /// preconditioner it built for the first solve; Cholesky projects `a`.
     fn solve(
         &mut self,
         a: &mut Bsr3,
@@ -288,8 +288,6 @@ pub struct MechStepper {
     n: usize,
     inv_mass: Vec<f64>,
     mass: Vec<f64>,
-    /// The system's consistent mass matrix, if it has one.
-    mass_matrix: Option<Bsr3>,
     /// The Jacobian in hand for later steps (`MechSettings::reuse_jacobian` > 1): the step
     /// size and constraints it was made for, and the steps it has served.
     lag: Option<Lag>,
@@ -313,8 +311,7 @@ impl MechStepper {
             .iter()
             .map(|&m| if m > 0.0 { 1.0 / m } else { 0.0 })
             .collect();
-        let mass_matrix = sys.mass_matrix().cloned();
-        if mass_matrix.is_some() && !method.is_implicit() {
+        if sys.mass_matrix().is_some() && !method.is_implicit() {
             return Err(IntegrateError::Unsupported {
                 method,
                 reason: "a consistent mass matrix needs an implicit method (explicit ones divide by lumped masses)",
@@ -381,7 +378,6 @@ impl MechStepper {
             n,
             inv_mass,
             mass,
-            mass_matrix,
             lag: None,
             filter: Filter::new(n),
             y,
@@ -498,7 +494,7 @@ impl MechStepper {
                         &w.dfdx,
                         w.dfdv.as_ref(),
                         &self.mass,
-                        self.mass_matrix.as_ref(),
+                        sys.mass_matrix(),
                         h * h,
                         h,
                     );
@@ -530,7 +526,10 @@ impl MechStepper {
                 // An earlier step's Jacobian, if it may serve this one.
                 let mut lagged = reuse > 1
                     && self.lag.as_ref().is_some_and(|l| {
-                        l.h == h && l.age < reuse && l.filter.same_projection(&self.filter)
+                        l.valid
+                            && l.h == h
+                            && l.age < reuse
+                            && l.filter.same_projection(&self.filter)
                     });
                 let Implicit {
                     dfdx,
@@ -555,7 +554,6 @@ impl MechStepper {
                         x0: x,
                         v0: v,
                         mass: &self.mass,
-                        mass_matrix: self.mass_matrix.as_ref(),
                         filter,
                         xe,
                         ve,
@@ -585,17 +583,25 @@ impl MechStepper {
                     if let Some(e) = prob.err.take() {
                         return Err(e);
                     }
-                    if prob.refactored {
-                        self.lag = (reuse > 1).then(|| Lag {
+                    if prob.refactored && reuse > 1 {
+                        // Kept buffers: no allocation once the first Jacobian is kept.
+                        let lag = self.lag.get_or_insert_with(|| Lag {
                             h,
-                            filter: self.filter.clone(),
+                            filter: Filter::new(0),
                             age: 0,
+                            valid: true,
                         });
+                        lag.h = h;
+                        lag.filter.clone_from(&self.filter);
+                        lag.age = 0;
+                        lag.valid = true;
                     }
                     if res.is_err() && lagged {
                         // The old Jacobian did not get there: once more with a new one.
                         lagged = false;
-                        self.lag = None;
+                        if let Some(l) = &mut self.lag {
+                            l.valid = false;
+                        }
                         continue;
                     }
                     let ni = res.map_err(solve_err)?;
@@ -645,6 +651,8 @@ struct Lag {
     h: f64,
     filter: Filter,
     age: usize,
+    /// False once a step gave up on it (its buffers stay for the next one).
+    valid: bool,
 }
 
 /// Most re-solves of a linearised step after freeing pulling approaches (one usually
@@ -708,12 +716,16 @@ fn system_matrix(
     ck: f64,
     cd: f64,
 ) {
-    match (dfdv, mass_matrix) {
-        (Some(d), Some(m)) => a.assign_lincomb(&[(1.0, m), (-ck, dfdx), (-cd, d)]),
-        (None, Some(m)) => a.assign_lincomb(&[(1.0, m), (-ck, dfdx)]),
-        (Some(d), None) => a.assign_lincomb(&[(-ck, dfdx), (-cd, d)]),
-        (None, None) => a.assign_lincomb(&[(-ck, dfdx)]),
+    let mut terms = [(-ck, dfdx); 3];
+    let mut k = 1;
+    for t in [dfdv.map(|d| (-cd, d)), mass_matrix.map(|m| (1.0, m))]
+        .into_iter()
+        .flatten()
+    {
+        terms[k] = t;
+        k += 1;
     }
+    a.assign_lincomb(&terms[..k]);
     if mass_matrix.is_none() {
         a.add_diagonal(mass);
     }
@@ -790,7 +802,6 @@ struct Residual<'a> {
     x0: &'a [f64],
     v0: &'a [f64],
     mass: &'a [f64],
-    mass_matrix: Option<&'a Bsr3>,
     filter: Option<&'a Filter>,
     xe: &'a mut Vec<f64>,
     ve: &'a mut Vec<f64>,
@@ -831,7 +842,8 @@ impl NewtonProblem for Residual<'_> {
         self.sys.force(self.t, self.xe, self.ve, self.f);
         let (n, h, c) = (self.mass.len(), self.h, self.c);
         // M (v1 - v0) with the consistent mass matrix (rhs is free until newton_step).
-        if let Some(mm) = self.mass_matrix {
+        let consistent = self.sys.mass_matrix().is_some();
+        if let Some(mm) = self.sys.mass_matrix() {
             for ((d, a), b) in self.rhs.iter_mut().zip(v1).zip(self.v0) {
                 *d = a - b;
             }
@@ -844,7 +856,7 @@ impl NewtonProblem for Residual<'_> {
                 let m = self.mass[i];
                 let f0 = if c.w0 != 0.0 { self.f0[k] } else { 0.0 };
                 let force = h * (c.w0 * f0 + c.w1 * self.f[k]);
-                let inertia = if self.mass_matrix.is_some() {
+                let inertia = if consistent {
                     r[k]
                 } else {
                     m * (v1[k] - self.v0[k])
@@ -897,7 +909,7 @@ impl NewtonProblem for Residual<'_> {
             self.dfdx,
             self.dfdv.as_deref(),
             self.mass,
-            self.mass_matrix,
+            self.sys.mass_matrix(),
             ck,
             cd,
         );
@@ -936,7 +948,7 @@ impl NewtonProblem for Residual<'_> {
                 }
             }
         }
-        if let Some(mm) = self.mass_matrix {
+        if let Some(mm) = self.sys.mass_matrix() {
             // rhs is scratch between Newton steps.
             for ((d, a), b) in self.rhs.iter_mut().zip(v1).zip(self.v0) {
                 *d = a - b;

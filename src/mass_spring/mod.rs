@@ -24,7 +24,6 @@ use crate::integrate::{IntegrateError, MechState};
 use crate::loads::{Body, ForceField, Gravity, Loads};
 use crate::simulation::{MechModel, Stage, StepControl};
 use crate::soa::Vec3s;
-use crate::solve::Filter;
 use crate::sparse::{Bsr3, Bsr3Pattern, ElementAssembly, LocalLayout, SparseError, VectorGather};
 use crate::validate::{check, require, ModelError, Rule};
 use largestep_kernels::mass_spring::{self as ks, SpringParams, Springs};
@@ -482,12 +481,6 @@ impl MechModel for MassSpring {
 
     fn mass(&self) -> &[f64] {
         &self.mass
-    }
-
-    fn constraints(&self, filter: &mut Filter) {
-        for &p in &self.pinned {
-            filter.fix(p as usize);
-        }
     }
 
     fn force(&self, work: &mut MassSpringWork, t: f64, x: &[f64], v: &[f64], f: &mut [f64]) {

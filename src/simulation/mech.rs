@@ -92,9 +92,13 @@ pub trait MechModel: Send + Sync + 'static {
     fn vertex_count(&self) -> usize;
     /// Mass per vertex (kg), length n: > 0, or 0 for vertices the filter fixes.
     fn mass(&self) -> &[f64];
-    /// Writes the model's own constraints (pinned and prescribed vertices) into `filter`.
+    /// Writes the model's own constraints into `filter`: by default its fixed vertices
+    /// ([`MechModel::fixed_vertices`]: pinned, prescribed, massless) held in every
+    /// direction.
     fn constraints(&self, filter: &mut Filter) {
-        let _ = filter;
+        for &p in self.fixed_vertices() {
+            filter.fix(p as usize);
+        }
     }
     /// `f = total force` (N) at time t, positions x (m) and velocities v (m/s).
     fn force(&self, work: &mut Self::Work, t: f64, x: &[f64], v: &[f64], f: &mut [f64]);

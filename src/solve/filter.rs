@@ -28,7 +28,7 @@
 use crate::sparse::Bsr3;
 
 /// Projections `S_i` for the constrained vertices (see the module docs).
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Debug, Default, PartialEq)]
 pub struct Filter {
     n: usize,
     verts: Vec<u32>,
@@ -55,6 +55,25 @@ pub struct Approach {
 }
 
 const FREE: u32 = u32::MAX;
+
+impl Clone for Filter {
+    fn clone(&self) -> Self {
+        let mut f = Filter::default();
+        f.clone_from(self);
+        f
+    }
+
+    /// Field by field, reusing this filter's buffers (the chord method keeps a copy of
+    /// the step's filter without allocating once the buffers have grown).
+    fn clone_from(&mut self, o: &Self) {
+        self.n = o.n;
+        self.verts.clone_from(&o.verts);
+        self.s.clone_from(&o.s);
+        self.z.clone_from(&o.z);
+        self.index_of.clone_from(&o.index_of);
+        self.unilateral.clone_from(&o.unilateral);
+    }
+}
 
 impl Filter {
     /// Whether `other` constrains the same vertices in the same directions (prescribed

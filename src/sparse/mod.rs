@@ -280,11 +280,16 @@ impl Bsr3 {
     /// Adds `d_i I` to every diagonal block i (a lumped mass matrix when `d` holds the
     /// vertex masses).
     pub fn add_diagonal(&mut self, d: &[f64]) {
+        self.add_scaled_diagonal(1.0, d);
+    }
+
+    /// Adds `s d_i I` to every diagonal block i.
+    pub fn add_scaled_diagonal(&mut self, s: f64, d: &[f64]) {
         assert_eq!(d.len(), self.n());
         for (i, &di) in d.iter().enumerate() {
-            let s = self.pattern.diag[i] as usize;
+            let slot = self.pattern.diag[i] as usize;
             for c in 0..3 {
-                self.val[9 * s + 4 * c] += di;
+                self.val[9 * slot + 4 * c] += s * di;
             }
         }
     }
