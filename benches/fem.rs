@@ -17,8 +17,9 @@
 //!   a fixed order). The difference from the parallel kernel time is the gather.
 //! - `fem/step/<solver>`: one backward Euler step at dt = 1/60 s, Newton iterated until
 //!   the residual falls by 1e-6 or the velocity change per iteration is below 1e-6 of the
-//!   velocities (`MechSettings::new`), with sparse Cholesky or PCG with the aggregation
-//!   multigrid preconditioner (relative tolerance 1e-6 per linear solve); `-reuse`: the
+//!   velocities (`MechSettings::new`), with sparse Cholesky or PCG (relative tolerance
+//!   1e-6 per linear solve) with the aggregation multigrid (`pcg-mg`) or the smoothed
+//!   aggregation with rigid-body modes (`pcg-sa`) as preconditioner; `-reuse`: the
 //!   Jacobian assembled and factored once per step and reused by the later iterations
 //!   (`MechSettings::reuse_jacobian` = 1, the chord method); `-reuse-10`: one Jacobian
 //!   serves up to ten steps. Measured before it: the
@@ -58,24 +59,24 @@ fn beam() -> FemDesc {
     )
 }
 
-fn settings(cholesky: bool, reuse: usize) -> MechSettings {
+/// The linear solver of a step: sparse Cholesky (`None`) or PCG with a preconditioner.
+fn settings(pcg: Option<Preconditioner>, reuse: usize) -> MechSettings {
     let mut s = MechSettings::new(Method::BackwardEuler);
     s.reuse_jacobian = reuse;
-    s.linear = if cholesky {
-        LinearSolverKind::Cholesky
-    } else {
-        LinearSolverKind::Pcg(PcgParams {
+    s.linear = match pcg {
+        None => LinearSolverKind::Cholesky,
+        Some(preconditioner) => LinearSolverKind::Pcg(PcgParams {
             tolerance: 1e-6,
             max_iterations: 2000,
-            preconditioner: Preconditioner::Multigrid,
-        })
+            preconditioner,
+        }),
     };
     s
 }
 
-fn simulation(cholesky: bool, reuse: usize) -> MechSimulation<Fem> {
+fn simulation(pcg: Option<Preconditioner>, reuse: usize) -> MechSimulation<Fem> {
     let (fem, state) = beam().build().unwrap();
-    let mut sim = MechSimulation::new(fem, state, settings(cholesky, reuse)).unwrap();
+    let mut sim = MechSimulation::new(fem, state, settings(pcg, reuse)).unwrap();
     sim.set_step_control(None);
     sim
 }
@@ -165,7 +166,7 @@ fn main() {
     let mut md = format!("threads: {threads}\n\n");
 
     // The timed state: 0.5 s of sagging.
-    let mut sim = simulation(true, 1);
+    let mut sim = simulation(None, 1);
     let t0 = Instant::now();
     while sim.time() < 0.5 - 1e-9 {
         sim.step(DT).unwrap();
@@ -203,18 +204,25 @@ fn main() {
     }
 
     md.push_str("\n| step (dt = 1/60, backward Euler, Newton to 1e-6) | median | best | Newton iterations | linear iterations | last linear solve, relative residual (worst) |\n|---|---|---|---|---|---|\n");
-    for (name, cholesky, reuse) in [
-        ("cholesky", true, 0),
-        ("cholesky-reuse", true, 1),
-        ("cholesky-reuse-10", true, 10),
-        ("pcg-mg", false, 0),
-        ("pcg-mg-reuse", false, 1),
+    let (mg, sa) = (
+        Some(Preconditioner::Multigrid),
+        Some(Preconditioner::SmoothedAggregation),
+    );
+    for (name, pcg, reuse) in [
+        ("cholesky", None, 0),
+        ("cholesky-reuse", None, 1),
+        ("cholesky-reuse-10", None, 10),
+        ("pcg-mg", mg, 0),
+        ("pcg-mg-reuse", mg, 1),
+        ("pcg-sa", sa, 0),
+        ("pcg-sa-reuse", sa, 1),
+        ("pcg-sa-reuse-10", sa, 10),
     ] {
         let id = format!("fem/step/{name}");
         if !wanted(&id) {
             continue;
         }
-        let mut s = simulation(cholesky, reuse);
+        let mut s = simulation(pcg, reuse);
         while s.time() < 0.5 - 1e-9 {
             s.step(DT).unwrap();
         }

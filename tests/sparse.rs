@@ -196,6 +196,7 @@ fn pcg_converges_with_every_preconditioner() {
         Preconditioner::Jacobi,
         Preconditioner::BlockJacobi,
         Preconditioner::Multigrid,
+        Preconditioner::SmoothedAggregation,
     ] {
         let mut pcg = Pcg::new(
             n,
@@ -218,6 +219,12 @@ fn pcg_converges_with_every_preconditioner() {
     // The coarse levels remove part of what block Jacobi leaves (on this small, badly
     // scaled lattice at 1e-10; cloth gains far more, see tests/cloth.rs).
     assert!(iters[3] < iters[2], "multigrid helps more: {iters:?}");
+    // Without positions smoothed aggregation's coarse spaces hold translations only, but
+    // its smoothed prolongator and Chebyshev smoother still do better.
+    assert!(
+        iters[4] < iters[3],
+        "smoothed aggregation helps most: {iters:?}"
+    );
 }
 
 #[test]
@@ -233,10 +240,14 @@ fn filtered_pcg_holds_constraints_exactly_at_any_iteration_count() {
         let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
         v.map(|c| c / l)
     };
-    for (max, preconditioner) in [1, 3, 1000]
-        .into_iter()
-        .flat_map(|m| [Preconditioner::BlockJacobi, Preconditioner::Multigrid].map(|p| (m, p)))
-    {
+    for (max, preconditioner) in [1, 3, 1000].into_iter().flat_map(|m| {
+        [
+            Preconditioner::BlockJacobi,
+            Preconditioner::Multigrid,
+            Preconditioner::SmoothedAggregation,
+        ]
+        .map(|p| (m, p))
+    }) {
         let mut pcg = Pcg::new(
             n,
             PcgParams {
@@ -317,6 +328,7 @@ fn indefinite_matrices_give_clear_errors() {
         Preconditioner::Jacobi,
         Preconditioner::BlockJacobi,
         Preconditioner::Multigrid,
+        Preconditioner::SmoothedAggregation,
     ] {
         let mut pcg = Pcg::new(
             n,
@@ -358,7 +370,14 @@ fn pcg_iterates_are_thread_count_independent() {
             .build()
             .unwrap()
     };
-    for preconditioner in [Preconditioner::BlockJacobi, Preconditioner::Multigrid] {
+    let coords: Vec<f64> = (0..3 * n)
+        .map(|i| ((i % n) * (1 + i / n)) as f64 * 0.01)
+        .collect();
+    for preconditioner in [
+        Preconditioner::BlockJacobi,
+        Preconditioner::Multigrid,
+        Preconditioner::SmoothedAggregation,
+    ] {
         let run = || {
             let mut pcg = Pcg::new(
                 n,
@@ -367,6 +386,7 @@ fn pcg_iterates_are_thread_count_independent() {
                     ..PcgParams::default()
                 },
             );
+            pcg.set_coordinates(&coords);
             let mut x = vec![0.0; 3 * n];
             let info = pcg.solve(&mut a.clone(), &b, &mut x, None).unwrap();
             (x, info.iterations, info.residual)

@@ -207,6 +207,14 @@ enum Linear {
 }
 
 impl Linear {
+    /// The positions the next solve's preconditioner may use (the rotations of smoothed
+    /// aggregation's coarse spaces).
+    fn set_coordinates(&mut self, x: &[f64]) {
+        if let Linear::Pcg(p) = self {
+            p.set_coordinates(x);
+        }
+    }
+
     /// Solves with the matrix of the last [`Linear::solve`] (its factor, or PCG's matrix
     /// and preconditioner as they are): the chord method's later iterations.
     fn solve_lagged(
@@ -499,6 +507,7 @@ impl MechStepper {
                         h,
                     );
                     let filter = (!self.filter.is_empty()).then_some(&self.filter);
+                    w.linear.set_coordinates(x);
                     let li = w
                         .linear
                         .solve(&mut w.a, &w.rhs, &mut w.v1, filter, round > 0)
@@ -915,6 +924,7 @@ impl NewtonProblem for Residual<'_> {
         );
         kv::scale_copy(self.rhs, -1.0, r);
         dy.fill(0.0);
+        self.linear.set_coordinates(self.xe);
         let li = self
             .linear
             .solve(self.a, self.rhs, dy, self.filter, false)?;

@@ -585,11 +585,12 @@ fn solver_settings(
             "jacobi" => Preconditioner::Jacobi,
             "block-jacobi" => Preconditioner::BlockJacobi,
             "multigrid" => Preconditioner::Multigrid,
+            "smoothed-aggregation" => Preconditioner::SmoothedAggregation,
             other => {
                 return Err(err(
                     at("preconditioner"),
                     format!(
-                        "unknown preconditioner `{other}`; expected none, jacobi, block-jacobi or multigrid"
+                        "unknown preconditioner `{other}`; expected none, jacobi, block-jacobi, multigrid or smoothed-aggregation"
                     ),
                 ))
             }

@@ -15,7 +15,7 @@
 //! linear = "auto"             # auto (Cholesky up to 30,000 unknowns, PCG above) | pcg | cholesky
 //! tolerance = 1e-8            # PCG relative residual
 //! max_iterations = 1000       # PCG
-//! preconditioner = "block-jacobi"  # none | jacobi | block-jacobi | multigrid
+//! preconditioner = "block-jacobi"  # none | jacobi | block-jacobi | multigrid | smoothed-aggregation
 //! newton_tolerance = 1e-9
 //! newton_max_iterations = 50
 //! reuse_jacobian = 0          # steps one factored Jacobian may serve (0: full Newton)

@@ -16,12 +16,20 @@ use faer::sparse::linalg::cholesky::{
     factorize_symbolic_cholesky, CholeskySymbolicParams, LltRef, SymbolicCholesky,
     SymbolicCholeskyRaw, SymmetricOrdering,
 };
+use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Par, Side};
 use std::time::Instant;
 
 /// A sparse Cholesky factorization reused across numeric refactorizations.
 pub struct SparseCholesky {
     csc: FaerCsc,
+    core: CholeskyCore,
+}
+
+/// faer's symbolic analysis of one scalar pattern with the factor's values and scratch:
+/// the part of [`SparseCholesky`] that does not know where the matrix comes from (the
+/// smoothed aggregation's coarsest level uses it on its own scalar copy).
+pub(crate) struct CholeskyCore {
     symbolic: SymbolicCholesky<usize>,
     l: Vec<f64>,
     mem: MemBuffer,
@@ -31,9 +39,9 @@ pub struct SparseCholesky {
 impl std::fmt::Debug for SparseCholesky {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("SparseCholesky")
-            .field("n", &self.symbolic.nrows())
-            .field("factor_nnz", &self.l.len())
-            .field("factored", &self.factored)
+            .field("n", &self.core.symbolic.nrows())
+            .field("factor_nnz", &self.core.l.len())
+            .field("factored", &self.core.factored)
             .finish()
     }
 }
@@ -42,29 +50,13 @@ impl SparseCholesky {
     /// Symbolic analysis of `pattern` (AMD ordering); allocates every buffer used later.
     pub fn new(pattern: &Bsr3Pattern) -> Result<Self, SolveError> {
         let csc = FaerCsc::new(pattern, Triangle::Lower);
-        let symbolic = factorize_symbolic_cholesky(
-            csc.symbolic(),
-            Side::Lower,
-            SymmetricOrdering::Amd,
-            CholeskySymbolicParams::default(),
-        )
-        .map_err(|e| SolveError::Factorization(format!("{e:?}")))?;
-        let req = symbolic
-            .factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default())
-            .or(symbolic.solve_in_place_scratch::<f64>(1, Par::Seq));
-        let l = vec![0.0; symbolic.len_val()];
-        Ok(Self {
-            csc,
-            symbolic,
-            l,
-            mem: MemBuffer::new(req),
-            factored: false,
-        })
+        let core = CholeskyCore::new(csc.symbolic())?;
+        Ok(Self { csc, core })
     }
 
     /// Number of stored values of the factor L (its fill).
     pub fn factor_nnz(&self) -> usize {
-        self.l.len()
+        self.core.l.len()
     }
 
     /// Floating-point operations of one numeric factorization, `sum_j c_j (c_j + 2)` over
@@ -72,7 +64,7 @@ impl SparseCholesky {
     /// counted as two flops per multiply-add, plus the column scaling).
     pub fn factor_flops(&self) -> f64 {
         let col = |c: usize| (c * (c + 2)) as f64;
-        match self.symbolic.raw() {
+        match self.core.symbolic.raw() {
             SymbolicCholeskyRaw::Simplicial(s) => s
                 .col_ptr()
                 .windows(2)
@@ -98,11 +90,54 @@ impl SparseCholesky {
     /// Numeric factorization of `a` (same pattern as at creation).
     pub fn factorize(&mut self, a: &Bsr3) -> Result<SolveInfo, SolveError> {
         let start = Instant::now();
-        self.factored = false;
         self.csc.refill(a);
+        self.core.factorize(self.csc.as_ref())?;
+        Ok(SolveInfo {
+            iterations: 0,
+            residual: 0.0,
+            seconds: start.elapsed().as_secs_f64(),
+        })
+    }
+
+    /// Overwrites `b` with `A^-1 b` using the last factorization.
+    pub fn solve_in_place(&mut self, b: &mut [f64]) -> Result<(), SolveError> {
+        self.core.solve_in_place(b)
+    }
+}
+
+impl CholeskyCore {
+    /// Symbolic analysis of the lower triangle `lower` (AMD ordering); allocates every
+    /// buffer used later.
+    pub(crate) fn new(lower: SymbolicSparseColMatRef<'_, usize>) -> Result<Self, SolveError> {
+        let symbolic = factorize_symbolic_cholesky(
+            lower,
+            Side::Lower,
+            SymmetricOrdering::Amd,
+            CholeskySymbolicParams::default(),
+        )
+        .map_err(|e| SolveError::Factorization(format!("{e:?}")))?;
+        let req = symbolic
+            .factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default())
+            .or(symbolic.solve_in_place_scratch::<f64>(1, Par::Seq));
+        let l = vec![0.0; symbolic.len_val()];
+        Ok(Self {
+            symbolic,
+            l,
+            mem: MemBuffer::new(req),
+            factored: false,
+        })
+    }
+
+    /// Numeric factorization of the lower triangle `lower` (the pattern given to
+    /// [`CholeskyCore::new`]).
+    pub(crate) fn factorize(
+        &mut self,
+        lower: SparseColMatRef<'_, usize, f64>,
+    ) -> Result<(), SolveError> {
+        self.factored = false;
         let res = self.symbolic.factorize_numeric_llt(
             &mut self.l,
-            self.csc.as_ref(),
+            lower,
             Side::Lower,
             Default::default(),
             Par::Seq,
@@ -118,11 +153,7 @@ impl SparseCholesky {
                     });
                 }
                 self.factored = true;
-                Ok(SolveInfo {
-                    iterations: 0,
-                    residual: 0.0,
-                    seconds: start.elapsed().as_secs_f64(),
-                })
+                Ok(())
             }
             Err(DenseLltError::NonPositivePivot { index }) => {
                 Err(SolveError::NotPositiveDefinite {
@@ -135,7 +166,7 @@ impl SparseCholesky {
     }
 
     /// Overwrites `b` with `A^-1 b` using the last factorization.
-    pub fn solve_in_place(&mut self, b: &mut [f64]) -> Result<(), SolveError> {
+    pub(crate) fn solve_in_place(&mut self, b: &mut [f64]) -> Result<(), SolveError> {
         assert!(
             self.factored,
             "solve_in_place needs a successful factorize first"

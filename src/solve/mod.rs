@@ -9,6 +9,7 @@
 //! - [`Newton`]: Newton's method with a backtracking (Armijo) line search on `|F|^2 / 2`.
 //! - [`dense`]: a small dense LU with partial pivoting for tiny Jacobians.
 
+pub mod amg;
 pub mod cholesky;
 pub mod dense;
 pub mod filter;
@@ -16,6 +17,7 @@ pub mod multigrid;
 pub mod newton;
 pub mod pcg;
 
+pub use amg::SmoothedAggregation;
 pub use cholesky::SparseCholesky;
 pub use filter::{Approach, Filter};
 pub use multigrid::Multigrid;

@@ -274,7 +274,7 @@ impl Multigrid {
         self.r = vec![0.0; 3 * fine.n()];
         let mut pattern = fine.clone();
         while pattern.n() > COARSEST && self.coarse.len() + 1 < MAX_LEVELS {
-            let (agg, nc) = aggregate(&pattern);
+            let (agg, nc) = aggregate(pattern.row_ptr(), pattern.col());
             // A level that barely shrinks (a mesh of isolated vertices) ends the hierarchy.
             if 5 * nc > 4 * pattern.n() {
                 break;
@@ -430,9 +430,11 @@ fn round_to_f32(val: &[f64], out: &mut Vec<f32>) {
 /// 2. Every vertex still free joins the aggregate of its first neighbour seeded in 1.
 /// 3. Any vertex still free (all its neighbours joined in 2, or none) seeds an aggregate
 ///    with its free neighbours.
-fn aggregate(p: &Bsr3Pattern) -> (Vec<u32>, usize) {
-    let n = p.n();
-    let (row_ptr, col) = (p.row_ptr(), p.col());
+///
+/// The graph is given in CSR form (`col[row_ptr[i]..row_ptr[i + 1]]` are i's neighbours,
+/// i itself among them or not); the smoothed aggregation uses it on its coarse levels too.
+pub(super) fn aggregate(row_ptr: &[u32], col: &[u32]) -> (Vec<u32>, usize) {
+    let n = row_ptr.len() - 1;
     let nbrs = |i: usize| {
         col[row_ptr[i] as usize..row_ptr[i + 1] as usize]
             .iter()
