@@ -24,6 +24,8 @@ pub mod limits;
 pub mod loads;
 #[cfg(feature = "mass-spring")]
 pub mod mass_spring;
+#[cfg(feature = "modal")]
+pub mod modal;
 pub mod scene;
 pub mod simulation;
 pub mod soa;

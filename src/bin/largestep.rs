@@ -123,6 +123,41 @@ enum Command {
         #[arg(long)]
         quick: bool,
     },
+    /// The lowest vibration modes of a tetrahedral mesh (K x = lambda M x): a table of
+    /// frequencies and residuals, the count of rigid modes, and with --json
+    /// {"frequencies_hz": [non-rigid, ascending], "eigenvalues": [every mode listed, rigid
+    /// first, 1/s^2], "rigid_modes": k, "residuals": [per eigenvalue], "seconds": t}.
+    #[cfg(feature = "modal")]
+    Modes {
+        /// The mesh: TetGen .node (its .ele beside it), Gmsh .msh, legacy VTK .vtk or
+        /// Vega .veg.
+        mesh: PathBuf,
+        /// Young's modulus in Pa (default: the .veg file's materials, else steel, 200e9).
+        #[arg(long)]
+        young: Option<f64>,
+        /// Poisson's ratio (default 0.30).
+        #[arg(long)]
+        poisson: Option<f64>,
+        /// Density in kg/m^3 (default 7850).
+        #[arg(long)]
+        density: Option<f64>,
+        /// Non-rigid modes to find.
+        #[arg(long, default_value_t = largestep::modal::DEFAULT_COUNT)]
+        count: usize,
+        /// Mass matrix: consistent or lumped.
+        #[arg(long, default_value = "consistent", value_parser = ["consistent", "lumped"])]
+        mass: String,
+        /// Vertices held fixed: x<=V (also y, z and >=), box:X0,Y0,Z0,X1,Y1,Z1 or
+        /// vertices:I,J,... (from 0).
+        #[arg(long)]
+        fixed: Option<largestep::modal::Selector>,
+        /// Write the numbers as JSON to this file.
+        #[arg(long)]
+        json: Option<PathBuf>,
+        /// Write each mode's shape as VTK (mode_NN.vtk) into this folder.
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
     /// Measure this machine's memory bandwidth (triad) and peak f64 FMA rate.
     Machine {
         /// Size of each triad array in MiB.
@@ -308,6 +343,32 @@ fn main() -> ExitCode {
             view,
         } => render(&frames, out, scene, &view, &limits),
         Command::Study { name, out, quick } => study(&name, &out, quick),
+        #[cfg(feature = "modal")]
+        Command::Modes {
+            mesh,
+            young,
+            poisson,
+            density,
+            count,
+            mass,
+            fixed,
+            json,
+            out,
+        } => {
+            let options = largestep::modal::ModesOptions {
+                young,
+                poisson,
+                density,
+                count,
+                mass: if mass == "lumped" {
+                    largestep::fem::FemMass::Lumped
+                } else {
+                    largestep::fem::FemMass::Consistent
+                },
+                fixed,
+            };
+            modes(&mesh, &options, json, out, &limits)
+        }
         Command::Machine { triad_mib } => {
             let l = largestep::machine::measure(triad_mib);
             println!("threads          {}", l.threads);
@@ -526,4 +587,89 @@ fn study(name: &str, out: &std::path::Path, quick: bool) -> ExitCode {
             ExitCode::from(2)
         }
     }
+}
+
+/// `largestep modes`: the table, and the JSON and VTK files asked for.
+#[cfg(feature = "modal")]
+fn modes(
+    mesh: &std::path::Path,
+    options: &largestep::modal::ModesOptions,
+    json: Option<PathBuf>,
+    out: Option<PathBuf>,
+    limits: &Limits,
+) -> ExitCode {
+    use largestep::modal::ModalError;
+    let a = match largestep::modal::analyse(mesh, options, limits.max_file_bytes) {
+        Ok(a) => a,
+        Err(e) => {
+            eprintln!("error: {e}");
+            // Bad input (the mesh, an option, a problem the solver refuses as given) is 2;
+            // a solver that fails on a valid problem is 1.
+            return ExitCode::from(match e {
+                ModalError::Solve(largestep::solve::SolveError::Invalid(_)) => 2,
+                ModalError::Solve(_) => 1,
+                _ => 2,
+            });
+        }
+    };
+    let m = &a.modes;
+    println!(
+        "{}: {} vertices, {} tetrahedra, {} fixed",
+        mesh.display(),
+        a.rest.len() / 3,
+        a.fem.tets().len(),
+        a.fixed.len()
+    );
+    if m.dense {
+        println!("eigensolver    dense ({:.3} s)", m.seconds);
+    } else {
+        println!(
+            "eigensolver    shift-invert Lanczos at shift {:.6e} 1/s^2, {} steps ({:.3} s)",
+            m.shift, m.steps, m.seconds
+        );
+    }
+    for note in &m.notes {
+        println!("note           {note}");
+    }
+    println!("rigid modes    {}", m.rigid);
+    println!("{:>5}  {:>16}  {:>9}", "mode", "frequency (Hz)", "residual");
+    for (j, f) in m.frequencies_hz().iter().enumerate() {
+        println!(
+            "{:>5}  {:>16.6}  {:>9.1e}",
+            j + 1,
+            f,
+            m.residuals[m.rigid + j]
+        );
+    }
+    let mut status = ExitCode::SUCCESS;
+    if let Some(path) = json {
+        let value = serde_json::json!({
+            "frequencies_hz": m.frequencies_hz(),
+            "eigenvalues": m.eigenvalues,
+            "rigid_modes": m.rigid,
+            "residuals": m.residuals,
+            "seconds": m.seconds,
+        });
+        let written = largestep::io::write_atomically(&path, |w| {
+            serde_json::to_writer_pretty(&mut *w, &value)?;
+            writeln!(w)
+        });
+        match written {
+            Ok(()) => println!("json           {}", path.display()),
+            Err(e) => {
+                eprintln!("error: {}: {e}", path.display());
+                status = ExitCode::from(1);
+            }
+        }
+    }
+    if let Some(dir) = out {
+        match largestep::modal::write_shapes(&a, &dir) {
+            Ok(n) => println!("mode shapes    {n} VTK files in {}", dir.display()),
+            Err(e) => {
+                eprintln!("error: {}: {e}", dir.display());
+                status = ExitCode::from(1);
+            }
+        }
+    }
+    status
 }

@@ -244,6 +244,33 @@ pub fn read_tetgen(stem: &Path, max_bytes: u64) -> Result<TetMesh, ReadError> {
     Ok(TetMesh { positions, tets })
 }
 
+/// A `.veg` file's materials and each tetrahedron's material.
+pub type VegParts = (Vec<super::veg::VegMaterial>, Vec<u32>);
+
+/// A volume mesh read from `file` by its extension: legacy VTK (`.vtk`), Gmsh (`.msh`),
+/// Vega (`.veg`, with its materials and their regions) or TetGen (`.node` with the
+/// `.ele` beside it; any other name is taken as TetGen's stem). Each file at most
+/// `max_bytes`.
+pub fn read_volume_mesh(
+    file: &Path,
+    max_bytes: u64,
+) -> Result<(TetMesh, Option<VegParts>), ReadError> {
+    let is = |ext: &str| {
+        file.extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case(ext))
+    };
+    if is("vtk") {
+        super::vtk::read_vtk(file, max_bytes).map(|m| (m, None))
+    } else if is("msh") {
+        super::gmsh::read_msh(file, max_bytes).map(|m| (m, None))
+    } else if is("veg") {
+        let v = super::veg::read_veg(file, max_bytes)?;
+        Ok((v.mesh, Some((v.materials, v.element_material))))
+    } else {
+        read_tetgen(&file.with_extension(""), max_bytes).map(|m| (m, None))
+    }
+}
+
 /// A box `origin + [0, size]` of `cells[0] x cells[1] x cells[2]` cubes, each split into
 /// six tetrahedra around its diagonal from the low corner to the high one (the
 /// Freudenthal-Kuhn split: one tetrahedron per order of the axes). Every cube is split

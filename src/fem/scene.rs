@@ -53,7 +53,7 @@
 //! # preset = "steel"
 //! ```
 
-use super::mesh::{box_mesh, read_tetgen, TetMesh};
+use super::mesh::{box_mesh, TetMesh};
 use super::{FemDesc, FemMaterial, Material};
 use crate::scene::shared::{self, ObstacleTables};
 use crate::scene::{path, Context, Key, PathPart, SceneError};
@@ -355,7 +355,7 @@ pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
     let m = &t.material;
     let kind = model(ctx, &m.model)?;
     // A .veg file's materials and regions.
-    let mut veg: Option<(Vec<super::veg::VegMaterial>, Vec<u32>)> = None;
+    let mut veg: Option<super::mesh::VegParts> = None;
     let mut notes = Vec::new();
     let mesh = match (&t.beam, &t.mesh) {
         (Some(b), None) => {
@@ -389,20 +389,7 @@ pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
         }
         (None, Some(m)) => {
             let file = ctx.base.join(&m.file);
-            let vtk = file
-                .extension()
-                .is_some_and(|e| e.eq_ignore_ascii_case("vtk"));
-            let msh = file
-                .extension()
-                .is_some_and(|e| e.eq_ignore_ascii_case("msh"));
-            let is_veg = file
-                .extension()
-                .is_some_and(|e| e.eq_ignore_ascii_case("veg"));
-            let read = if vtk {
-                super::vtk::read_vtk(&file, ctx.limits.max_file_bytes)
-            } else if msh {
-                super::gmsh::read_msh(&file, ctx.limits.max_file_bytes)
-            } else if let Some(kind) = ["obj", "off"]
+            let read = if let Some(kind) = ["obj", "off"]
                 .into_iter()
                 .find(|k| file.extension().is_some_and(|e| e.eq_ignore_ascii_case(k)))
             {
@@ -431,13 +418,11 @@ pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
                     ));
                 }
                 Ok(v.mesh)
-            } else if is_veg {
-                super::veg::read_veg(&file, ctx.limits.max_file_bytes).map(|v| {
-                    veg = Some((v.materials, v.element_material));
-                    v.mesh
-                })
             } else {
-                read_tetgen(&file.with_extension(""), ctx.limits.max_file_bytes)
+                super::mesh::read_volume_mesh(&file, ctx.limits.max_file_bytes).map(|(m, v)| {
+                    veg = v;
+                    m
+                })
             };
             let TetMesh { positions, tets } =
                 read.map_err(|e| ctx.error(&at(&[&"mesh", &"file"]), e.to_string()))?;

@@ -12,6 +12,7 @@
 pub mod amg;
 pub mod cholesky;
 pub mod dense;
+pub mod eigen;
 pub mod filter;
 pub mod multigrid;
 pub mod newton;
@@ -19,6 +20,7 @@ pub mod pcg;
 
 pub use amg::SmoothedAggregation;
 pub use cholesky::SparseCholesky;
+pub use eigen::{lowest_modes, EigenParams, Mass, Modes};
 pub use filter::{Approach, Filter};
 pub use multigrid::Multigrid;
 pub use newton::{Newton, NewtonParams, NewtonProblem};
@@ -84,6 +86,10 @@ pub enum SolveError {
     /// faer failed for a reason other than definiteness (out of memory, index overflow).
     #[error("sparse factorization failed: {0}")]
     Factorization(String),
+    /// The problem as given cannot be solved (sizes, indices, a matrix that is not
+    /// symmetric); the text says what.
+    #[error("{0}")]
+    Invalid(String),
 }
 
 fn value_suffix(v: f64) -> String {

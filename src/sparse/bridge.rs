@@ -70,6 +70,24 @@ impl FaerCsc {
         }
     }
 
+    /// Sets every stored value to `f(row, col, index)`, with `index` the position of the
+    /// entry among the Bsr3 values (`9 slot + 3 r + c`): for matrices made from several
+    /// on the same pattern, or with rows changed (a shifted or constrained copy).
+    pub fn refill_with(&mut self, mut f: impl FnMut(usize, usize, usize) -> f64) {
+        let col_ptr = self.symbolic.col_ptr();
+        let rows = self.symbolic.row_idx();
+        for j in 0..col_ptr.len() - 1 {
+            let range = col_ptr[j]..col_ptr[j + 1];
+            for ((v, &r), &m) in self.val[range.clone()]
+                .iter_mut()
+                .zip(&rows[range.clone()])
+                .zip(&self.map[range])
+            {
+                *v = f(r, j, m);
+            }
+        }
+    }
+
     /// The matrix as a faer view.
     pub fn as_ref(&self) -> SparseColMatRef<'_, usize, f64> {
         SparseColMatRef::new(self.symbolic.as_ref(), &self.val)

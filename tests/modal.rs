@@ -1,0 +1,437 @@
+//! Modal analysis (issue 16): the generalized eigensolver against beam theory, the modes'
+//! orthogonality, dense against sparse, mass kinds, rigid modes, materials from rubber to
+//! steel, bad input, and the `largestep modes` command's contract.
+
+use largestep::fem::{Fem, FemDesc, FemMass, FemMaterial, Material};
+use largestep::modal::stiffness_at_rest;
+use largestep::simulation::MechModel;
+use largestep::solve::{lowest_modes, EigenParams, Mass, Modes, SolveError};
+use largestep::sparse::Bsr3;
+use std::f64::consts::PI;
+use std::path::PathBuf;
+
+/// A free box of cubes (six tetrahedra each), no gravity.
+fn bar(cells: [usize; 3], size: [f64; 3], material: FemMaterial, mass: FemMass) -> (Fem, Vec<f64>) {
+    let mut desc = FemDesc::cantilever(cells, size, material, 0.0);
+    desc.pinned.clear();
+    desc.mass = mass;
+    let (fem, state) = desc.build().unwrap();
+    let rest = state.x.as_slice().to_vec();
+    (fem, rest)
+}
+
+fn solve(fem: &Fem, k: &Bsr3, fixed: &[usize], params: &EigenParams) -> Result<Modes, SolveError> {
+    match fem.mass_matrix() {
+        Some(m) => lowest_modes(k, Mass::Consistent(m), fixed, params),
+        None => lowest_modes(k, Mass::Lumped(fem.mass()), fixed, params),
+    }
+}
+
+fn modes_of(fem: &Fem, rest: &[f64], fixed: &[usize], params: &EigenParams) -> Modes {
+    let k = stiffness_at_rest(fem, rest).unwrap();
+    solve(fem, &k, fixed, params).unwrap()
+}
+
+/// Fraction of a mode's squared displacement along x.
+fn axial_fraction(m: &[f64]) -> f64 {
+    let n = m.len() / 3;
+    let total: f64 = m.iter().map(|v| v * v).sum();
+    m[..n].iter().map(|v| v * v).sum::<f64>() / total
+}
+
+fn steel() -> FemMaterial {
+    FemMaterial::steel(Material::Linear)
+}
+
+/// Euler-Bernoulli bending frequency `(beta L)^2 / (2 pi L^2) sqrt(E I / (rho A))` of a
+/// square bar of side t.
+fn euler_bernoulli(beta_l: f64, len: f64, t: f64, m: &FemMaterial) -> f64 {
+    beta_l * beta_l / (2.0 * PI * len * len) * (m.young / m.density).sqrt() * t / 12f64.sqrt()
+}
+
+/// A free-free steel bar, 1 m x 0.05 m x 0.05 m, refined: six rigid modes, the first
+/// axial mode at `c / 2L` (c = sqrt(E / rho); the Rayleigh-Love correction is 7e-4 here)
+/// and the first bending pair converging from above to Euler-Bernoulli's `beta L =
+/// 4.7300` (Timoshenko's shear and rotary inertia lower it by about 1% at L/t = 20). The
+/// table is printed (`-- --nocapture`): linear tetrahedra are far too stiff in bending on
+/// coarse meshes (shear locking), as in the FEM's cantilever test.
+#[test]
+fn free_free_bar_converges_to_beam_theory() {
+    let (len, t) = (1.0, 0.05);
+    let axial = (steel().young / steel().density).sqrt() / (2.0 * len);
+    let bending = euler_bernoulli(4.7300, len, t, &steel());
+    let mut rows = Vec::new();
+    for k in [1usize, 2, 4] {
+        let (fem, rest) = bar([20 * k, k, k], [len, t, t], steel(), FemMass::Consistent);
+        let m = modes_of(
+            &fem,
+            &rest,
+            &[],
+            &EigenParams {
+                count: 16,
+                ..EigenParams::default()
+            },
+        );
+        assert_eq!(m.rigid, 6, "a free body has six rigid modes");
+        for j in 0..6 {
+            assert!(m.eigenvalues[j].abs() < 1e-6 * m.eigenvalues[6]);
+        }
+        let f = m.frequencies_hz();
+        let ax = (m.rigid..m.eigenvalues.len())
+            .find(|&j| axial_fraction(m.mode(j)) > 0.9)
+            .expect("an axial mode among the first ten");
+        let fa = f[ax - m.rigid];
+        let fb = 0.5 * (f[0] + f[1]);
+        assert!(m.residuals.iter().all(|&r| r < 1e-9), "{:?}", m.residuals);
+        rows.push((rest.len(), fb / bending, fa / axial));
+    }
+    println!("unknowns | first bending / Euler-Bernoulli | first axial / (c / 2L)");
+    for r in &rows {
+        println!("{} | {:.4} | {:.6}", r.0, r.1, r.2);
+    }
+    for w in rows.windows(2) {
+        assert!(
+            w[1].1 < w[0].1 && w[1].1 > 1.0,
+            "bending converges from above: {rows:?}"
+        );
+        assert!(
+            (w[1].2 - 1.0).abs() < (w[0].2 - 1.0).abs(),
+            "axial converges: {rows:?}"
+        );
+    }
+    assert!(rows[2].1 < 1.15, "finest bending within 15%: {rows:?}");
+    assert!(
+        (rows[2].2 - 1.0).abs() < 2e-4,
+        "finest axial within 2e-4: {rows:?}"
+    );
+}
+
+/// The same bar clamped at x = 0 (every vertex of that face fixed): no rigid mode, and the
+/// first bending pair converging from above to Euler-Bernoulli's `beta L = 1.8751`.
+#[test]
+fn cantilever_bar_converges_to_beam_theory() {
+    let (len, t) = (1.0, 0.05);
+    let reference = euler_bernoulli(1.8751, len, t, &steel());
+    let mut ratios = Vec::new();
+    for k in [1usize, 2, 4] {
+        let (fem, rest) = bar([20 * k, k, k], [len, t, t], steel(), FemMass::Consistent);
+        let n = rest.len() / 3;
+        let fixed: Vec<usize> = (0..n).filter(|&i| rest[i] < 1e-12).collect();
+        let m = modes_of(
+            &fem,
+            &rest,
+            &fixed,
+            &EigenParams {
+                count: 4,
+                ..EigenParams::default()
+            },
+        );
+        assert_eq!(m.rigid, 0);
+        for j in 0..4 {
+            let x = m.mode(j);
+            assert!(fixed
+                .iter()
+                .all(|&i| x[i] == 0.0 && x[n + i] == 0.0 && x[2 * n + i] == 0.0));
+        }
+        let f = m.frequencies_hz();
+        ratios.push(0.5 * (f[0] + f[1]) / reference);
+    }
+    println!("cantilever first bending / Euler-Bernoulli: {ratios:?}");
+    assert!(
+        ratios.windows(2).all(|w| w[1] < w[0] && w[1] > 1.0),
+        "{ratios:?}"
+    );
+    assert!(ratios[2] < 1.15, "{ratios:?}");
+}
+
+/// Phi^T M Phi = I and Phi^T K Phi = diag(lambda) to 1e-10 (relative to the largest
+/// lambda), on both paths and both mass kinds.
+#[test]
+fn modes_are_mass_orthonormal_and_diagonalise_the_stiffness() {
+    for mass in [FemMass::Lumped, FemMass::Consistent] {
+        let (fem, rest) = bar([12, 2, 2], [1.0, 0.1, 0.1], steel(), mass);
+        let k = stiffness_at_rest(&fem, &rest).unwrap();
+        let n3 = rest.len();
+        for dense_max in [0, 100_000] {
+            let p = EigenParams {
+                count: 14,
+                dense_max,
+                ..EigenParams::default()
+            };
+            let m = solve(&fem, &k, &[], &p).unwrap();
+            assert_eq!(m.dense, dense_max > 0);
+            let top = m.eigenvalues.last().unwrap().abs();
+            let (mut kx, mut mx) = (vec![0.0; n3], vec![0.0; n3]);
+            for j in 0..p.count {
+                k.spmv(&mut kx, m.mode(j));
+                match fem.mass_matrix() {
+                    Some(mm) => mm.spmv(&mut mx, m.mode(j)),
+                    None => {
+                        for (d, (y, v)) in mx.iter_mut().zip(m.mode(j)).enumerate() {
+                            *y = fem.mass()[d % (n3 / 3)] * v;
+                        }
+                    }
+                }
+                for i in 0..p.count {
+                    let xi = m.mode(i);
+                    let mij: f64 = xi.iter().zip(&mx).map(|(a, b)| a * b).sum();
+                    let kij: f64 = xi.iter().zip(&kx).map(|(a, b)| a * b).sum();
+                    let (me, ke) = if i == j {
+                        (1.0, m.eigenvalues[j])
+                    } else {
+                        (0.0, 0.0)
+                    };
+                    assert!(
+                        (mij - me).abs() < 1e-10,
+                        "{mass:?} dense {}: M[{i},{j}] = {mij}",
+                        m.dense
+                    );
+                    assert!(
+                        (kij - ke).abs() < 1e-10 * top,
+                        "{mass:?} dense {}: K[{i},{j}] = {kij}",
+                        m.dense
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// The dense and sparse paths give the same eigenvalues (non-rigid ones to 1e-8
+/// relative) and the same rigid count; lumped mass gives lower frequencies than
+/// consistent mass (which bounds them from above, as Rayleigh-Ritz does).
+#[test]
+fn dense_and_sparse_paths_agree() {
+    let mut by_mass = Vec::new();
+    for mass in [FemMass::Lumped, FemMass::Consistent] {
+        let (fem, rest) = bar([16, 2, 2], [1.0, 0.1, 0.1], steel(), mass);
+        let k = stiffness_at_rest(&fem, &rest).unwrap();
+        let run = |dense_max| {
+            solve(
+                &fem,
+                &k,
+                &[],
+                &EigenParams {
+                    count: 16,
+                    dense_max,
+                    ..EigenParams::default()
+                },
+            )
+            .unwrap()
+        };
+        let (d, s) = (run(100_000), run(0));
+        assert!(d.dense && !s.dense);
+        assert_eq!((d.rigid, s.rigid), (6, 6));
+        for j in 6..16 {
+            let (a, b) = (d.eigenvalues[j], s.eigenvalues[j]);
+            assert!(
+                (a - b).abs() < 1e-8 * a,
+                "{mass:?} mode {j}: dense {a}, sparse {b}"
+            );
+        }
+        by_mass.push(s.frequencies_hz());
+    }
+    for (l, c) in by_mass[0].iter().zip(&by_mass[1]) {
+        assert!(l < c, "lumped {l} Hz below consistent {c} Hz");
+    }
+}
+
+/// The automatic shift scales with the material: rubber and steel give frequencies in the
+/// ratio `sqrt((E1 / rho1) / (E2 / rho2))` to 1e-8 (the problem is linear in E / rho),
+/// with six rigid modes each. A shift given at zero on a free body (singular `K`) is moved
+/// and the move reported.
+#[test]
+fn rubber_to_steel_and_a_shift_on_an_eigenvalue() {
+    let rubber = FemMaterial {
+        model: Material::Linear,
+        young: 1e6,
+        poisson: 0.3,
+        density: 1100.0,
+    };
+    let run = |mat: FemMaterial, shift: Option<f64>| {
+        let (fem, rest) = bar([30, 3, 3], [1.0, 0.1, 0.1], mat, FemMass::Consistent);
+        modes_of(
+            &fem,
+            &rest,
+            &[],
+            &EigenParams {
+                count: 12,
+                shift,
+                dense_max: 0,
+                ..EigenParams::default()
+            },
+        )
+    };
+    let (s, r) = (run(steel(), None), run(rubber, None));
+    assert_eq!((s.rigid, r.rigid), (6, 6));
+    let ratio = ((steel().young / steel().density) / (rubber.young / rubber.density)).sqrt();
+    for (fs, fr) in s.frequencies_hz().iter().zip(r.frequencies_hz()) {
+        assert!(
+            (fs / fr / ratio - 1.0).abs() < 1e-8,
+            "{fs} / {fr} against {ratio}"
+        );
+    }
+    let z = run(steel(), Some(0.0));
+    assert!(z.notes.iter().any(|n| n.contains("moved")), "{:?}", z.notes);
+    assert!(z.shift < 0.0);
+    assert_eq!(z.rigid, 6);
+    for (a, b) in z.frequencies_hz().iter().zip(s.frequencies_hz()) {
+        assert!((a / b - 1.0).abs() < 1e-6, "{a} against {b}");
+    }
+}
+
+#[test]
+fn bad_problems_are_errors_not_panics() {
+    let (fem, rest) = bar([4, 1, 1], [1.0, 0.1, 0.1], steel(), FemMass::Lumped);
+    let k = stiffness_at_rest(&fem, &rest).unwrap();
+    let n = rest.len() / 3;
+    let p = |count| EigenParams {
+        count,
+        ..EigenParams::default()
+    };
+    let too_many = lowest_modes(&k, Mass::Lumped(fem.mass()), &[], &p(3 * n + 1)).unwrap_err();
+    assert!(too_many.to_string().contains("free unknowns"), "{too_many}");
+    let out = lowest_modes(&k, Mass::Lumped(fem.mass()), &[n], &p(4)).unwrap_err();
+    assert!(out.to_string().contains("out of range"), "{out}");
+    let mut zero = fem.mass().to_vec();
+    zero[3] = 0.0;
+    let e = lowest_modes(&k, Mass::Lumped(&zero), &[], &p(4)).unwrap_err();
+    assert!(
+        matches!(e, SolveError::NotPositiveDefinite { at: 3, .. }),
+        "{e}"
+    );
+    let mut skew = k.clone();
+    skew.values_mut()[1] += 1e-3 * k.values().iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let e = lowest_modes(&skew, Mass::Lumped(fem.mass()), &[], &p(4)).unwrap_err();
+    assert!(e.to_string().contains("not symmetric"), "{e}");
+    let mut nan = k.clone();
+    nan.values_mut()[0] = f64::NAN;
+    assert!(lowest_modes(&nan, Mass::Lumped(fem.mass()), &[], &p(4)).is_err());
+}
+
+fn temp_dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("largestep-modal-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// Writes a box mesh as TetGen's bar.node and bar.ele (indices from 1) into `dir`.
+fn write_tetgen(dir: &std::path::Path, cells: [usize; 3], size: [f64; 3]) -> PathBuf {
+    let mesh = largestep::fem::mesh::box_mesh(cells, size, [0.0; 3]);
+    let mut node = format!("{} 3 0 0\n", mesh.positions.len());
+    for (i, p) in mesh.positions.iter().enumerate() {
+        node += &format!("{} {} {} {}\n", i + 1, p[0], p[1], p[2]);
+    }
+    let mut ele = format!("{} 4 0\n", mesh.tets.len());
+    for (e, t) in mesh.tets.iter().enumerate() {
+        ele += &format!(
+            "{} {} {} {} {}\n",
+            e + 1,
+            t[0] + 1,
+            t[1] + 1,
+            t[2] + 1,
+            t[3] + 1
+        );
+    }
+    std::fs::write(dir.join("bar.node"), node).unwrap();
+    std::fs::write(dir.join("bar.ele"), ele).unwrap();
+    dir.join("bar.node")
+}
+
+/// `largestep modes MESH ... --json FILE --out DIR`: the table, the JSON with exactly the
+/// keys of the contract, and one VTK per mode; bad arguments exit with 2.
+#[test]
+fn modes_command_writes_the_json_contract_and_shapes() {
+    let exe = env!("CARGO_BIN_EXE_largestep");
+    let dir = temp_dir("cli");
+    let node = write_tetgen(&dir, [20, 2, 2], [1.0, 0.1, 0.1]);
+    let json = dir.join("modes.json");
+    let shapes = dir.join("shapes");
+    let out = std::process::Command::new(exe)
+        .args(["modes", node.to_str().unwrap(), "--count", "5", "--json"])
+        .arg(&json)
+        .arg("--out")
+        .arg(&shapes)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(text.contains("rigid modes    6"), "{text}");
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let keys: Vec<&str> = v.as_object().unwrap().keys().map(|k| k.as_str()).collect();
+    let mut sorted = keys.clone();
+    sorted.sort_unstable();
+    assert_eq!(
+        sorted,
+        [
+            "eigenvalues",
+            "frequencies_hz",
+            "residuals",
+            "rigid_modes",
+            "seconds"
+        ]
+    );
+    assert_eq!(v["rigid_modes"], 6);
+    let f: Vec<f64> = v["frequencies_hz"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    let l: Vec<f64> = v["eigenvalues"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    assert_eq!((f.len(), l.len()), (5, 11));
+    assert!(f.windows(2).all(|w| w[0] <= w[1]));
+    for (fj, lj) in f.iter().zip(&l[6..]) {
+        assert!((fj - lj.sqrt() / (2.0 * PI)).abs() < 1e-9 * fj);
+    }
+    assert_eq!(v["residuals"].as_array().unwrap().len(), 11);
+    for j in 1..=5 {
+        assert!(shapes.join(format!("mode_{j:02}.vtk")).exists());
+    }
+    // Clamped at x = 0 and lumped: no rigid mode.
+    let out = std::process::Command::new(exe)
+        .args([
+            "modes",
+            node.to_str().unwrap(),
+            "--count",
+            "3",
+            "--fixed",
+            "x<=0",
+            "--mass",
+            "lumped",
+        ])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success() && text.contains("rigid modes    0"),
+        "{text}"
+    );
+    for bad in [
+        vec!["modes", "no/such.node"],
+        vec!["modes", node.to_str().unwrap(), "--fixed", "w<=0"],
+        vec!["modes", node.to_str().unwrap(), "--fixed", "x<=-5"],
+        vec!["modes", node.to_str().unwrap(), "--count", "100000"],
+        vec!["modes", node.to_str().unwrap(), "--mass", "heavy"],
+    ] {
+        let out = std::process::Command::new(exe).args(&bad).output().unwrap();
+        assert_eq!(
+            out.status.code(),
+            Some(2),
+            "{bad:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(!String::from_utf8_lossy(&out.stderr).contains("panicked"));
+    }
+}
