@@ -317,6 +317,13 @@ fn parse_cli() -> Cli {
 }
 
 fn main() -> ExitCode {
+    // Output piped into a program that stops reading (`| head`) ends the process as it
+    // does any Unix tool, not with a panic from println!.
+    #[cfg(unix)]
+    // SAFETY: setting a signal's action to the default, before any thread starts.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = parse_cli();
     if let Some(t) = cli.threads {
         if let Err(e) = rayon::ThreadPoolBuilder::new()
@@ -624,8 +631,8 @@ fn modes(
         println!("eigensolver    dense ({:.3} s)", m.seconds);
     } else {
         println!(
-            "eigensolver    shift-invert Lanczos at shift {:.6e} 1/s^2, {} steps ({:.3} s)",
-            m.shift, m.steps, m.seconds
+            "eigensolver    shift-invert Lanczos at shift {:.6e} 1/s^2, {} steps ({:.3} s, {:.3} s of it factoring)",
+            m.shift, m.steps, m.seconds, m.factor_seconds
         );
     }
     for note in &m.notes {
