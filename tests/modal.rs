@@ -340,7 +340,8 @@ fn write_tetgen(dir: &std::path::Path, cells: [usize; 3], size: [f64; 3]) -> Pat
 }
 
 /// `largestep modes MESH ... --json FILE --out DIR`: the table, the JSON with exactly the
-/// keys of the contract, and one VTK per mode; bad arguments exit with 2.
+/// keys of the contract, one VTK per mode and an animation of each; bad arguments exit
+/// with 2.
 #[test]
 fn modes_command_writes_the_json_contract_and_shapes() {
     let exe = env!("CARGO_BIN_EXE_largestep");
@@ -398,6 +399,12 @@ fn modes_command_writes_the_json_contract_and_shapes() {
     assert_eq!(v["residuals"].as_array().unwrap().len(), 11);
     for j in 1..=5 {
         assert!(shapes.join(format!("mode_{j:02}.vtk")).exists());
+        let gif = shapes.join(format!("mode_{j:02}")).join("animation.gif");
+        assert!(
+            std::fs::metadata(&gif).unwrap().len() > 1000,
+            "{}",
+            gif.display()
+        );
     }
     // Clamped at x = 0 and lumped: no rigid mode.
     let out = std::process::Command::new(exe)

@@ -154,7 +154,9 @@ enum Command {
         /// Write the numbers as JSON to this file.
         #[arg(long)]
         json: Option<PathBuf>,
-        /// Write each mode's shape as VTK (mode_NN.vtk) into this folder.
+        /// Write each mode's shape as VTK (mode_NN.vtk) into this folder, and the first six
+        /// modes oscillating as pictures (mode_NN/animation.gif, PNG frames, a contact
+        /// sheet).
         #[arg(long)]
         out: Option<PathBuf>,
     },
@@ -674,6 +676,16 @@ fn modes(
             Ok(n) => println!("mode shapes    {n} VTK files in {}", dir.display()),
             Err(e) => {
                 eprintln!("error: {}: {e}", dir.display());
+                status = ExitCode::from(1);
+            }
+        }
+        match largestep::modal::write_animations(&a, &dir) {
+            Ok(n) => println!(
+                "animations     the first {n} modes: {}/mode_NN/animation.gif",
+                dir.display()
+            ),
+            Err(e) => {
+                eprintln!("error: {e}");
                 status = ExitCode::from(1);
             }
         }

@@ -314,27 +314,11 @@ pub fn analyse(
 /// shape. Returns the number of files.
 pub fn write_shapes(a: &Analysis, dir: &Path) -> std::io::Result<usize> {
     std::fs::create_dir_all(dir)?;
-    let n = a.rest.len() / 3;
-    let size = (0..3)
-        .map(|c| {
-            let p = &a.rest[c * n..(c + 1) * n];
-            p.iter().fold(f64::NEG_INFINITY, |m, &v| m.max(v))
-                - p.iter().fold(f64::INFINITY, |m, &v| m.min(v))
-        })
-        .fold(0.0f64, f64::max);
-    let zero = vec![0.0; 3 * n];
+    let zero = vec![0.0; a.rest.len()];
     let freqs = a.modes.frequencies_hz();
     for (j, f) in freqs.iter().enumerate() {
-        let shape = a.modes.mode(a.modes.rigid + j);
-        let largest = (0..n)
-            .map(|i| (shape[i].powi(2) + shape[n + i].powi(2) + shape[2 * n + i].powi(2)).sqrt())
-            .fold(0.0f64, f64::max);
-        let s = if largest > 0.0 {
-            0.1 * size / largest
-        } else {
-            0.0
-        };
-        let x: Vec<f64> = a.rest.iter().zip(shape).map(|(r, d)| r + s * d).collect();
+        let shape = scaled_shape(a, a.modes.rigid + j);
+        let x: Vec<f64> = a.rest.iter().zip(&shape).map(|(r, d)| r + d).collect();
         let path = dir.join(format!("mode_{:02}.vtk", j + 1));
         crate::io::write_atomically(&path, |w| {
             a.fem.write_vtk(
@@ -347,4 +331,75 @@ pub fn write_shapes(a: &Analysis, dir: &Path) -> std::io::Result<usize> {
         })?;
     }
     Ok(freqs.len())
+}
+
+/// Non-rigid modes [`write_animations`] draws.
+pub const ANIMATED_MODES: usize = 6;
+
+/// Frames per oscillation in [`write_animations`].
+const ANIMATION_FRAMES: usize = 24;
+
+/// Draws each of the first [`ANIMATED_MODES`] non-rigid modes oscillating through one
+/// period, its boundary surface displaced by `sin(2 pi k / 24)` times the shape (scaled
+/// as in [`write_shapes`]), with the preview renderer: `dir/mode_NN/animation.gif`, its
+/// PNG frames and a contact sheet (640 x 360; the camera frames the whole swing). Returns
+/// the modes drawn.
+pub fn write_animations(a: &Analysis, dir: &Path) -> Result<usize, crate::render::RenderError> {
+    use crate::io::Mesh;
+    use crate::render::preview::{write_preview, PreviewSettings};
+    let n = a.rest.len() / 3;
+    let triangles: std::sync::Arc<[[u32; 3]]> = a.fem.triangles().into();
+    let settings = PreviewSettings {
+        render: crate::render::Settings {
+            width: 640,
+            height: 360,
+            ..Default::default()
+        },
+        frame_interval: 1.0 / ANIMATION_FRAMES as f64,
+        ..Default::default()
+    };
+    let count = a.modes.frequencies_hz().len().min(ANIMATED_MODES);
+    for j in 0..count {
+        let shape = scaled_shape(a, a.modes.rigid + j);
+        let frames: Vec<Mesh> = (0..ANIMATION_FRAMES)
+            .map(|k| {
+                let s = (2.0 * std::f64::consts::PI * k as f64 / ANIMATION_FRAMES as f64).sin();
+                Mesh {
+                    positions: (0..3 * n).map(|d| a.rest[d] + s * shape[d]).collect(),
+                    triangles: triangles.clone(),
+                    segments: Vec::new().into(),
+                }
+            })
+            .collect();
+        write_preview(
+            &dir.join(format!("mode_{:02}", j + 1)),
+            &frames,
+            &[],
+            &settings,
+            &mut |_, _| {},
+        )?;
+    }
+    Ok(count)
+}
+
+/// Mode j's shape scaled so that its largest displacement is a tenth of the mesh's size.
+fn scaled_shape(a: &Analysis, j: usize) -> Vec<f64> {
+    let n = a.rest.len() / 3;
+    let size = (0..3)
+        .map(|c| {
+            let p = &a.rest[c * n..(c + 1) * n];
+            p.iter().fold(f64::NEG_INFINITY, |m, &v| m.max(v))
+                - p.iter().fold(f64::INFINITY, |m, &v| m.min(v))
+        })
+        .fold(0.0f64, f64::max);
+    let shape = a.modes.mode(j);
+    let largest = (0..n)
+        .map(|i| (shape[i].powi(2) + shape[n + i].powi(2) + shape[2 * n + i].powi(2)).sqrt())
+        .fold(0.0f64, f64::max);
+    let s = if largest > 0.0 {
+        0.1 * size / largest
+    } else {
+        0.0
+    };
+    shape.iter().map(|d| s * d).collect()
 }
