@@ -2289,25 +2289,19 @@ fn consistent_mass_conserves_energy_and_raises_the_frequency() {
 #[test]
 fn pcg_iterations_as_the_fem_mesh_is_refined() {
     use largestep::simulation::MechModel;
-    use largestep::solve::{Filter, Pcg, PcgParams, Preconditioner};
+    use largestep::solve::{Pcg, PcgParams, Preconditioner};
     use largestep::sparse::Bsr3;
     let mut table = Vec::new();
     for k in [2usize, 4, 8] {
-        let (model, state) =
-            FemDesc::cantilever([10 * k, k, k], [1.0, 0.1, 0.1], corotational_beam(), 9.81)
-                .build()
-                .unwrap();
-        let n = model.vertex_count();
-        let mut work = model.work();
-        let pattern = model.prepare_jacobians(&mut work).unwrap().unwrap();
-        let mut kx = Bsr3::zeros(pattern.clone());
-        let mut f = vec![0.0; 3 * n];
-        let x = state.x.as_slice().to_vec();
-        model
-            .force_jacobians(&mut work, 0.0, &x, &vec![0.0; 3 * n], &mut f, &mut kx, None)
-            .unwrap();
-        let mut filter = Filter::new(n);
-        model.constraints(&mut filter);
+        let desc = FemDesc::cantilever([10 * k, k, k], [1.0, 0.1, 0.1], corotational_beam(), 9.81);
+        let RestSystem {
+            model,
+            x,
+            f,
+            kx,
+            filter,
+        } = rest_system(desc);
+        let (n, pattern) = (model.vertex_count(), kx.pattern().clone());
         let h = 1.0 / 60.0;
         let mut row = vec![3 * n];
         for dynamic in [true, false] {
@@ -2375,6 +2369,39 @@ fn pcg_iterations_as_the_fem_mesh_is_refined() {
     }
 }
 
+/// A model at rest with what its implicit systems are made of.
+struct RestSystem {
+    model: largestep::fem::Fem,
+    /// Rest positions, the forces there and their Jacobian, and the model's constraints.
+    x: Vec<f64>,
+    f: Vec<f64>,
+    kx: largestep::sparse::Bsr3,
+    filter: largestep::solve::Filter,
+}
+
+fn rest_system(desc: FemDesc) -> RestSystem {
+    use largestep::simulation::MechModel;
+    let (model, state) = desc.build().unwrap();
+    let n = model.vertex_count();
+    let mut work = model.work();
+    let pattern = model.prepare_jacobians(&mut work).unwrap().unwrap();
+    let mut kx = largestep::sparse::Bsr3::zeros(pattern);
+    let mut f = vec![0.0; 3 * n];
+    let x = state.x.as_slice().to_vec();
+    model
+        .force_jacobians(&mut work, 0.0, &x, &vec![0.0; 3 * n], &mut f, &mut kx, None)
+        .unwrap();
+    let mut filter = largestep::solve::Filter::new(n);
+    model.constraints(&mut filter);
+    RestSystem {
+        model,
+        x,
+        f,
+        kx,
+        filter,
+    }
+}
+
 /// The beam material of the solver tests: corotational, E = 10 MPa, nu = 0.3, 1000
 /// kg/m^3.
 fn corotational_beam() -> FemMaterial {
@@ -2410,7 +2437,7 @@ proptest! {
 #[test]
 fn smoothed_aggregation_from_rubber_to_steel_clamped_and_free() {
     use largestep::simulation::MechModel;
-    use largestep::solve::{Filter, Pcg, PcgParams, Preconditioner};
+    use largestep::solve::{Pcg, PcgParams, Preconditioner};
     use largestep::sparse::Bsr3;
     for (young, density) in [(1e5, 1100.0), (1e7, 1000.0), (2e11, 7850.0)] {
         for clamped in [true, false] {
@@ -2425,19 +2452,15 @@ fn smoothed_aggregation_from_rubber_to_steel_clamped_and_free() {
                 if !clamped {
                     desc.pinned.clear();
                 }
-                let (model, state) = desc.build().unwrap();
+                let RestSystem {
+                    model,
+                    x,
+                    f,
+                    kx,
+                    filter,
+                } = rest_system(desc);
                 let n = model.vertex_count();
-                let mut work = model.work();
-                let pattern = model.prepare_jacobians(&mut work).unwrap().unwrap();
-                let mut kx = Bsr3::zeros(pattern.clone());
-                let mut f = vec![0.0; 3 * n];
-                let x = state.x.as_slice().to_vec();
-                model
-                    .force_jacobians(&mut work, 0.0, &x, &vec![0.0; 3 * n], &mut f, &mut kx, None)
-                    .unwrap();
-                let mut filter = Filter::new(n);
-                model.constraints(&mut filter);
-                let mut a = Bsr3::zeros(pattern.clone());
+                let mut a = Bsr3::zeros(kx.pattern().clone());
                 a.assign_lincomb(&[(-h * h, &kx)]);
                 a.add_diagonal(model.mass());
                 // A load that bends and twists: the gravity force plus a torque-like part.

@@ -243,6 +243,21 @@ impl FemDesc {
         swapped
     }
 
+    /// Takes a `.veg` file's materials and regions (`mesh::read_volume_mesh`), each
+    /// material with the constitutive `model`.
+    pub fn use_veg_materials(&mut self, model: Material, (materials, regions): mesh::VegParts) {
+        self.materials = materials
+            .iter()
+            .map(|v| FemMaterial {
+                model,
+                young: v.young,
+                poisson: v.poisson,
+                density: v.density,
+            })
+            .collect();
+        self.element_material = regions;
+    }
+
     /// Checks the description and builds the model and its initial state.
     pub fn build(&self) -> Result<(Fem, MechState), ModelError> {
         let n = self.positions.len();

@@ -484,17 +484,8 @@ pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
     };
     let n = mesh.positions.len();
     let mut desc = FemDesc::new(mesh.positions, mesh.tets, material);
-    if let Some((mats, element_material)) = veg {
-        desc.materials = mats
-            .iter()
-            .map(|v| FemMaterial {
-                model: kind,
-                young: v.young,
-                poisson: v.poisson,
-                density: v.density,
-            })
-            .collect();
-        desc.element_material = element_material;
+    if let Some(parts) = veg {
+        desc.use_veg_materials(kind, parts);
     }
     desc.inversion_threshold = m.inversion_threshold;
     desc.notes = notes;

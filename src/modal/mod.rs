@@ -259,18 +259,9 @@ pub fn analyse(
         None => Vec::new(),
     };
     let mut desc = FemDesc::new(positions, tets, material);
-    if let Some((mats, element_material)) = veg {
+    if let Some(parts) = veg {
         if given.iter().all(Option::is_none) {
-            desc.materials = mats
-                .iter()
-                .map(|v| FemMaterial {
-                    model: Material::Linear,
-                    young: v.young,
-                    poisson: v.poisson,
-                    density: v.density,
-                })
-                .collect();
-            desc.element_material = element_material;
+            desc.use_veg_materials(Material::Linear, parts);
         }
     }
     desc.mass = options.mass;

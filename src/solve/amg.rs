@@ -276,7 +276,7 @@ impl SmoothedAggregation {
         let same = self
             .fine
             .as_ref()
-            .is_some_and(|p| Arc::ptr_eq(p, a.pattern()) || **p == **a.pattern());
+            .is_some_and(|p| Bsr3Pattern::same(p, a.pattern()));
         if !same {
             self.build(a.pattern().clone())?;
         }

@@ -243,7 +243,7 @@ fn check_mass(k: &Bsr3, mass: Mass<'_>, fixed: &[bool]) -> Result<(), SolveError
             }
         }
         Mass::Consistent(m) => {
-            if !std::sync::Arc::ptr_eq(m.pattern(), k.pattern()) && **m.pattern() != **k.pattern() {
+            if !crate::sparse::Bsr3Pattern::same(m.pattern(), k.pattern()) {
                 return Err(SolveError::Invalid(
                     "the consistent mass matrix must share the stiffness's pattern".into(),
                 ));

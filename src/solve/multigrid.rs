@@ -234,7 +234,7 @@ impl Multigrid {
         let same = self
             .fine
             .as_ref()
-            .is_some_and(|p| Arc::ptr_eq(p, a.pattern()) || **p == **a.pattern());
+            .is_some_and(|p| Bsr3Pattern::same(p, a.pattern()));
         if !same {
             self.build(a.pattern().clone());
         }

@@ -72,6 +72,11 @@ pub struct Bsr3Pattern {
 }
 
 impl Bsr3Pattern {
+    /// Whether two shared patterns are the same: one allocation, or equal contents.
+    pub fn same(a: &Arc<Self>, b: &Arc<Self>) -> bool {
+        Arc::ptr_eq(a, b) || **a == **b
+    }
+
     /// The pattern coupling every pair of vertices that share an element (both orders),
     /// plus all diagonal blocks. `K` is the number of vertices per element (2 for springs,
     /// 3 for triangles, 4 for tetrahedra).
