@@ -82,7 +82,7 @@ fn free_free_bar_converges_to_beam_theory() {
             .expect("an axial mode among the first ten");
         let fa = f[ax - m.rigid];
         let fb = 0.5 * (f[0] + f[1]);
-        assert!(m.residuals.iter().all(|&r| r < 1e-9), "{:?}", m.residuals);
+        assert!(m.residuals.iter().all(|&r| r < 1e-7), "{:?}", m.residuals);
         rows.push((rest.len(), fb / bending, fa / axial));
     }
     println!("unknowns | first bending / Euler-Bernoulli | first axial / (c / 2L)");

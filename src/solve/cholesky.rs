@@ -33,6 +33,8 @@ pub(crate) struct CholeskyCore {
     symbolic: SymbolicCholesky<usize>,
     l: Vec<f64>,
     mem: MemBuffer,
+    /// Right-hand sides the scratch buffer is sized for.
+    rhs_capacity: usize,
     factored: bool,
 }
 
@@ -124,6 +126,7 @@ impl CholeskyCore {
             symbolic,
             l,
             mem: MemBuffer::new(req),
+            rhs_capacity: 1,
             factored: false,
         })
     }
@@ -162,6 +165,42 @@ impl CholeskyCore {
                     value: f64::NAN,
                 })
             }
+        }
+    }
+
+    /// Overwrites the `k` columns of `b` (column-major, `n k` values) with `A^-1 b`: one
+    /// pass over the factor for all of them (the triangular solves read the factor from
+    /// memory, so k columns cost far less than k single solves). Grows the scratch buffer
+    /// the first time k exceeds what it holds.
+    pub(crate) fn solve_columns(&mut self, b: &mut [f64], k: usize) -> Result<(), SolveError> {
+        assert!(
+            self.factored,
+            "solve_columns needs a successful factorize first"
+        );
+        let n = self.symbolic.nrows();
+        assert_eq!(b.len(), n * k, "right-hand sides length");
+        let need = self.symbolic.solve_in_place_scratch::<f64>(k, Par::Seq);
+        if self.rhs_capacity < k {
+            let req = need.or(self
+                .symbolic
+                .factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()));
+            self.mem = MemBuffer::new(req);
+            self.rhs_capacity = k;
+        }
+        let llt = LltRef::new(&self.symbolic, &self.l);
+        llt.solve_in_place_with_conj(
+            Conj::No,
+            MatMut::from_column_major_slice_mut(b, n, k),
+            Par::Seq,
+            MemStack::new(&mut self.mem),
+        );
+        if b.iter().all(|v| v.is_finite()) {
+            Ok(())
+        } else {
+            Err(SolveError::NonFinite {
+                what: "Cholesky solution",
+                iteration: 0,
+            })
         }
     }
 
