@@ -110,6 +110,10 @@ pub struct Modes {
     pub notes: Vec<String>,
     /// Seconds in sparse Cholesky factorizations (0 on the dense path).
     pub factor_seconds: f64,
+    /// Seconds in the block solves with the factor, and how many blocks were solved
+    /// (each reads the whole factor twice, forward and back).
+    pub solve_seconds: f64,
+    pub block_solves: usize,
     /// Wall time in seconds.
     pub seconds: f64,
 }
@@ -366,6 +370,9 @@ fn dense(k: &Bsr3, mass: Mass<'_>, free: &[usize], count: usize) -> Result<Modes
 /// shift, and the Lanczos workspace.
 struct ShiftInvert<'a> {
     k: &'a Bsr3,
+    /// Time in block solves and their count, since the last factorization.
+    solve_seconds: f64,
+    block_solves: usize,
     /// `r`, the stiffness-to-mass scale (1/s^2).
     scale: f64,
     mass: Mass<'a>,
@@ -380,6 +387,8 @@ impl<'a> ShiftInvert<'a> {
         let core = CholeskyCore::new(csc.symbolic())?;
         Ok(Self {
             k,
+            solve_seconds: 0.0,
+            block_solves: 0,
             scale,
             mass,
             fixed,
@@ -454,6 +463,7 @@ impl<'a> ShiftInvert<'a> {
         let start = Instant::now();
         let sigma = self.factor(sigma, &mut notes)?;
         let factor_seconds = start.elapsed().as_secs_f64();
+        (self.solve_seconds, self.block_solves) = (0.0, 0);
         let n3 = 3 * self.k.n();
         let want = params.count;
         // The modes kept, by decreasing theta: (theta, vector).
@@ -532,6 +542,8 @@ impl<'a> ShiftInvert<'a> {
             steps,
             notes,
             factor_seconds,
+            solve_seconds: self.solve_seconds,
+            block_solves: self.block_solves,
             ..Modes::default()
         })
     }
@@ -613,7 +625,10 @@ impl<'a> ShiftInvert<'a> {
             steps += 1;
             // W = (K - sigma M)^-1 M V, all columns in one pass over the factor.
             w.copy_from_slice(&mv);
+            let solve = Instant::now();
             self.core.solve_columns(&mut w, p)?;
+            self.solve_seconds += solve.elapsed().as_secs_f64();
+            self.block_solves += 1;
             let cols = nl + steps * p;
             reorthogonalise(&q, &mq, cols, &mut w, p, &mut coef, |r, c, x| {
                 if r >= nl {
