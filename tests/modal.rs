@@ -460,7 +460,17 @@ fn two_free_bodies_have_twelve_rigid_modes() {
     let rest = state.x.as_slice().to_vec();
     let k = stiffness_at_rest(&fem, &rest).unwrap();
     let run = |dense_max| {
-        solve(&fem, &k, &[], &EigenParams { count: 16, dense_max, ..EigenParams::default() }).unwrap()
+        solve(
+            &fem,
+            &k,
+            &[],
+            &EigenParams {
+                count: 16,
+                dense_max,
+                ..EigenParams::default()
+            },
+        )
+        .unwrap()
     };
     let (s, d) = (run(0), run(100_000));
     assert_eq!((s.rigid, d.rigid), (12, 12), "sparse notes: {:?}", s.notes);
@@ -468,5 +478,8 @@ fn two_free_bodies_have_twelve_rigid_modes() {
         let (a, b) = (s.eigenvalues[j], d.eigenvalues[j]);
         assert!((a - b).abs() < 1e-8 * a, "mode {j}: sparse {a}, dense {b}");
     }
-    assert!((s.eigenvalues[13] / s.eigenvalues[12] - 1.0).abs() < 1e-8, "equal bars, equal pairs");
+    assert!(
+        (s.eigenvalues[13] / s.eigenvalues[12] - 1.0).abs() < 1e-8,
+        "equal bars, equal pairs"
+    );
 }
