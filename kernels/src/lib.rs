@@ -21,6 +21,7 @@ pub mod fem;
 pub mod fem_diag;
 pub mod interp;
 pub mod mass_spring;
+pub mod modal;
 pub mod par;
 pub mod render;
 pub mod sparse;

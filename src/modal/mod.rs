@@ -5,7 +5,10 @@
 //! `f = sqrt(lambda) / 2 pi`; the rigid modes of an unconstrained body are counted and
 //! kept apart.
 //!
-//! This is what `largestep modes MESH ...` runs; the library entry is [`analyse`].
+//! This is what `largestep modes MESH ...` runs; the library entry is [`analyse`]. The
+//! modes' sound when struck: [`sound`].
+
+pub mod sound;
 
 use crate::fem::mesh::{read_volume_mesh, TetMesh};
 use crate::fem::{Fem, FemDesc, FemMass, FemMaterial, Material};
