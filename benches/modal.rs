@@ -66,7 +66,7 @@ fn synthesis(c: &mut Criterion, pool: &rayon::ThreadPool) -> String {
     let modes = Modes {
         eigenvalues: (0..count).map(|j| w(j) * w(j)).collect(),
         vectors: (0..count)
-            .flat_map(|j| [((j * 7919) % 1000) as f64 / 500.0 - 1.0, 0.5, 0.25])
+            .flat_map(|j| [((j * 7919) % 1000) as f64 / 500.0 - 0.999, 0.5, 0.25])
             .collect(),
         residuals: vec![0.0; count],
         ..Modes::default()

@@ -17,7 +17,7 @@
 //! acceleration from the hits is below `quiet` times the loudest mode's.
 
 use crate::solve::Modes;
-use largestep_kernels::modal::{coefficients, resonate_x4, Bank};
+use largestep_kernels::modal::{coefficients, resonate_x4, Bank, PASS};
 use std::f64::consts::PI;
 use std::path::Path;
 
@@ -214,8 +214,8 @@ pub fn synthesize(
         .filter(|&i| loudness[i] > params.quiet * loudest && loudness[i] > 0.0)
         .collect();
     sound.culled_quiet = ringing.len() - kept.len();
-    // The bank, padded to a multiple of four with silent modes.
-    let m = kept.len().div_ceil(4) * 4;
+    // The bank, padded with silent modes to whole passes of the kernel.
+    let m = kept.len().div_ceil(PASS) * PASS;
     let (mut a1, mut a2, mut b, mut gain) =
         (vec![0.0; m], vec![0.0; m], vec![0.0; m], vec![0.0; m]);
     let mut drive = vec![0.0; hits.len() * m];
