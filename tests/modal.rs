@@ -27,6 +27,19 @@ fn solve(fem: &Fem, k: &Bsr3, fixed: &[usize], params: &EigenParams) -> Result<M
     }
 }
 
+/// The `count` lowest modes of a free model on the dense path and on the sparse one.
+fn dense_and_sparse(fem: &Fem, k: &Bsr3, count: usize) -> (Modes, Modes) {
+    let run = |dense_max| {
+        let p = EigenParams {
+            count,
+            dense_max,
+            ..EigenParams::default()
+        };
+        solve(fem, k, &[], &p).unwrap()
+    };
+    (run(100_000), run(0))
+}
+
 fn modes_of(fem: &Fem, rest: &[f64], fixed: &[usize], params: &EigenParams) -> Modes {
     let k = stiffness_at_rest(fem, rest).unwrap();
     solve(fem, &k, fixed, params).unwrap()
@@ -206,20 +219,7 @@ fn dense_and_sparse_paths_agree() {
     for mass in [FemMass::Lumped, FemMass::Consistent] {
         let (fem, rest) = bar([16, 2, 2], [1.0, 0.1, 0.1], steel(), mass);
         let k = stiffness_at_rest(&fem, &rest).unwrap();
-        let run = |dense_max| {
-            solve(
-                &fem,
-                &k,
-                &[],
-                &EigenParams {
-                    count: 16,
-                    dense_max,
-                    ..EigenParams::default()
-                },
-            )
-            .unwrap()
-        };
-        let (d, s) = (run(100_000), run(0));
+        let (d, s) = dense_and_sparse(&fem, &k, 16);
         assert!(d.dense && !s.dense);
         assert_eq!((d.rigid, s.rigid), (6, 6));
         for j in 6..16 {
@@ -459,20 +459,7 @@ fn two_free_bodies_have_twelve_rigid_modes() {
     let (fem, state) = desc.build().unwrap();
     let rest = state.x.as_slice().to_vec();
     let k = stiffness_at_rest(&fem, &rest).unwrap();
-    let run = |dense_max| {
-        solve(
-            &fem,
-            &k,
-            &[],
-            &EigenParams {
-                count: 16,
-                dense_max,
-                ..EigenParams::default()
-            },
-        )
-        .unwrap()
-    };
-    let (s, d) = (run(0), run(100_000));
+    let (d, s) = dense_and_sparse(&fem, &k, 16);
     assert_eq!((s.rigid, d.rigid), (12, 12), "sparse notes: {:?}", s.notes);
     for j in 12..16 {
         let (a, b) = (s.eigenvalues[j], d.eigenvalues[j]);

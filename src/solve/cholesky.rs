@@ -206,26 +206,8 @@ impl CholeskyCore {
 
     /// Overwrites `b` with `A^-1 b` using the last factorization.
     pub(crate) fn solve_in_place(&mut self, b: &mut [f64]) -> Result<(), SolveError> {
-        assert!(
-            self.factored,
-            "solve_in_place needs a successful factorize first"
-        );
         let n = self.symbolic.nrows();
         assert_eq!(b.len(), n, "right-hand side length");
-        let llt = LltRef::new(&self.symbolic, &self.l);
-        llt.solve_in_place_with_conj(
-            Conj::No,
-            MatMut::from_column_major_slice_mut(b, n, 1),
-            Par::Seq,
-            MemStack::new(&mut self.mem),
-        );
-        if b.iter().all(|v| v.is_finite()) {
-            Ok(())
-        } else {
-            Err(SolveError::NonFinite {
-                what: "Cholesky solution",
-                iteration: 0,
-            })
-        }
+        self.solve_columns(b, 1)
     }
 }
