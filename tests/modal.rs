@@ -3,6 +3,7 @@
 //! steel, bad input, and the `largestep modes` command's contract.
 
 use largestep::fem::{Fem, FemDesc, FemMass, FemMaterial, Material};
+use largestep::modal::beam::{euler_bernoulli, timoshenko};
 use largestep::modal::stiffness_at_rest;
 use largestep::simulation::MechModel;
 use largestep::solve::{lowest_modes, EigenParams, Mass, Modes, SolveError};
@@ -56,141 +57,15 @@ fn steel() -> FemMaterial {
     FemMaterial::steel(Material::Linear)
 }
 
-/// Euler-Bernoulli bending frequency `(beta L)^2 / (2 pi L^2) sqrt(E I / (rho A))` of a
-/// square bar of side t.
-fn euler_bernoulli(beta_l: f64, len: f64, t: f64, m: &FemMaterial) -> f64 {
-    beta_l * beta_l / (2.0 * PI * len * len) * (m.young / m.density).sqrt() * t / 12f64.sqrt()
-}
-
-/// The first bending frequency (Hz) of a Timoshenko beam of square section t x t and
-/// length `len`, free-free (`clamped` false) or clamped-free, with Cowper's shear
-/// coefficient `kappa = 10 (1 + nu) / (12 + 11 nu)`. For a frequency w the deflection is
-/// `A cosh(a x) + B sinh(a x) + C cos(b x) + D sin(b x)` and the section's rotation
-/// `k_a (A sinh + B cosh) + k_b (C sin - D cos)`, with `a^2` and `-b^2` the roots of
-/// `kappa G A EI s^4 + w^2 rho (kappa G A I + E I A) s^2 + rho A w^2 (rho I w^2 - kappa G A)
-/// = 0` (below the cutoff frequency), `k_a = (kappa G A a^2 + rho A w^2) / (kappa G A a)`
-/// and `k_b = (rho A w^2 - kappa G A b^2) / (kappa G A b)`. The end conditions (free: no
-/// moment `psi' = 0` and no shear `w' - psi = 0`; clamped: `w = 0`, `psi = 0`) give a 4 x 4
-/// determinant in w, whose first root above zero is found by a scan and bisection.
-fn timoshenko(len: f64, t: f64, mat: &FemMaterial, clamped: bool) -> f64 {
-    let (e, nu, rho) = (mat.young, mat.poisson, mat.density);
-    let g = e / (2.0 * (1.0 + nu));
-    let kappa = 10.0 * (1.0 + nu) / (12.0 + 11.0 * nu);
-    let (area, inertia) = (t * t, t.powi(4) / 12.0);
-    let kga = kappa * g * area;
-    let det = |w: f64| {
-        let (qa, qb, qc) = (
-            kga * e * inertia,
-            w * w * rho * (kga * inertia + e * inertia * area),
-            rho * area * w * w * (rho * inertia * w * w - kga),
-        );
-        // Roots of qa z^2 + qb z + qc = 0 in z = s^2.
-        let disc = (qb * qb - 4.0 * qa * qc).sqrt();
-        let (z1, z2) = ((-qb + disc) / (2.0 * qa), (-qb - disc) / (2.0 * qa));
-        let (a, b) = (z1.sqrt(), (-z2).sqrt());
-        let ka = (kga * a * a + rho * area * w * w) / (kga * a);
-        let kb = (rho * area * w * w - kga * b * b) / (kga * b);
-        // Rows: the conditions at x, as coefficients of (A, B, C, D).
-        let wrow = |x: f64| [(a * x).cosh(), (a * x).sinh(), (b * x).cos(), (b * x).sin()];
-        let dwrow = |x: f64| {
-            [
-                a * (a * x).sinh(),
-                a * (a * x).cosh(),
-                -b * (b * x).sin(),
-                b * (b * x).cos(),
-            ]
-        };
-        let psirow = |x: f64| {
-            [
-                ka * (a * x).sinh(),
-                ka * (a * x).cosh(),
-                kb * (b * x).sin(),
-                -kb * (b * x).cos(),
-            ]
-        };
-        let dpsirow = |x: f64| {
-            [
-                ka * a * (a * x).cosh(),
-                ka * a * (a * x).sinh(),
-                kb * b * (b * x).cos(),
-                kb * b * (b * x).sin(),
-            ]
-        };
-        let shear = |x: f64| {
-            let (d, p) = (dwrow(x), psirow(x));
-            [d[0] - p[0], d[1] - p[1], d[2] - p[2], d[3] - p[3]]
-        };
-        let rows = if clamped {
-            [wrow(0.0), psirow(0.0), dpsirow(len), shear(len)]
-        } else {
-            [dpsirow(0.0), shear(0.0), dpsirow(len), shear(len)]
-        };
-        det4(rows)
-    };
-    // Scan up from a hundredth of Euler-Bernoulli's first frequency for a sign change.
-    let w0 = 2.0
-        * PI
-        * euler_bernoulli(
-            if clamped {
-                1.875_104_069
-            } else {
-                4.730_040_745
-            },
-            len,
-            t,
-            mat,
-        );
-    let (mut lo, mut dlo) = (0.3 * w0, det(0.3 * w0));
-    let mut hi = lo;
-    loop {
-        hi *= 1.01;
-        let dhi = det(hi);
-        if dhi.signum() != dlo.signum() {
-            break;
-        }
-        (lo, dlo) = (hi, dhi);
-        assert!(hi < 2.0 * w0, "no root below twice Euler-Bernoulli's");
-    }
-    for _ in 0..200 {
-        let mid = 0.5 * (lo + hi);
-        let dm = det(mid);
-        if dm.signum() == dlo.signum() {
-            (lo, dlo) = (mid, dm);
-        } else {
-            hi = mid;
-        }
-    }
-    0.5 * (lo + hi) / (2.0 * PI)
-}
-
-/// The determinant of a 4 x 4 matrix (rows), by cofactors.
-fn det4(m: [[f64; 4]; 4]) -> f64 {
-    let det3 = |r: [[f64; 3]; 3]| {
-        r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1])
-            - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0])
-            + r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0])
-    };
-    (0..4)
-        .map(|c| {
-            let minor: [[f64; 3]; 3] = std::array::from_fn(|i| {
-                let cols: Vec<usize> = (0..4).filter(|&k| k != c).collect();
-                std::array::from_fn(|j| m[i + 1][cols[j]])
-            });
-            let sign = if c % 2 == 0 { 1.0 } else { -1.0 };
-            sign * m[0][c] * det3(minor)
-        })
-        .sum()
-}
-
 /// Timoshenko's frequencies lie below Euler-Bernoulli's, by more for stubbier beams, and
 /// meet them for slender ones (the reference the bar tests use).
 #[test]
 fn timoshenko_reference_meets_euler_bernoulli_for_slender_beams() {
     for clamped in [false, true] {
         let beta = if clamped {
-            1.875_104_069
+            largestep::modal::beam::CLAMPED_FREE_BETA_L
         } else {
-            4.730_040_745
+            largestep::modal::beam::FREE_FREE_BETA_L
         };
         let ratio = |t: f64| {
             timoshenko(1.0, t, &steel(), clamped) / euler_bernoulli(beta, 1.0, t, &steel())
@@ -214,7 +89,7 @@ fn free_free_bar_converges_to_beam_theory() {
     let (len, t) = (1.0, 0.05);
     let axial = (steel().young / steel().density).sqrt() / (2.0 * len);
     let bending = timoshenko(len, t, &steel(), false);
-    let eb = euler_bernoulli(4.730_040_745, len, t, &steel());
+    let eb = euler_bernoulli(largestep::modal::beam::FREE_FREE_BETA_L, len, t, &steel());
     let mut rows = Vec::new();
     for k in [1usize, 2, 4] {
         let (fem, rest) = bar([20 * k, k, k], [len, t, t], steel(), FemMass::Consistent);
@@ -274,7 +149,12 @@ fn free_free_bar_converges_to_beam_theory() {
 fn cantilever_bar_converges_to_beam_theory() {
     let (len, t) = (1.0, 0.05);
     let reference = timoshenko(len, t, &steel(), true);
-    let eb = euler_bernoulli(1.875_104_069, len, t, &steel());
+    let eb = euler_bernoulli(
+        largestep::modal::beam::CLAMPED_FREE_BETA_L,
+        len,
+        t,
+        &steel(),
+    );
     let mut ratios = Vec::new();
     for k in [1usize, 2, 4] {
         let (fem, rest) = bar([20 * k, k, k], [len, t, t], steel(), FemMass::Consistent);
@@ -838,4 +718,31 @@ mod sound {
         )
         .is_err());
     }
+}
+
+/// The quick `modes` study writes its report, says it was quick, and its bending error
+/// falls as the mesh is refined, for both mass kinds.
+#[test]
+fn the_quick_modes_study_reports_convergence() {
+    let out = temp_dir("study");
+    let summary =
+        largestep::study::run("modes", &out, true, &largestep::study::Progress::silent()).unwrap();
+    assert!(summary.contains("modes"));
+    let md = std::fs::read_to_string(out.join("modes.md")).unwrap();
+    assert!(
+        md.contains("study modes --quick") && md.contains("1 to 4 cubes across"),
+        "{md}"
+    );
+    let json: Vec<serde_json::Value> =
+        serde_json::from_str(&std::fs::read_to_string(out.join("modes.json")).unwrap()).unwrap();
+    for sweep in &json[..2] {
+        let errors: Vec<f64> = sweep["points"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|p| p["error"].as_f64().unwrap())
+            .collect();
+        assert!(errors.windows(2).all(|w| w[1] < w[0]), "{errors:?}");
+    }
+    assert!(out.join("modes.png").is_file());
 }

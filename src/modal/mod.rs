@@ -8,6 +8,7 @@
 //! This is what `largestep modes MESH ...` runs; the library entry is [`analyse`]. The
 //! modes' sound when struck: [`sound`].
 
+pub mod beam;
 pub mod sound;
 
 use crate::fem::mesh::{read_volume_mesh, TetMesh};

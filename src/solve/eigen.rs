@@ -2,7 +2,8 @@
 //! `K` symmetric positive semidefinite, mass `M` symmetric positive definite, lumped or
 //! consistent), for modal analysis and modal sound (issue 16; course notes section 17).
 //!
-//! - **Dense path** (at most [`EigenParams::dense_max`] free unknowns): `M = L L^T`,
+//! - **Dense path** (at most [`EigenParams::dense_max`] free unknowns, 200 by default):
+//!   `M = L L^T`,
 //!   `C = L^-1 K L^-T`, faer's symmetric eigensolver on C, `x = L^-T y`.
 //! - **Sparse path: shift-invert block Lanczos in the M inner product** (Ericsson and
 //!   Ruhe, "The spectral transformation Lanczos method", Math. Comp. 35, 1980; Grimes,
@@ -72,7 +73,9 @@ pub struct EigenParams {
     pub tolerance: f64,
     /// The shift; `None` chooses it (module docs). Must lie below the lowest eigenvalue.
     pub shift: Option<f64>,
-    /// Free unknowns up to which the dense path runs.
+    /// Free unknowns up to which the dense path runs. `largestep study modes` puts the
+    /// crossover between 108 unknowns (dense 1 ms, sparse 3 ms) and 351 (18 against
+    /// 14 ms); the dense path's cost grows as the cube.
     pub dense_max: usize,
 }
 
@@ -82,7 +85,7 @@ impl Default for EigenParams {
             count: 20,
             tolerance: 1e-10,
             shift: None,
-            dense_max: 600,
+            dense_max: 200,
         }
     }
 }

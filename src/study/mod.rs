@@ -9,6 +9,8 @@ mod fem;
 mod integrators;
 #[cfg(feature = "mass-spring")]
 mod jello;
+#[cfg(feature = "modal")]
+mod modal;
 mod problems;
 
 use std::cell::Cell;
@@ -89,6 +91,8 @@ const STUDIES: &[Study] = &[
     ("fem-accuracy", fem::accuracy),
     #[cfg(feature = "fem")]
     ("fem-stability", fem::stability),
+    #[cfg(feature = "modal")]
+    ("modes", modal::modes),
 ];
 
 /// The names of the studies built in.
