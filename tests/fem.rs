@@ -2504,3 +2504,33 @@ fn smoothed_aggregation_from_rubber_to_steel_clamped_and_free() {
         }
     }
 }
+
+/// A FEM scene whose `[solver]` names no preconditioner gets smoothed aggregation for
+/// PCG; naming block Jacobi keeps it (and takes many times the iterations).
+#[test]
+fn fem_scenes_precondition_pcg_with_smoothed_aggregation_by_default() {
+    use largestep::scene::{Runner, Scene};
+    let base = std::fs::read_to_string(scene_path("fem-cantilever.toml")).unwrap();
+    let iterations = |solver: &str| {
+        let text = format!("{base}\n[solver]\nlinear = \"pcg\"\ntolerance = 1e-8\n{solver}\n");
+        let scene = Scene::parse(
+            &text,
+            &scene_path("fem-cantilever.toml").display().to_string(),
+        )
+        .unwrap();
+        let out = std::env::temp_dir().join(format!("largestep-fem-pre-{}", std::process::id()));
+        let mut runner = Runner::new(scene, &out);
+        let s = runner.run(Some(2), &mut |_| {}).unwrap();
+        let _ = std::fs::remove_dir_all(&out);
+        s.linear_iterations as f64 / s.newton_iterations as f64
+    };
+    let (default, jacobi) = (
+        iterations(""),
+        iterations("preconditioner = \"block-jacobi\""),
+    );
+    println!("PCG iterations per solve: {default} by default, {jacobi} with block Jacobi");
+    assert!(
+        default < 30.0 && 5.0 * default < jacobi,
+        "per solve: {default} against {jacobi}"
+    );
+}

@@ -246,6 +246,9 @@ pub struct Context<'a> {
     pub dt: f64,
     /// Integrator and solver settings, from `[scene]` and `[solver]`.
     pub settings: MechSettings,
+    /// Whether `[solver]` names a preconditioner; when it does not, a domain may put in
+    /// the one that suits its systems.
+    pub preconditioner_given: bool,
     /// What the scene may ask for: its converter checks sizes against these before
     /// allocating.
     pub limits: Limits,
@@ -473,6 +476,7 @@ impl Scene {
                 gravity,
                 dt,
                 settings,
+                preconditioner_given: solver.as_ref().is_some_and(|t| t.preconditioner.is_some()),
                 src,
                 table: domain.table,
                 value: value.clone(),
