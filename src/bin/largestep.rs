@@ -679,7 +679,7 @@ fn modes(
                 status = ExitCode::from(1);
             }
         }
-        match largestep::modal::write_animations(&a, &dir) {
+        match mode_animations(&a, &dir) {
             Ok(n) => println!(
                 "animations     the first {n} modes: {}/mode_NN/animation.gif",
                 dir.display()
@@ -691,4 +691,42 @@ fn modes(
         }
     }
     status
+}
+
+/// Non-rigid modes `largestep modes --out` draws, and frames per oscillation.
+#[cfg(feature = "modal")]
+const ANIMATED_MODES: usize = 6;
+#[cfg(feature = "modal")]
+const ANIMATION_FRAMES: usize = 24;
+
+/// Draws each of the first [`ANIMATED_MODES`] non-rigid modes oscillating through one
+/// period (`modal::oscillation`) with the preview renderer: `dir/mode_NN/animation.gif`,
+/// its PNG frames and a contact sheet (640 x 360; the camera frames the whole swing).
+/// Returns the modes drawn.
+#[cfg(feature = "modal")]
+fn mode_animations(
+    a: &largestep::modal::Analysis,
+    dir: &std::path::Path,
+) -> Result<usize, RenderError> {
+    let settings = PreviewSettings {
+        render: largestep::render::Settings {
+            width: 640,
+            height: 360,
+            ..Default::default()
+        },
+        frame_interval: 1.0 / ANIMATION_FRAMES as f64,
+        ..Default::default()
+    };
+    let count = a.modes.frequencies_hz().len().min(ANIMATED_MODES);
+    for j in 0..count {
+        let frames = largestep::modal::oscillation(a, a.modes.rigid + j, ANIMATION_FRAMES);
+        write_preview(
+            &dir.join(format!("mode_{:02}", j + 1)),
+            &frames,
+            &[],
+            &settings,
+            &mut |_, _| {},
+        )?;
+    }
+    Ok(count)
 }

@@ -228,15 +228,10 @@ impl Linear {
             Linear::Pcg(p) => p.resolve(a, b, x, filter),
             Linear::Cholesky(c) => {
                 let start = std::time::Instant::now();
-                x.copy_from_slice(b);
-                if let Some(f) = filter {
-                    f.apply(x);
-                }
-                c.solve_in_place(x)?;
+                factor_solve(c, b, x, filter)?;
                 Ok(SolveInfo {
-                    iterations: 0,
-                    residual: 0.0,
                     seconds: start.elapsed().as_secs_f64(),
+                    ..SolveInfo::default()
                 })
             }
         }
@@ -258,13 +253,11 @@ impl Linear {
             Linear::Pcg(p) => p.solve(a, b, x, filter),
             Linear::Cholesky(c) => {
                 let start = std::time::Instant::now();
-                x.copy_from_slice(b);
                 if let Some(f) = filter {
                     f.project_matrix(a);
-                    f.apply(x);
                 }
                 c.factorize(a)?;
-                c.solve_in_place(x)?;
+                factor_solve(c, b, x, filter)?;
                 Ok(SolveInfo {
                     seconds: start.elapsed().as_secs_f64(),
                     ..SolveInfo::default()
@@ -272,6 +265,20 @@ impl Linear {
             }
         }
     }
+}
+
+/// `x = A^-1 S b` with the factor in hand (the filtered right-hand side).
+fn factor_solve(
+    c: &mut SparseCholesky,
+    b: &[f64],
+    x: &mut [f64],
+    filter: Option<&Filter>,
+) -> Result<(), SolveError> {
+    x.copy_from_slice(b);
+    if let Some(f) = filter {
+        f.apply(x);
+    }
+    c.solve_in_place(x)
 }
 
 struct Implicit {

@@ -328,53 +328,22 @@ pub fn write_shapes(a: &Analysis, dir: &Path) -> std::io::Result<usize> {
     Ok(freqs.len())
 }
 
-/// Non-rigid modes [`write_animations`] draws.
-pub const ANIMATED_MODES: usize = 6;
-
-/// Frames per oscillation in [`write_animations`].
-const ANIMATION_FRAMES: usize = 24;
-
-/// Draws each of the first [`ANIMATED_MODES`] non-rigid modes oscillating through one
-/// period, its boundary surface displaced by `sin(2 pi k / 24)` times the shape (scaled
-/// as in [`write_shapes`]), with the preview renderer: `dir/mode_NN/animation.gif`, its
-/// PNG frames and a contact sheet (640 x 360; the camera frames the whole swing). Returns
-/// the modes drawn.
-pub fn write_animations(a: &Analysis, dir: &Path) -> Result<usize, crate::render::RenderError> {
-    use crate::io::Mesh;
-    use crate::render::preview::{write_preview, PreviewSettings};
-    let n = a.rest.len() / 3;
+/// Mode j's boundary surface oscillating through one period in `frames` frames: the
+/// rest positions plus `sin(2 pi k / frames)` times the shape scaled as in
+/// [`write_shapes`] (for the preview renderer, which the CLI runs: physics draws nothing).
+pub fn oscillation(a: &Analysis, j: usize, frames: usize) -> Vec<crate::io::Mesh> {
     let triangles: std::sync::Arc<[[u32; 3]]> = a.fem.triangles().into();
-    let settings = PreviewSettings {
-        render: crate::render::Settings {
-            width: 640,
-            height: 360,
-            ..Default::default()
-        },
-        frame_interval: 1.0 / ANIMATION_FRAMES as f64,
-        ..Default::default()
-    };
-    let count = a.modes.frequencies_hz().len().min(ANIMATED_MODES);
-    for j in 0..count {
-        let shape = scaled_shape(a, a.modes.rigid + j);
-        let frames: Vec<Mesh> = (0..ANIMATION_FRAMES)
-            .map(|k| {
-                let s = (2.0 * std::f64::consts::PI * k as f64 / ANIMATION_FRAMES as f64).sin();
-                Mesh {
-                    positions: (0..3 * n).map(|d| a.rest[d] + s * shape[d]).collect(),
-                    triangles: triangles.clone(),
-                    segments: Vec::new().into(),
-                }
-            })
-            .collect();
-        write_preview(
-            &dir.join(format!("mode_{:02}", j + 1)),
-            &frames,
-            &[],
-            &settings,
-            &mut |_, _| {},
-        )?;
-    }
-    Ok(count)
+    let shape = scaled_shape(a, j);
+    (0..frames)
+        .map(|k| {
+            let s = (2.0 * std::f64::consts::PI * k as f64 / frames as f64).sin();
+            crate::io::Mesh {
+                positions: a.rest.iter().zip(&shape).map(|(r, d)| r + s * d).collect(),
+                triangles: triangles.clone(),
+                segments: Vec::new().into(),
+            }
+        })
+        .collect()
 }
 
 /// Mode j's shape scaled so that its largest displacement is a tenth of the mesh's size.
