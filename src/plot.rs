@@ -381,6 +381,160 @@ fn draw_legend<DB: DrawingBackend>(
     Ok(())
 }
 
+/// A perceptually ordered dark-to-light colour map (black, purple, red, orange, pale
+/// yellow, after matplotlib's "inferno"), `t` in [0, 1].
+fn heat(t: f64) -> RGBColor {
+    const STOPS: [(f64, [f64; 3]); 5] = [
+        (0.0, [0.0, 0.0, 4.0]),
+        (0.25, [87.0, 16.0, 110.0]),
+        (0.5, [188.0, 55.0, 84.0]),
+        (0.75, [249.0, 142.0, 9.0]),
+        (1.0, [252.0, 255.0, 164.0]),
+    ];
+    let t = if t.is_finite() {
+        t.clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let k = STOPS.iter().position(|s| s.0 >= t).unwrap_or(4).max(1);
+    let ((t0, a), (t1, b)) = (STOPS[k - 1], STOPS[k]);
+    let u = (t - t0) / (t1 - t0);
+    let c = |i: usize| (a[i] + u * (b[i] - a[i])).round() as u8;
+    RGBColor(c(0), c(1), c(2))
+}
+
+/// Dynamic range of a spectrogram (dB below its loudest cell).
+pub const SPECTROGRAM_RANGE_DB: f64 = 80.0;
+
+/// Writes the spectrogram of `samples` (at `rate` Hz) as a PNG: short-time Fourier
+/// transforms (Hann window of 4,096 samples, one per pixel column), magnitude in dB over
+/// [`SPECTROGRAM_RANGE_DB`] below the loudest cell, time across and frequency up to a
+/// little above the highest component within that range (each pixel row shows the
+/// loudest bin it covers, so narrow modal peaks stay visible), with a colour bar.
+pub fn write_spectrogram(
+    path: &Path,
+    samples: &[f64],
+    rate: u32,
+    title: &str,
+) -> Result<(), String> {
+    use rustfft::num_complex::Complex;
+    register_font();
+    let rate_f = rate as f64;
+    let (w, h) = (900u32, 460u32);
+    // One transform per pixel column of the plot area (the width less the axis labels,
+    // margins and the colour bar).
+    let cols = 900 - 64 - 90 - 16;
+    let win = 4096usize;
+    let fft = rustfft::FftPlanner::<f64>::new().plan_fft_forward(win);
+    let hann: Vec<f64> = (0..win)
+        .map(|i| 0.5 - 0.5 * (2.0 * std::f64::consts::PI * i as f64 / win as f64).cos())
+        .collect();
+    let duration = samples.len() as f64 / rate_f;
+    let bins = win / 2 + 1;
+    let mut power = vec![0.0f64; cols * bins];
+    let mut buf = vec![Complex::new(0.0, 0.0); win];
+    for c in 0..cols {
+        let centre = ((c as f64 + 0.5) / cols as f64 * samples.len() as f64) as isize;
+        for (i, z) in buf.iter_mut().enumerate() {
+            let k = centre - (win / 2) as isize + i as isize;
+            let x = if k >= 0 && (k as usize) < samples.len() {
+                samples[k as usize]
+            } else {
+                0.0
+            };
+            *z = Complex::new(x * hann[i], 0.0);
+        }
+        fft.process(&mut buf);
+        for b in 0..bins {
+            power[c * bins + b] = buf[b].norm_sqr();
+        }
+    }
+    let db = |p: f64| 10.0 * p.max(1e-300).log10();
+    let top = power.iter().fold(0.0f64, |a, &b| a.max(b));
+    let top_db = db(top);
+    let floor_db = top_db - SPECTROGRAM_RANGE_DB;
+    // The highest bin within range, plus 15%, rounded up to a nice number of Hz.
+    let highest = (0..bins)
+        .rev()
+        .find(|&b| (0..cols).any(|c| db(power[c * bins + b]) > floor_db + 10.0))
+        .unwrap_or(bins - 1);
+    let f_hi = (highest as f64 * rate_f / win as f64 * 1.15).max(100.0);
+    let step = 10f64.powf(f_hi.log10().floor()) / 2.0;
+    let f_max = ((f_hi / step).ceil() * step).min(rate_f / 2.0);
+    let mut image = Image::new(w, h);
+    {
+        let root = BitMapBackend::with_buffer(&mut image.rgb, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| e.to_string())?;
+        let (main, bar) = root.split_horizontally(w - 90);
+        let mut chart = ChartBuilder::on(&main)
+            .caption(title, ("sans-serif", 16))
+            .margin(8)
+            .x_label_area_size(40)
+            .y_label_area_size(64)
+            .build_cartesian_2d(0.0..duration.max(1e-9), 0.0..f_max / 1000.0)
+            .map_err(|e| e.to_string())?;
+        chart
+            .configure_mesh()
+            .disable_mesh()
+            .x_desc("time (s)")
+            .y_desc("frequency (kHz)")
+            .label_style(("sans-serif", 12))
+            .axis_desc_style(("sans-serif", 13))
+            .x_label_formatter(&linear_tick)
+            .y_label_formatter(&linear_tick)
+            .draw()
+            .map_err(|e| e.to_string())?;
+        let (px, py) = chart.plotting_area().get_pixel_range();
+        let (pw, ph) = ((px.end - px.start) as usize, (py.end - py.start) as usize);
+        for x in 0..pw {
+            let c = (x * cols / pw.max(1)).min(cols - 1);
+            for y in 0..ph {
+                // Row y covers frequencies [f0, f1) (top row: the highest).
+                let f1 = f_max * (ph - y) as f64 / ph as f64;
+                let f0 = f_max * (ph - y - 1) as f64 / ph as f64;
+                let b0 = ((f0 * win as f64 / rate_f).round() as usize).min(bins - 1);
+                let b1 = ((f1 * win as f64 / rate_f).round() as usize).clamp(b0 + 1, bins);
+                let p = power[c * bins + b0..c * bins + b1]
+                    .iter()
+                    .fold(0.0f64, |a, &b| a.max(b));
+                let t = (db(p) - floor_db) / SPECTROGRAM_RANGE_DB;
+                root.draw_pixel((px.start + x as i32, py.start + y as i32), &heat(t))
+                    .map_err(|e| e.to_string())?;
+            }
+        }
+        // The colour bar: dB below the loudest cell.
+        let mut bar_chart = ChartBuilder::on(&bar)
+            .margin_top(38)
+            .margin_bottom(48)
+            .margin_right(8)
+            .y_label_area_size(44)
+            .build_cartesian_2d(0.0..1.0, -SPECTROGRAM_RANGE_DB..0.0)
+            .map_err(|e| e.to_string())?;
+        bar_chart
+            .configure_mesh()
+            .disable_mesh()
+            .disable_x_axis()
+            .y_desc("dB")
+            .y_labels(5)
+            .y_label_style(("sans-serif", 12))
+            .axis_desc_style(("sans-serif", 13))
+            .y_label_formatter(&linear_tick)
+            .draw()
+            .map_err(|e| e.to_string())?;
+        let n = 160;
+        bar_chart
+            .draw_series((0..n).map(|k| {
+                let lo = -SPECTROGRAM_RANGE_DB + SPECTROGRAM_RANGE_DB * k as f64 / n as f64;
+                let hi = lo + SPECTROGRAM_RANGE_DB / n as f64;
+                Rectangle::new([(0.0, lo), (1.0, hi)], heat(k as f64 / n as f64).filled())
+            }))
+            .map_err(|e| e.to_string())?;
+        root.present().map_err(|e| e.to_string())?;
+    }
+    write_atomically(path, |w| crate::io::write_png(w, &image))
+        .map_err(|e| format!("{}: {e}", path.display()))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

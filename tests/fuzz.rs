@@ -423,6 +423,8 @@ fn parsers_and_scene_builders_survive_mutated_input() {
                 .replace("nu = 30", "nu = 6")
                 .replace("nv = 30", "nv = 6")
                 .replace("n = [8, 8, 8]", "n = [3, 3, 3]")
+                .replace("cells = [50, 4, 4]", "cells = [6, 2, 2]")
+                .replace("modes = 60", "modes = 8")
         })
         .collect();
     scenes.sort();

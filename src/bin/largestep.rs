@@ -130,7 +130,7 @@ enum Command {
     #[cfg(feature = "modal")]
     Modes {
         /// The mesh: TetGen .node (its .ele beside it), Gmsh .msh, legacy VTK .vtk or
-        /// Vega .veg.
+        /// Vega .veg; or a closed triangle surface (.obj, .off), voxel-meshed.
         mesh: PathBuf,
         /// Young's modulus in Pa (default: the .veg file's materials, else steel, 200e9).
         #[arg(long)]
@@ -159,6 +159,10 @@ enum Command {
         /// sheet).
         #[arg(long)]
         out: Option<PathBuf>,
+        /// For a surface mesh: the voxel mesher's cube size in the file's units (default:
+        /// the longest side of its bounding box over 40).
+        #[arg(long)]
+        voxel: Option<f64>,
     },
     /// Measure this machine's memory bandwidth (triad) and peak f64 FMA rate.
     Machine {
@@ -363,8 +367,10 @@ fn main() -> ExitCode {
             fixed,
             json,
             out,
+            voxel,
         } => {
             let options = largestep::modal::ModesOptions {
+                voxel,
                 young,
                 poisson,
                 density,
@@ -465,6 +471,20 @@ fn run(
     }
     match runner.write_plot() {
         Ok(path) => println!("  plot           {}", path.display()),
+        Err(e) => {
+            eprintln!("error: {e}");
+            status = ExitCode::from(1);
+        }
+    }
+    for path in runner.sound_files().iter().filter(|p| p.exists()) {
+        println!("  sound          {}", path.display());
+    }
+    match runner.write_spectrograms() {
+        Ok(paths) => {
+            for path in paths {
+                println!("  spectrogram    {}", path.display());
+            }
+        }
         Err(e) => {
             eprintln!("error: {e}");
             status = ExitCode::from(1);
@@ -629,6 +649,9 @@ fn modes(
         a.fem.tets().len(),
         a.fixed.len()
     );
+    for note in &a.notes {
+        println!("mesh           {note}");
+    }
     if m.dense {
         println!("eigensolver    dense ({:.3} s)", m.seconds);
     } else {

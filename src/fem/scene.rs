@@ -362,15 +362,20 @@ pub fn build(ctx: &Context<'_>) -> Result<Box<dyn Simulation>, SceneError> {
     Ok(Box::new(sim))
 }
 
-/// The description of a `[fem]` table; files are relative to the scene's folder.
-pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
+/// The tetrahedral mesh of a `beam` or `mesh` table below the domain's table (the FEM's,
+/// and modal sound's): generated, read, or voxel-meshed from a closed surface, scaled
+/// and offset; `bytes` estimates the memory of a model of that many vertices, checked
+/// before anything large is made; notes of the voxel mesher go to `notes`.
+pub fn mesh(
+    ctx: &Context<'_>,
+    beam: Option<&BeamTable>,
+    mesh: Option<&MeshTable>,
+    bytes: &dyn Fn(f64) -> f64,
+    notes: &mut Vec<String>,
+) -> Result<(TetMesh, Option<super::mesh::VegParts>), SceneError> {
     let at = |f: &[&dyn PathPart]| path(f);
-    let m = &t.material;
-    let kind = model(ctx, &m.model)?;
-    // A .veg file's materials and regions.
     let mut veg: Option<super::mesh::VegParts> = None;
-    let mut notes = Vec::new();
-    let mesh = match (&t.beam, &t.mesh) {
+    let mesh = match (beam, mesh) {
         (Some(b), None) => {
             let mut cells = [0usize; 3];
             for (c, &v) in b.cells.iter().enumerate() {
@@ -396,7 +401,7 @@ pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
             ctx.memory(
                 &at(&[&"beam", &"cells"]),
                 &format!("a beam of {} x {} x {} cubes", cells[0], cells[1], cells[2]),
-                estimated_bytes(vertices, ctx.implicit(), ctx.cholesky(vertices)),
+                bytes(vertices),
             )?;
             box_mesh(cells, b.size, origin)
         }
@@ -442,11 +447,7 @@ pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
             ctx.memory(
                 &at(&[&"mesh", &"file"]),
                 &format!("a mesh of {} vertices", positions.len()),
-                estimated_bytes(
-                    positions.len() as f64,
-                    ctx.implicit(),
-                    ctx.cholesky(positions.len() as f64),
-                ),
+                bytes(positions.len() as f64),
             )?;
             let scale = ctx.positive(m.scale.unwrap_or(1.0), &at(&[&"mesh", &"scale"]), "scale")?;
             let offset = m.offset.unwrap_or([0.0; 3]);
@@ -472,8 +473,20 @@ pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
             }
             TetMesh { positions, tets }
         }
-        _ => return Err(ctx.error(&[], "give exactly one of [fem.beam] or [fem.mesh]")),
+        _ => return Err(ctx.error(&[], "give exactly one of the tables `beam` and `mesh`")),
     };
+    Ok((mesh, veg))
+}
+
+/// The description of a `[fem]` table; files are relative to the scene's folder.
+pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
+    let at = |f: &[&dyn PathPart]| path(f);
+    let m = &t.material;
+    let kind = model(ctx, &m.model)?;
+    // A .veg file's materials and regions.
+    let mut notes = Vec::new();
+    let bytes = |v: f64| estimated_bytes(v, ctx.implicit(), ctx.cholesky(v));
+    let (mesh, veg) = mesh(ctx, t.beam.as_ref(), t.mesh.as_ref(), &bytes, &mut notes)?;
     let material = match &veg {
         None => constants(
             ctx,

@@ -202,3 +202,31 @@ pub fn remove_stale(dir: &Path, is_ours: impl Fn(&str) -> bool) -> std::io::Resu
     }
     Ok(removed)
 }
+
+/// Writes `samples` as a 16-bit mono WAV at `sample_rate` (hound), scaled so the loudest
+/// sample is 0.9 of full scale (silence stays zero); through a temporary file, so an
+/// existing file stays whole if writing fails.
+pub fn write_wav(path: &Path, samples: &[f64], sample_rate: u32) -> std::io::Result<()> {
+    let peak = samples.iter().fold(0.0f64, |a, &b| a.max(b.abs()));
+    let scale = if peak > 0.0 && peak.is_finite() {
+        0.9 * i16::MAX as f64 / peak
+    } else {
+        0.0
+    };
+    let spec = hound::WavSpec {
+        channels: 1,
+        sample_rate,
+        bits_per_sample: 16,
+        sample_format: hound::SampleFormat::Int,
+    };
+    let mut bytes = std::io::Cursor::new(Vec::with_capacity(44 + 2 * samples.len()));
+    {
+        let mut w = hound::WavWriter::new(&mut bytes, spec).map_err(std::io::Error::other)?;
+        for &s in samples {
+            w.write_sample((s * scale).round() as i16)
+                .map_err(std::io::Error::other)?;
+        }
+        w.finalize().map_err(std::io::Error::other)?;
+    }
+    write_atomically(path, |w| w.write_all(bytes.get_ref()))
+}

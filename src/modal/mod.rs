@@ -9,6 +9,7 @@
 //! modes' sound when struck: [`sound`].
 
 pub mod beam;
+pub mod scene;
 pub mod sound;
 
 use crate::fem::mesh::{read_volume_mesh, TetMesh};
@@ -36,7 +37,17 @@ pub struct ModesOptions {
     pub mass: FemMass,
     /// Vertices held fixed.
     pub fixed: Option<Selector>,
+    /// For a closed surface (`.obj`, `.off`): the voxel mesher's cube size (the file's
+    /// units); `None`: the longest side of its bounding box over [`VOXELS_ACROSS`].
+    pub voxel: Option<f64>,
 }
+
+/// Voxels along the longest side of a surface's bounding box unless told otherwise.
+pub const VOXELS_ACROSS: f64 = 40.0;
+
+/// Most grid cubes the voxel mesher may use for `largestep modes` (about 150 bytes each
+/// while meshing).
+pub const MAX_VOXELS: usize = 20_000_000;
 
 impl Default for ModesOptions {
     fn default() -> Self {
@@ -47,6 +58,7 @@ impl Default for ModesOptions {
             count: DEFAULT_COUNT,
             mass: FemMass::Consistent,
             fixed: None,
+            voxel: None,
         }
     }
 }
@@ -190,9 +202,12 @@ pub enum ModalError {
     /// The mesh could not be read.
     #[error(transparent)]
     Read(#[from] ReadError),
-    /// An option or the model is invalid.
+    /// An option is invalid.
     #[error("{0}")]
     Input(String),
+    /// The model is invalid (an element, a material).
+    #[error(transparent)]
+    Model(crate::validate::ModelError),
     /// The eigensolver failed.
     #[error("eigensolver: {0}")]
     Solve(#[from] SolveError),
@@ -210,6 +225,9 @@ pub struct Analysis {
     pub modes: Modes,
     /// Fixed vertices.
     pub fixed: Vec<usize>,
+    /// What making the mesh noticed (the voxel mesher's size and vertices it left off
+    /// the surface).
+    pub notes: Vec<String>,
 }
 
 /// The stiffness `K` (the negated force Jacobian) of `fem` at its rest positions `rest`
@@ -245,7 +263,45 @@ pub fn analyse(
     options: &ModesOptions,
     max_bytes: u64,
 ) -> Result<Analysis, ModalError> {
-    let (mesh, veg) = read_volume_mesh(file, max_bytes)?;
+    let surface = ["obj", "off"]
+        .into_iter()
+        .find(|k| file.extension().is_some_and(|e| e.eq_ignore_ascii_case(k)));
+    let mut notes = Vec::new();
+    let (mesh, veg) = match surface {
+        None => read_volume_mesh(file, max_bytes)?,
+        Some(kind) => {
+            let s = if kind == "obj" {
+                crate::io::read_obj(file, max_bytes)?
+            } else {
+                crate::io::read_off(file, max_bytes)?
+            };
+            let h = match options.voxel {
+                Some(h) => h,
+                None => {
+                    // The longest side of the bounding box (positions component-major).
+                    let n = s.positions.len() / 3;
+                    let side = |c: usize| {
+                        let p = &s.positions[c * n..(c + 1) * n];
+                        let hi = p.iter().fold(f64::NEG_INFINITY, |a, &b| a.max(b));
+                        let lo = p.iter().fold(f64::INFINITY, |a, &b| a.min(b));
+                        hi - lo
+                    };
+                    (0..3).map(side).fold(0.0, f64::max) / VOXELS_ACROSS
+                }
+            };
+            let v = crate::fem::voxel::voxel_mesh(&s, h, MAX_VOXELS)
+                .map_err(|e| ModalError::Input(format!("{}: {e}", file.display())))?;
+            notes.push(format!(
+                "voxel-meshed with cubes of {h:.4e} ({} x {} x {} grid); {} of {} boundary vertices snapped to the surface",
+                v.cells[0],
+                v.cells[1],
+                v.cells[2],
+                v.snapped,
+                v.snapped + v.unsnapped
+            ));
+            (v.mesh, None)
+        }
+    };
     let TetMesh { positions, tets } = mesh;
     if options.count == 0 {
         return Err(ModalError::Input("--count must be at least 1".into()));
@@ -269,29 +325,50 @@ pub fn analyse(
         }
     }
     desc.mass = options.mass;
-    let (fem, state) = desc
-        .build()
-        .map_err(|e| ModalError::Input(format!("{}: {e}", file.display())))?;
+    let mut a = analyse_desc(desc, fixed, options.count).map_err(|e| match e {
+        ModalError::Model(e) => ModalError::Input(format!("{}: {e}", file.display())),
+        e => e,
+    })?;
+    a.notes = notes;
+    Ok(a)
+}
+
+/// The lowest `count` non-rigid modes (and the rigid ones) of the model `desc` describes
+/// (its material taken as linear), with the vertices `fixed` held.
+pub fn analyse_desc(
+    desc: FemDesc,
+    fixed: Vec<usize>,
+    count: usize,
+) -> Result<Analysis, ModalError> {
+    if count == 0 {
+        return Err(ModalError::Input(
+            "at least one mode must be asked for".into(),
+        ));
+    }
+    let mut desc = desc;
+    for m in &mut desc.materials {
+        m.model = Material::Linear;
+    }
+    let (fem, state) = desc.build().map_err(ModalError::Model)?;
     let rest = state.x.as_slice().to_vec();
     let n = fem.vertex_count();
     let k = stiffness_at_rest(&fem, &rest)?;
     // Six more than asked, for the rigid modes of a free body.
     let free = 3 * (n - fixed.len());
-    if options.count > free {
+    if count > free {
         return Err(ModalError::Input(format!(
-            "{} modes asked of a mesh with {free} free unknowns",
-            options.count
+            "{count} modes asked of a mesh with {free} free unknowns"
         )));
     }
     let params = EigenParams {
-        count: (options.count + 6).min(free),
+        count: (count + 6).min(free),
         ..EigenParams::default()
     };
     let mut modes = match fem.mass_matrix() {
         Some(m) => lowest_modes(&k, Mass::Consistent(m), &fixed, &params)?,
         None => lowest_modes(&k, Mass::Lumped(fem.mass()), &fixed, &params)?,
     };
-    let keep = (modes.rigid + options.count).min(modes.eigenvalues.len());
+    let keep = (modes.rigid + count).min(modes.eigenvalues.len());
     modes.eigenvalues.truncate(keep);
     modes.residuals.truncate(keep);
     modes.vectors.truncate(keep * 3 * n);
@@ -300,6 +377,7 @@ pub fn analyse(
         rest,
         modes,
         fixed,
+        notes: Vec::new(),
     })
 }
 

@@ -244,6 +244,8 @@ pub struct Context<'a> {
     pub gravity: [f64; 3],
     /// Time step (s).
     pub dt: f64,
+    /// Simulated time (s), from `[scene]`.
+    pub duration: f64,
     /// Integrator and solver settings, from `[scene]` and `[solver]`.
     pub settings: MechSettings,
     /// Whether `[solver]` names a preconditioner; when it does not, a domain may put in
@@ -416,7 +418,7 @@ impl Scene {
         let Some(scene_value) = get("scene") else {
             return Err(err(
                 Vec::new(),
-                "missing [scene] table (dt, duration, integrator)".into(),
+                "missing [scene] table (dt, duration; integrator optional)".into(),
             ));
         };
         let s: schema::SceneTable = table(file, src, scene_value)?;
@@ -442,12 +444,12 @@ impl Scene {
                 duration / dt,
             )
             .map_err(|m| err(path(&[&"scene", &"dt"]), m))?;
-        let method = Method::from_name(&s.integrator).ok_or_else(|| {
+        let integrator = s.integrator.as_deref().unwrap_or("backward-euler");
+        let method = Method::from_name(integrator).ok_or_else(|| {
             err(
                 path(&[&"scene", &"integrator"]),
                 format!(
-                    "unknown integrator `{}`; expected one of {}",
-                    s.integrator,
+                    "unknown integrator `{integrator}`; expected one of {}",
                     Method::names()
                 ),
             )
@@ -475,6 +477,7 @@ impl Scene {
                 limits: *limits,
                 gravity,
                 dt,
+                duration,
                 settings,
                 preconditioner_given: solver.as_ref().is_some_and(|t| t.preconditioner.is_some()),
                 src,

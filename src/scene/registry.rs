@@ -41,6 +41,11 @@ pub const DOMAINS: &[Domain] = &[
         table: "fem",
         build: crate::fem::scene::build,
     },
+    #[cfg(feature = "modal")]
+    Domain {
+        table: "sound",
+        build: crate::modal::scene::build,
+    },
 ];
 
 /// Scene files other than TOML.

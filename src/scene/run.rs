@@ -203,7 +203,7 @@ impl std::fmt::Display for Summary {
                 human(self.external_work)
             )?;
         }
-        if self.energy_scale <= 1e-12 * self.energy.1.abs() {
+        if self.energy_scale <= (1e-12 * self.energy.1.abs()).max(f64::MIN_POSITIVE) {
             // Nothing to measure a change against (a static solve: no motion, and a
             // start with no energy): the change itself.
             writeln!(
@@ -295,6 +295,16 @@ pub enum RunError {
         /// The output folder.
         out: PathBuf,
     },
+    /// A system's contact impulses do not fit the system listening to them.
+    #[error("{message}\n  {frames_written} frames written before the failure remain valid in {}", out.display())]
+    Listen {
+        /// What does not fit, with the step.
+        message: String,
+        /// Frames written before it.
+        frames_written: usize,
+        /// The output folder.
+        out: PathBuf,
+    },
     /// Output could not be written.
     #[error("{}: {source}", path.display())]
     Io {
@@ -361,13 +371,28 @@ pub struct Runner {
     out_dir: PathBuf,
     records: Vec<FrameRecord>,
     kept: Option<Vec<Mesh>>,
+    /// Whether a system listens to the others' contact impulses (they record them then).
+    listening: bool,
+}
+
+/// Why a step of the scene failed.
+enum StepFail {
+    Integrate(IntegrateError),
+    Listen(String),
 }
 
 impl Runner {
     /// A run of `scene`; output goes to `out_dir` (created on run).
     pub fn new(scene: Scene, out_dir: &Path) -> Self {
+        let mut systems = scene.systems;
+        let listening = systems.iter().any(|s| s.sim.listens());
+        if listening {
+            for s in systems.iter_mut().filter(|s| !s.sim.listens()) {
+                s.sim.record_contact_impulses(true);
+            }
+        }
         Self {
-            systems: scene.systems,
+            systems,
             name: scene.name,
             duration: scene.duration,
             dt: scene.dt,
@@ -376,6 +401,7 @@ impl Runner {
             out_dir: out_dir.to_path_buf(),
             records: Vec::new(),
             kept: None,
+            listening,
         }
     }
 
@@ -432,15 +458,39 @@ impl Runner {
             .fold(0.0, f64::max)
     }
 
-    /// One step of every system.
-    fn step(&mut self) -> Result<StepInfo, IntegrateError> {
+    /// One step of every system; after each, its contact impulses go to the systems that
+    /// listen (a listener stepped before it hears them from its next step on).
+    fn step(&mut self) -> Result<StepInfo, StepFail> {
         let mut total = StepInfo::default();
-        for s in &mut self.systems {
-            let info = s.sim.step(self.dt)?;
+        for k in 0..self.systems.len() {
+            let info = self.systems[k]
+                .sim
+                .step(self.dt)
+                .map_err(StepFail::Integrate)?;
             total.newton_iterations += info.newton_iterations;
             total.linear_iterations += info.linear_iterations;
             total.residual = total.residual.max(info.residual);
             total.solve_seconds += info.solve_seconds;
+            if !self.listening {
+                continue;
+            }
+            let (before, rest) = self.systems.split_at_mut(k);
+            let (source, after) = rest.split_first_mut().expect("k < len");
+            let Some(impulses) = source.sim.contact_impulses() else {
+                continue;
+            };
+            for other in before.iter_mut().chain(after) {
+                if other.sim.listens() {
+                    other.sim.listen(impulses).map_err(|why| {
+                        StepFail::Listen(format!(
+                            "step {}: the contacts of [{}] cannot drive [{}]: {why}",
+                            source.sim.steps(),
+                            source.table,
+                            other.table
+                        ))
+                    })?;
+                }
+            }
         }
         Ok(total)
     }
@@ -604,8 +654,54 @@ impl Runner {
         names.join(", ")
     }
 
-    /// Runs `frames` frames (default: the scene's duration), calling `progress` after each.
+    /// Runs `frames` frames (default: the scene's duration), calling `progress` after each,
+    /// then writes the sound of every system that made one ([`Runner::sound_files`]),
+    /// also after a failure (the sound up to it).
     pub fn run(
+        &mut self,
+        frames: Option<usize>,
+        progress: &mut dyn FnMut(&Progress),
+    ) -> Result<Summary, RunError> {
+        let result = self.run_frames(frames, progress);
+        let sound = self.write_sound();
+        let summary = result?;
+        sound?;
+        Ok(summary)
+    }
+
+    /// The WAV file of each system that makes sound: `sound.wav` for the first,
+    /// `sound_<table>_<k>.wav` for any further one.
+    pub fn sound_files(&self) -> Vec<PathBuf> {
+        let mut k = 0;
+        self.systems
+            .iter()
+            .filter(|s| s.sim.audio().is_some())
+            .map(|s| {
+                k += 1;
+                let name = if k == 1 {
+                    "sound.wav".to_string()
+                } else {
+                    format!("sound_{}_{k}.wav", s.table)
+                };
+                self.out_dir.join(name)
+            })
+            .collect()
+    }
+
+    /// Writes [`Runner::sound_files`] (16-bit mono WAV, scaled to 0.9 of full scale).
+    fn write_sound(&self) -> Result<(), RunError> {
+        let audio = self.systems.iter().filter_map(|s| s.sim.audio());
+        for (path, a) in self.sound_files().into_iter().zip(audio) {
+            if a.samples.is_empty() {
+                continue;
+            }
+            std::fs::create_dir_all(&self.out_dir).map_err(io_err(&self.out_dir))?;
+            crate::io::write_wav(&path, a.samples, a.sample_rate).map_err(io_err(&path))?;
+        }
+        Ok(())
+    }
+
+    fn run_frames(
         &mut self,
         frames: Option<usize>,
         progress: &mut dyn FnMut(&Progress),
@@ -620,8 +716,12 @@ impl Runner {
         // (written after a run succeeds) that would describe another run.
         crate::io::remove_stale(&frames_dir, |n| n.starts_with("frame_"))
             .map_err(io_err(&frames_dir))?;
-        crate::io::remove_stale(&self.out_dir, |n| n == "summary.json")
-            .map_err(io_err(&self.out_dir))?;
+        crate::io::remove_stale(&self.out_dir, |n| {
+            n == "summary.json"
+                || (n.starts_with("sound") && n.ends_with(".wav"))
+                || (n.starts_with("spectrogram") && n.ends_with(".png"))
+        })
+        .map_err(io_err(&self.out_dir))?;
         let csv_path = self.out_dir.join("energy.csv");
         let mut csv = std::io::BufWriter::new(
             crate::io::create_replacing(&csv_path).map_err(io_err(&csv_path))?,
@@ -703,10 +803,17 @@ impl Runner {
             let t0 = Instant::now();
             let n = self.output.every.min(total_steps - steps_done);
             for _ in 0..n {
-                let info = self.step().map_err(|source| RunError::Integrate {
-                    source,
-                    frames_written: written,
-                    out: self.out_dir.clone(),
+                let info = self.step().map_err(|fail| match fail {
+                    StepFail::Integrate(source) => RunError::Integrate {
+                        source,
+                        frames_written: written,
+                        out: self.out_dir.clone(),
+                    },
+                    StepFail::Listen(message) => RunError::Listen {
+                        message,
+                        frames_written: written,
+                        out: self.out_dir.clone(),
+                    },
                 })?;
                 newton += info.newton_iterations;
                 linear += info.linear_iterations;
@@ -757,6 +864,7 @@ impl Runner {
                 (gain / scale, r.time)
             })
             .fold((0.0, 0.0), |a, b| if b.0 > a.0 { b } else { a });
+        summary.warnings = self.systems.iter().flat_map(|s| s.sim.warnings()).collect();
         summary.wall_seconds = start.elapsed().as_secs_f64();
         Ok(summary)
     }
@@ -764,6 +872,34 @@ impl Runner {
 
 #[cfg(feature = "cli")]
 impl Runner {
+    /// Writes the spectrogram of each sound next to its WAV file
+    /// ([`Runner::sound_files`]: `sound.wav` gives `spectrogram.png`, `sound_x_2.wav`
+    /// gives `spectrogram_x_2.png`). Works after a failed run too.
+    pub fn write_spectrograms(&self) -> Result<Vec<PathBuf>, RunError> {
+        let audio = self.systems.iter().filter_map(|s| s.sim.audio());
+        let mut written = Vec::new();
+        for (wav, a) in self.sound_files().into_iter().zip(audio) {
+            if a.samples.is_empty() {
+                continue;
+            }
+            let stem = wav.file_stem().and_then(|s| s.to_str()).unwrap_or("sound");
+            let path =
+                wav.with_file_name(format!("{}.png", stem.replacen("sound", "spectrogram", 1)));
+            crate::plot::write_spectrogram(
+                &path,
+                a.samples,
+                a.sample_rate,
+                &format!("{}: spectrogram of {}", self.name, stem),
+            )
+            .map_err(|e| RunError::Io {
+                path: path.clone(),
+                source: std::io::Error::other(e),
+            })?;
+            written.push(path);
+        }
+        Ok(written)
+    }
+
     /// Writes `run.svg` and `run.png` into the output folder: energy, solver iterations
     /// per step (implicit integrators only) and wall time per step, against simulated
     /// time, one point per frame. Works after a failed run too (up to the failure).

@@ -8,7 +8,7 @@
 //! name = "hanging-chain"      # default: the file name; names the output folder
 //! dt = 0.0005                 # s, > 0
 //! duration = 3.0              # s, > 0
-//! integrator = "rk4"          # see `largestep::integrate::Method`
+//! integrator = "rk4"          # see `largestep::integrate::Method` (default backward-euler)
 //! gravity = [0.0, -9.81, 0.0] # m/s^2, for every system
 //!
 //! [solver]                    # implicit integrators only (all optional)
@@ -54,8 +54,10 @@ pub struct SceneTable {
     pub dt: f64,
     /// Simulated time (s).
     pub duration: f64,
-    /// Integrator name.
-    pub integrator: String,
+    /// Integrator name (default `backward-euler`; systems that integrate nothing, such as
+    /// modal sound, need none).
+    #[serde(default)]
+    pub integrator: Option<String>,
     /// Gravity (m/s^2).
     #[serde(default)]
     pub gravity: Option<[f64; 3]>,

@@ -312,6 +312,24 @@ pub struct MechSimulation<M: MechModel> {
     /// The model's initial size (m): the diagonal of its vertices' bounding box, at least
     /// 1 m. A vertex moving ten times that in one step is a blow-up.
     size: f64,
+    /// Contact impulses, while a listener wants them.
+    impulses: Option<Box<ImpulseRecorder>>,
+}
+
+/// What recording contact impulses needs (see [`MechSimulation::record_contact_impulses`]).
+#[derive(Clone, Debug, Default)]
+struct ImpulseRecorder {
+    /// Positions when recording began: the frame the impulses are given in.
+    initial: Vec<f64>,
+    /// Velocities at the start of the step.
+    v0: Vec<f64>,
+    /// Scratch: the force at the end of the last sub-step's solve.
+    force: Vec<f64>,
+    /// `h f(x1, v1)` summed over the accepted sub-steps of the step (N s).
+    force_impulse: Vec<f64>,
+    /// Vertices touching an obstacle before or after the step.
+    touching: Vec<u32>,
+    out: crate::simulation::ContactImpulses,
 }
 
 /// The diagonal of the bounding box of component-major positions (m), at least 1 m.
@@ -398,6 +416,7 @@ impl<M: MechModel> MechSimulation<M> {
             external_work: 0.0,
             power,
             size,
+            impulses: None,
         })
     }
 
@@ -494,7 +513,23 @@ impl<M: MechModel> MechSimulation<M> {
             v,
             h,
         )?;
+        if let Some(r) = &mut self.impulses {
+            // The force the solve balanced, before the contact response moves anything.
+            r.force.fill(0.0);
+            let t1 = self.t + h;
+            self.model.force(&mut self.work, t1, x, v, &mut r.force);
+            r.force.iter_mut().for_each(|f| *f *= h);
+        }
         Ok(info)
+    }
+
+    /// Counts an accepted sub-step's `h f(x1, v1)` into the step's contact impulses.
+    fn accept_force_impulse(&mut self) {
+        if let Some(r) = &mut self.impulses {
+            for (acc, f) in r.force_impulse.iter_mut().zip(&r.force) {
+                *acc += f;
+            }
+        }
     }
 
     /// What follows every accepted step ending at `self.t`: prescribed vertices, then
@@ -534,12 +569,113 @@ impl<M: MechModel> MechSimulation<M> {
         Ok(())
     }
 
+    /// Starts (with the present positions as the frame impulses are given in) or stops
+    /// recording the impulses contacts give vertices at each step
+    /// ([`MechSimulation::contact_impulses`]).
+    pub fn record_contact_impulses(&mut self, on: bool) {
+        if !on || self.model.contact_friction().is_none() {
+            self.impulses = None;
+        } else if self.impulses.is_none() {
+            let n = self.model.vertex_count();
+            self.impulses = Some(Box::new(ImpulseRecorder {
+                initial: self.state.x.as_slice().to_vec(),
+                v0: vec![0.0; 3 * n],
+                force: vec![0.0; 3 * n],
+                force_impulse: vec![0.0; 3 * n],
+                out: crate::simulation::ContactImpulses {
+                    vertex_count: n,
+                    ..Default::default()
+                },
+                ..Default::default()
+            }));
+        }
+    }
+
+    /// The impulses contacts gave vertices over the last step, while recording: for each
+    /// vertex touching an obstacle before or after the step, `m (v - v0) - h f(x1, v1)`
+    /// with `(x1, v1)` the solve's result before the contact response and `v` the
+    /// velocity after it: the momentum balance of backward Euler (exact for it, at
+    /// convergence; the other integrators evaluate their forces elsewhere in the step, so
+    /// it is an estimate there), which counts the constraint's impulse inside the solve
+    /// and the velocity the contact response removed after it. Turned into the initial frame by the
+    /// rotation that best fits the positions to the initial ones (the polar factor of
+    /// `sum m (x - c)(X - C)^T`, Müller et al. 2005's shape matching).
+    pub fn contact_impulses(&self) -> Option<&crate::simulation::ContactImpulses> {
+        self.impulses.as_ref().map(|r| &r.out)
+    }
+
     /// Advances by `dt` (s); see the module docs.
     pub fn step(&mut self, dt: f64) -> Result<StepInfo, IntegrateError> {
+        let t0 = self.t;
+        if let Some(r) = &mut self.impulses {
+            r.v0.copy_from_slice(self.state.v.as_slice());
+            r.force_impulse.fill(0.0);
+            r.touching.clear();
+            self.contacts.touching(&mut r.touching);
+        }
+        let info = self.step_inner(dt)?;
+        if self.impulses.is_some() {
+            self.measure_impulses(t0, dt);
+        }
+        Ok(info)
+    }
+
+    /// The momentum balance of [`MechSimulation::contact_impulses`] after a step of `dt`
+    /// from `t0`.
+    fn measure_impulses(&mut self, t0: f64, dt: f64) {
+        let Some(mut r) = self.impulses.take() else {
+            return;
+        };
+        self.contacts.touching(&mut r.touching);
+        r.touching.sort_unstable();
+        r.touching.dedup();
+        let (x, v) = (self.state.x.as_slice(), self.state.v.as_slice());
+        let n = self.model.vertex_count();
+        let mass = self.model.mass();
+        // The best-fit rotation: polar factor of A = sum m (x - c)(X - C)^T.
+        let total: f64 = mass.iter().sum();
+        let centre = |p: &[f64]| -> [f64; 3] {
+            std::array::from_fn(|c| (0..n).map(|i| mass[i] * p[c * n + i]).sum::<f64>() / total)
+        };
+        let (c, c0) = (centre(x), centre(&r.initial));
+        let mut a = [0.0; 9];
+        for i in 0..n {
+            for j in 0..3 {
+                for k in 0..3 {
+                    a[3 * j + k] +=
+                        mass[i] * (x[j * n + i] - c[j]) * (r.initial[k * n + i] - c0[k]);
+                }
+            }
+        }
+        let rot = if a.iter().all(|v| v.is_finite()) && a.iter().any(|&v| v != 0.0) {
+            largestep_kernels::fem::polar(&a).0
+        } else {
+            [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+        };
+        r.out.time = t0;
+        r.out.dt = dt;
+        r.out.impulses.clear();
+        for &i in &r.touching {
+            let i = i as usize;
+            let j: [f64; 3] = std::array::from_fn(|k| {
+                mass[i] * (v[k * n + i] - r.v0[k * n + i]) - r.force_impulse[k * n + i]
+            });
+            // R^T j: from the present frame to the initial one.
+            let local: [f64; 3] =
+                std::array::from_fn(|k| (0..3).map(|l| rot[3 * l + k] * j[l]).sum());
+            if local.iter().all(|v| v.is_finite()) {
+                r.out.impulses.push((i as u32, local));
+            }
+        }
+        self.impulses = Some(r);
+    }
+
+    fn step_inner(&mut self, dt: f64) -> Result<StepInfo, IntegrateError> {
         let Some(control) = self.control else {
             let info = self.integrate(dt)?;
             self.t += dt;
             self.after_step(dt)?;
+            self.accept_force_impulse();
             return Ok(info);
         };
         // First step (NaN), or a dt smaller than the current sub-step: start at dt.
@@ -573,6 +709,7 @@ impl<M: MechModel> MechSimulation<M> {
                         .model
                         .strain_change(&self.saved.0, self.state.x.as_slice());
                     if change <= control.max_strain_change {
+                        self.accept_force_impulse();
                         total.newton_iterations += info.newton_iterations;
                         total.linear_iterations += info.linear_iterations;
                         total.residual = info.residual;
@@ -741,6 +878,14 @@ impl<M: MechModel> Simulation for MechSimulation<M> {
 
     fn as_any(&self) -> &dyn std::any::Any {
         self
+    }
+
+    fn record_contact_impulses(&mut self, on: bool) {
+        MechSimulation::record_contact_impulses(self, on);
+    }
+
+    fn contact_impulses(&self) -> Option<&crate::simulation::ContactImpulses> {
+        MechSimulation::contact_impulses(self)
     }
 
     fn warnings(&self) -> Vec<String> {

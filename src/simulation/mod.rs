@@ -125,6 +125,31 @@ pub enum FrameData<'a> {
     Mesh(MeshRef<'a>),
 }
 
+/// The impulses a system's obstacles gave its vertices over its last step
+/// ([`Simulation::contact_impulses`]), for listeners such as modal sound.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ContactImpulses {
+    /// When the step began (s).
+    pub time: f64,
+    /// Its length (s).
+    pub dt: f64,
+    /// Vertices of the system.
+    pub vertex_count: usize,
+    /// `(vertex, impulse)` (N s), in the system's initial frame: turned back by the
+    /// rotation that best fits the body's present positions to its initial ones, so a
+    /// listener holding the body's modes at rest reads them in the modes' frame.
+    pub impulses: Vec<(u32, [f64; 3])>,
+}
+
+/// Sound a system made ([`Simulation::audio`]).
+#[derive(Clone, Copy, Debug)]
+pub struct Audio<'a> {
+    /// One value per sample (arbitrary units: the runner scales the file).
+    pub samples: &'a [f64],
+    /// Samples per second.
+    pub sample_rate: u32,
+}
+
 /// A running simulation of one system (see the module docs).
 pub trait Simulation: Send {
     /// Advances by `dt` (s): one step, or several smaller ones when step-size control
@@ -159,6 +184,32 @@ pub trait Simulation: Send {
         Vec::new()
     }
     /// Whether the system has a volume to write as a frame ([`Simulation::write_volume`]).
+    /// Starts or stops recording [`Simulation::contact_impulses`] (a listener asked for
+    /// them; off by default, since they cost a force evaluation a step). Systems without
+    /// contacts ignore it.
+    fn record_contact_impulses(&mut self, _on: bool) {}
+
+    /// The contact impulses of the last step, while recording.
+    fn contact_impulses(&self) -> Option<&ContactImpulses> {
+        None
+    }
+
+    /// Whether this system listens to the other systems' contact impulses.
+    fn listens(&self) -> bool {
+        false
+    }
+
+    /// Takes another system's contact impulses of its last step (a listener's; others
+    /// ignore them). The error says what does not fit.
+    fn listen(&mut self, _impulses: &ContactImpulses) -> Result<(), String> {
+        Ok(())
+    }
+
+    /// The sound made so far, for systems that make one.
+    fn audio(&self) -> Option<Audio<'_>> {
+        None
+    }
+
     fn has_volume(&self) -> bool {
         false
     }

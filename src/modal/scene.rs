@@ -1,0 +1,550 @@
+//! The `[sound]` scene table: the modal sound of a tetrahedral mesh, struck by scripted
+//! hits and, with `contacts = true`, by the contact impulses of the scene's other systems
+//! (a FEM body dropped on the floor, made of the same mesh).
+//!
+//! Building it runs the modal analysis ([`super::analyse_desc`]: linear elasticity at
+//! rest, the lowest `modes` non-rigid modes) and sets up the resonator bank
+//! ([`super::sound::Synth`]); each scene step renders the samples of its interval, so a
+//! contact heard in a step rings from that step on. The runner writes the sound as
+//! `sound.wav` and, from the command line, its spectrogram (`spectrogram.png`).
+//!
+//! ```toml
+//! [sound]
+//! material = "steel"            # steel, aluminium, glass, wood, ceramic (E, nu, rho and
+//!                               # Rayleigh damping); young, poisson, density, alpha
+//!                               # (1/s) and beta (s) override the preset's
+//! modes = 60                    # lowest non-rigid modes (default 60)
+//! mass = "consistent"           # or "lumped"
+//! # fixed = "x<=0"              # vertices held (as `largestep modes --fixed`)
+//! sample_rate = 44100           # Hz
+//! max_frequency = 20000.0       # Hz: modes above are culled
+//! quiet = 1e-4                  # modes quieter than this fraction of the loudest: culled
+//! contacts = false              # true: the other systems' contact impulses strike it
+//! contact_time = 1e-4           # s: the half-sine each contact impulse is spread over
+//! [sound.beam]                  # or [sound.mesh], as [fem.beam] and [fem.mesh]
+//! cells = [40, 4, 4]
+//! size = [0.5, 0.02, 0.02]
+//! [[sound.hit]]
+//! time = 0.05                   # s
+//! vertex = 12                   # or position = [x, y, z]: the nearest surface vertex
+//! direction = [0.0, -1.0, 0.0]
+//! impulse = 0.01                # N s
+//! duration = 1e-4               # s of contact (half-sine force; default contact_time)
+//! ```
+
+use super::sound::{sound_material, Cull, Rayleigh, SoundParams, Synth, SOUND_MATERIALS};
+use super::{analyse_desc, Analysis, ModalError, Selector};
+use crate::fem::scene::{estimated_bytes, BeamTable, MeshTable};
+use crate::fem::{FemDesc, FemMass, FemMaterial, Material};
+use crate::integrate::{IntegrateError, StepInfo};
+use crate::io::{Mesh, MeshRef};
+use crate::scene::{path, Context, PathPart, SceneError};
+use crate::simulation::{Audio, ContactImpulses, Energy, FrameData, MechModel, Simulation, Stage};
+use serde::Deserialize;
+use std::time::Instant;
+
+/// Modes computed unless `modes` says otherwise.
+pub const DEFAULT_MODES: usize = 60;
+
+/// `[sound]`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SoundTable {
+    /// A preset of [`SOUND_MATERIALS`] (default steel).
+    #[serde(default)]
+    pub material: Option<String>,
+    #[serde(default)]
+    pub young: Option<f64>,
+    #[serde(default)]
+    pub poisson: Option<f64>,
+    #[serde(default)]
+    pub density: Option<f64>,
+    /// Rayleigh damping's mass factor (1/s).
+    #[serde(default)]
+    pub alpha: Option<f64>,
+    /// Rayleigh damping's stiffness factor (s).
+    #[serde(default)]
+    pub beta: Option<f64>,
+    #[serde(default)]
+    pub modes: Option<i64>,
+    #[serde(default)]
+    pub mass: Option<String>,
+    #[serde(default)]
+    pub fixed: Option<String>,
+    #[serde(default)]
+    pub sample_rate: Option<i64>,
+    #[serde(default)]
+    pub max_frequency: Option<f64>,
+    #[serde(default)]
+    pub quiet: Option<f64>,
+    #[serde(default)]
+    pub contacts: bool,
+    #[serde(default)]
+    pub contact_time: Option<f64>,
+    #[serde(default)]
+    pub hit: Vec<HitTable>,
+    #[serde(default)]
+    pub beam: Option<BeamTable>,
+    #[serde(default)]
+    pub mesh: Option<MeshTable>,
+}
+
+/// `[[sound.hit]]`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HitTable {
+    pub time: f64,
+    #[serde(default)]
+    pub vertex: Option<i64>,
+    #[serde(default)]
+    pub position: Option<[f64; 3]>,
+    pub direction: [f64; 3],
+    pub impulse: f64,
+    #[serde(default)]
+    pub duration: Option<f64>,
+}
+
+/// A body that rings: its modes, the resonator bank, and the sound so far.
+pub struct ModalSound {
+    analysis: Analysis,
+    synth: Synth,
+    samples: Vec<f64>,
+    sample_rate: u32,
+    /// Boundary triangles, for frames.
+    triangles: Vec<[u32; 3]>,
+    contacts: bool,
+    contact_time: f64,
+    t: f64,
+    steps: u64,
+    /// Modes asked for, the time the analysis took (s).
+    asked: usize,
+    seconds: f64,
+    /// Contact impulses heard, strikes they made, and their sum (N s, rest frame).
+    heard: u64,
+    strikes: u64,
+    heard_impulse: [f64; 3],
+    /// Steps that rendered nothing because the sound reached [`super::sound::MAX_SECONDS`].
+    clipped: bool,
+}
+
+impl ModalSound {
+    /// The sound so far (one value per sample).
+    pub fn samples(&self) -> &[f64] {
+        &self.samples
+    }
+
+    /// The modes and the model they are of.
+    pub fn analysis(&self) -> &Analysis {
+        &self.analysis
+    }
+
+    /// What rings and what was culled.
+    pub fn synth(&self) -> &Synth {
+        &self.synth
+    }
+
+    /// Contact impulses heard so far, and their sum (N s, in the mesh's rest frame).
+    pub fn heard(&self) -> (u64, [f64; 3]) {
+        (self.heard, self.heard_impulse)
+    }
+}
+
+/// Builds `[sound]` (see the module docs).
+pub fn build(ctx: &Context<'_>) -> Result<Box<dyn Simulation>, SceneError> {
+    let t: SoundTable = ctx.table()?;
+    let at = |f: &[&dyn PathPart]| path(f);
+    // Material.
+    let name = t.material.as_deref().unwrap_or("steel");
+    let preset = sound_material(name).ok_or_else(|| {
+        let names: Vec<&str> = SOUND_MATERIALS.iter().map(|(n, _)| *n).collect();
+        ctx.error(
+            &at(&[&"material"]),
+            format!("unknown material `{name}`; one of: {}", names.join(", ")),
+        )
+    })?;
+    let young = ctx.positive(t.young.unwrap_or(preset.young), &at(&[&"young"]), "young")?;
+    let poisson = t.poisson.unwrap_or(preset.poisson);
+    if !(poisson > -1.0 && poisson < 0.5) {
+        return Err(ctx.error(
+            &at(&[&"poisson"]),
+            format!("Poisson's ratio must lie in (-1, 0.5), not {poisson}"),
+        ));
+    }
+    let density = ctx.positive(
+        t.density.unwrap_or(preset.density),
+        &at(&[&"density"]),
+        "density",
+    )?;
+    let damping = Rayleigh {
+        alpha: ctx.non_negative(
+            t.alpha.unwrap_or(preset.damping.alpha),
+            &at(&[&"alpha"]),
+            "alpha",
+        )?,
+        beta: ctx.non_negative(
+            t.beta.unwrap_or(preset.damping.beta),
+            &at(&[&"beta"]),
+            "beta",
+        )?,
+    };
+    let count = match t.modes {
+        None => DEFAULT_MODES,
+        Some(k) if (1..=100_000).contains(&k) => k as usize,
+        Some(k) => {
+            return Err(ctx.error(
+                &at(&[&"modes"]),
+                format!("modes must be 1 to 100,000, not {k}"),
+            ))
+        }
+    };
+    let mass = match t.mass.as_deref() {
+        None | Some("consistent") => FemMass::Consistent,
+        Some("lumped") => FemMass::Lumped,
+        Some(other) => {
+            return Err(ctx.error(
+                &at(&[&"mass"]),
+                format!("mass is \"consistent\" or \"lumped\", not \"{other}\""),
+            ))
+        }
+    };
+    let rate = match t.sample_rate {
+        None => 44_100,
+        Some(r) if (8_000..=384_000).contains(&r) => r as u32,
+        Some(r) => {
+            return Err(ctx.error(
+                &at(&[&"sample_rate"]),
+                format!("sample_rate must be 8,000 to 384,000 Hz, not {r}"),
+            ))
+        }
+    };
+    let params = SoundParams {
+        sample_rate: rate,
+        max_frequency: ctx.positive(
+            t.max_frequency.unwrap_or(20_000.0),
+            &at(&[&"max_frequency"]),
+            "max_frequency",
+        )?,
+        quiet: ctx.non_negative(t.quiet.unwrap_or(1e-4), &at(&[&"quiet"]), "quiet")?,
+        ..SoundParams::default()
+    };
+    // The sound's samples, held until the run ends (its last step may pass the
+    // duration by up to dt).
+    let seconds = (ctx.duration + ctx.dt).min(super::sound::MAX_SECONDS);
+    ctx.memory(
+        &at(&[&"sample_rate"]),
+        &format!("{seconds} s of sound at {rate} Hz"),
+        8.0 * seconds * rate as f64,
+    )?;
+    let contact_time = ctx.non_negative(
+        t.contact_time.unwrap_or(1e-4),
+        &at(&[&"contact_time"]),
+        "contact_time",
+    )?;
+    if contact_time > 1.0 {
+        return Err(ctx.error(&at(&[&"contact_time"]), "contact_time must be at most 1 s"));
+    }
+    // Mesh: the modal analysis holds a Cholesky factor, like an implicit FEM step, and
+    // the Lanczos basis: about (modes + 40) vectors of 3n doubles, twice.
+    let bytes = |v: f64| estimated_bytes(v, true, true) + 48.0 * v * (count as f64 + 40.0);
+    let mut notes = Vec::new();
+    let (mesh, veg) =
+        crate::fem::scene::mesh(ctx, t.beam.as_ref(), t.mesh.as_ref(), &bytes, &mut notes)?;
+    let fixed = match &t.fixed {
+        None => Vec::new(),
+        Some(s) => s
+            .parse::<Selector>()
+            .and_then(|sel| sel.select(&mesh.positions))
+            .map_err(|e| ctx.error(&at(&[&"fixed"]), e))?,
+    };
+    let material = FemMaterial {
+        model: Material::Linear,
+        young,
+        poisson,
+        density,
+    };
+    let positions = mesh.positions;
+    let mut desc = FemDesc::new(positions.clone(), mesh.tets, material);
+    if veg.is_some() {
+        return Err(ctx.error(
+            &at(&[&"mesh", &"file"]),
+            "[sound] takes its material from `material` (and its overrides): give the mesh as TetGen, Gmsh, VTK or a surface, not .veg",
+        ));
+    }
+    desc.mass = mass;
+    desc.notes = notes;
+    let start = Instant::now();
+    let analysis = analyse_desc(desc, fixed, count).map_err(|e| match e {
+        ModalError::Model(e) => ctx.model_error(&e, &[]),
+        e => ctx.error(&at(&[&"modes"]), format!("modal analysis: {e}")),
+    })?;
+    let seconds = start.elapsed().as_secs_f64();
+    let triangles = analysis.fem.triangles().to_vec();
+    let n = analysis.fem.vertex_count();
+    // The surface: hits by position go to its nearest vertex; contacts cull against it.
+    let mut surface: Vec<u32> = triangles.iter().flatten().copied().collect();
+    surface.sort_unstable();
+    surface.dedup();
+    let mut hits = Vec::with_capacity(t.hit.len());
+    for (k, h) in t.hit.iter().enumerate() {
+        let key = |f: &str| at(&[&"hit", &k, &f]);
+        let vertex = match (h.vertex, h.position) {
+            (Some(v), None) => {
+                let v = ctx.index(v, &key("vertex"), "vertex")?;
+                if v >= n {
+                    return Err(ctx.error(
+                        &key("vertex"),
+                        format!("vertex {v} does not exist: the mesh has {n} vertices"),
+                    ));
+                }
+                v
+            }
+            (None, Some(p)) => {
+                if !p.iter().all(|c| c.is_finite()) {
+                    return Err(ctx.error(&key("position"), "must be finite"));
+                }
+                let d2 = |i: u32| {
+                    (0..3)
+                        .map(|c| (positions[i as usize][c] - p[c]).powi(2))
+                        .sum::<f64>()
+                };
+                surface
+                    .iter()
+                    .copied()
+                    .min_by(|&a, &b| d2(a).total_cmp(&d2(b)))
+                    .ok_or_else(|| ctx.error(&key("position"), "the mesh has no surface"))?
+                    as usize
+            }
+            _ => {
+                return Err(ctx.error(
+                    &at(&[&"hit", &k]),
+                    "give exactly one of `vertex` and `position`",
+                ))
+            }
+        };
+        if !(h.time >= 0.0 && h.time.is_finite()) {
+            return Err(ctx.error(&key("time"), format!("time must be >= 0 s, not {}", h.time)));
+        }
+        let len = h.direction.iter().map(|c| c * c).sum::<f64>().sqrt();
+        if !(len > 0.0 && len.is_finite()) {
+            return Err(ctx.error(&key("direction"), "must be finite and not zero"));
+        }
+        if !h.impulse.is_finite() {
+            return Err(ctx.error(&key("impulse"), "must be finite"));
+        }
+        let duration = ctx.non_negative(
+            h.duration.unwrap_or(contact_time),
+            &key("duration"),
+            "duration",
+        )?;
+        if duration > 1.0 {
+            return Err(ctx.error(&key("duration"), "must be at most 1 s"));
+        }
+        hits.push(super::sound::Hit {
+            time: h.time,
+            vertex,
+            direction: h.direction.map(|c| c / len),
+            impulse: h.impulse,
+            duration,
+        });
+    }
+    if hits.is_empty() && !t.contacts {
+        return Err(ctx.error(
+            &[],
+            "nothing strikes it: give [[sound.hit]] entries or contacts = true",
+        ));
+    }
+    let cull = if t.contacts {
+        Cull::Anywhere(&surface)
+    } else {
+        Cull::Hits(&hits)
+    };
+    let mut synth = Synth::new(&analysis.modes, damping, &params, cull)
+        .map_err(|e| ctx.error(&[], e.to_string()))?;
+    for (k, h) in hits.iter().enumerate() {
+        let impulse = h.direction.map(|c| c * h.impulse);
+        synth
+            .strike(h.time, h.vertex, impulse, h.duration)
+            .map_err(|e| ctx.error(&at(&[&"hit", &k]), e))?;
+    }
+    Ok(Box::new(ModalSound {
+        analysis,
+        synth,
+        samples: Vec::new(),
+        sample_rate: rate,
+        triangles,
+        contacts: t.contacts,
+        contact_time,
+        t: 0.0,
+        steps: 0,
+        asked: count,
+        seconds,
+        heard: 0,
+        strikes: 0,
+        heard_impulse: [0.0; 3],
+        clipped: false,
+    }))
+}
+
+impl Simulation for ModalSound {
+    fn step(&mut self, dt: f64) -> Result<StepInfo, IntegrateError> {
+        let end = self.t + dt;
+        let rate = self.sample_rate as f64;
+        let limit = (super::sound::MAX_SECONDS * rate) as u64;
+        let target = ((end * rate).round() as u64).min(limit);
+        let have = self.synth.rendered();
+        if target > have {
+            let from = self.samples.len();
+            self.samples.resize(from + (target - have) as usize, 0.0);
+            self.synth.render(&mut self.samples[from..]);
+        } else if (end * rate).round() as u64 > limit {
+            self.clipped = true;
+        }
+        self.t = end;
+        self.steps += 1;
+        Ok(StepInfo::default())
+    }
+
+    fn time(&self) -> f64 {
+        self.t
+    }
+
+    fn steps(&self) -> u64 {
+        self.steps
+    }
+
+    fn energy(&self) -> Energy {
+        Energy::default()
+    }
+
+    fn max_penetration(&self) -> f64 {
+        0.0
+    }
+
+    /// The body at rest, when scripted hits strike it; nothing when it listens to
+    /// another system's contacts (that system shows the body).
+    fn frame(&self) -> FrameData<'_> {
+        if self.contacts {
+            return FrameData::Mesh(MeshRef {
+                positions: &[],
+                triangles: &[],
+                segments: &[],
+            });
+        }
+        FrameData::Mesh(MeshRef {
+            positions: &self.analysis.rest,
+            triangles: &self.triangles,
+            segments: &[],
+        })
+    }
+
+    fn stages(&self) -> Vec<Stage> {
+        let m = &self.analysis.modes;
+        let f = m.frequencies_hz();
+        let info = self.synth.info();
+        let n = self.analysis.fem.vertex_count();
+        vec![
+            Stage::built(
+                "modal analysis",
+                format!(
+                    "{} of {} modes asked, {} to {} Hz ({} rigid), of {n} vertices, {} path, {:.2} s",
+                    f.len(),
+                    self.asked,
+                    f.first().map_or(0.0, |v| (v * 10.0).round() / 10.0),
+                    f.last().map_or(0.0, |v| (v * 10.0).round() / 10.0),
+                    m.rigid,
+                    if m.dense { "dense" } else { "shift-invert Lanczos" },
+                    self.seconds
+                ),
+            ),
+            Stage::built(
+                "resonators",
+                format!(
+                    "{} modes ring at {} Hz; culled: {} above the frequency limit or Nyquist, {} over-damped, {} quiet",
+                    info.frequencies_hz.len(),
+                    self.sample_rate,
+                    info.culled_high,
+                    info.culled_overdamped,
+                    info.culled_quiet
+                ),
+            ),
+            if self.contacts {
+                Stage::built(
+                    "contact impulses",
+                    format!(
+                        "from the other systems, each a half-sine of {} s",
+                        self.contact_time
+                    ),
+                )
+            } else {
+                Stage::left_out("contact impulses", "contacts = false")
+            },
+        ]
+    }
+
+    fn scenery(&self, _around: ([f64; 3], [f64; 3])) -> Vec<Mesh> {
+        Vec::new()
+    }
+
+    fn method(&self) -> String {
+        "modal synthesis".into()
+    }
+
+    fn linear_solver(&self) -> Option<&'static str> {
+        None
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+
+    fn warnings(&self) -> Vec<String> {
+        let mut w = self.analysis.fem.warnings();
+        if self.clipped {
+            w.push(format!(
+                "the sound stops at {} s ({} kept at most)",
+                super::sound::MAX_SECONDS,
+                super::sound::MAX_SECONDS
+            ));
+        }
+        if self.contacts {
+            w.push(format!(
+                "sound: {} contact impulses heard ({} strikes)",
+                self.heard, self.strikes
+            ));
+        }
+        w
+    }
+
+    fn listens(&self) -> bool {
+        self.contacts
+    }
+
+    fn listen(&mut self, impulses: &ContactImpulses) -> Result<(), String> {
+        let n = self.synth.vertex_count();
+        if impulses.vertex_count != n {
+            return Err(format!(
+                "it has {} vertices and the sound's mesh {n}: give [sound] the same mesh",
+                impulses.vertex_count
+            ));
+        }
+        for &(v, j) in &impulses.impulses {
+            self.heard += 1;
+            for (sum, jc) in self.heard_impulse.iter_mut().zip(j) {
+                *sum += jc;
+            }
+            if j != [0.0; 3] {
+                self.strikes += 1;
+                self.synth
+                    .strike(impulses.time, v as usize, j, self.contact_time)?;
+            }
+        }
+        Ok(())
+    }
+
+    fn audio(&self) -> Option<Audio<'_>> {
+        Some(Audio {
+            samples: &self.samples,
+            sample_rate: self.sample_rate,
+        })
+    }
+}
