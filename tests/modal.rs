@@ -664,6 +664,47 @@ mod sound {
         assert!((peak as f64 / i16::MAX as f64 - 0.9).abs() < 1e-3);
     }
 
+    /// A steady push given each 1 ms step as a box (`Pulse::Box`) is a steady input: the
+    /// mode's response holds still once its onset rings out. The same impulses as
+    /// half-sine impacts buzz at the step rate (1 kHz and its harmonics).
+    #[test]
+    fn steady_pushes_do_not_buzz_at_the_step_rate() {
+        use largestep::modal::sound::{Cull, Pulse, Synth};
+        let w: f64 = 2.0 * PI * 2_500.0;
+        let modes = Modes {
+            eigenvalues: vec![w * w],
+            vectors: vec![1.0, 0.0, 0.0],
+            residuals: vec![0.0],
+            ..Modes::default()
+        };
+        let damping = Rayleigh {
+            alpha: 50.0,
+            beta: 0.0,
+        };
+        let params = SoundParams::default();
+        let push = |pulse: Pulse| {
+            let mut s = Synth::new(&modes, damping, &params, Cull::Anywhere(&[0])).unwrap();
+            let mut out = vec![0.0; 22_050];
+            for step in 0..500 {
+                let t = step as f64 * 1e-3;
+                s.strike(t, 0, [1e-3, 0.0, 0.0], pulse).unwrap();
+                let (a, b) = (s.sample_at(t) as usize, s.sample_at(t + 1e-3) as usize);
+                s.render(&mut out[a..b]);
+            }
+            out
+        };
+        let (boxed, sines) = (push(Pulse::Box(1e-3)), push(Pulse::HalfSine(1e-4)));
+        // After 0.3 s the onset has decayed by e^-(25 * 0.3) = 5.5e-4.
+        let tail =
+            |x: &[f64]| dft(&x[13_230..], 44_100.0, 1_000.0) + dft(&x[13_230..], 44_100.0, 3_000.0);
+        assert!(
+            tail(&boxed) < 1e-6 * tail(&sines),
+            "box {} against half-sine {}",
+            tail(&boxed),
+            tail(&sines)
+        );
+    }
+
     #[test]
     fn bad_hits_are_errors_naming_the_hit() {
         let modes = Modes {

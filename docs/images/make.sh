@@ -41,3 +41,10 @@ for f in "$work/fem-twist/frames"/*.obj; do
 done
 "$ls" render "$both/frames" --size 1280x720 --out "$both/preview" >/dev/null
 cp "$both/preview/contact-sheet.png" docs/images/fem-twist.png
+# The sound scenes' spectrograms (`largestep run` draws spectrogram.png beside
+# sound.wav).
+for s in sound-bar sound-bowl sound-nut; do
+  echo "$s: scenes/$s.toml"
+  "$ls" run "scenes/$s.toml" --out "$work/$s" >/dev/null
+  cp "$work/$s/spectrogram.png" "docs/images/$s-spectrogram.png"
+done

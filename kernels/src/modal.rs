@@ -49,13 +49,16 @@ pub fn coefficients(w: f64, xi: f64, h: f64) -> (f64, f64, f64) {
 pub const PASS: usize = 16;
 
 /// Adds the bank's output to `out` (one value per sample), from the states `y1`, `y2`
-/// (the last two outputs of each mode; updated) and the inputs of `events`. Scalar twin
+/// (the last two outputs of each mode) and `x` (each mode's input at the sample before
+/// `out[0]`, which enters `out[0]`; all three updated, so a sound rendered in pieces is
+/// the sound rendered at once) and the inputs of `events`. Scalar twin
 /// of [`resonate_x4`]: the same operations in the same order (per pass of [`PASS`]
 /// modes, lane by lane the sum over the pass's four groups, then the four lanes).
 pub fn resonate(
     bank: Bank<'_>,
     y1: &mut [f64],
     y2: &mut [f64],
+    x_in: &mut [f64],
     events: &[(usize, usize, f64)],
     drive: &[f64],
     out: &mut [f64],
@@ -63,7 +66,7 @@ pub fn resonate(
     let m = bank.m();
     assert!(m % PASS == 0, "pad the bank to a multiple of {PASS} modes");
     for base in (0..m).step_by(PASS) {
-        let mut x = [0.0; PASS];
+        let mut x: [f64; PASS] = std::array::from_fn(|k| x_in[base + k]);
         let mut ev = 0;
         for (n, o) in out.iter_mut().enumerate() {
             let mut acc = [0.0; 4];
@@ -89,6 +92,7 @@ pub fn resonate(
                 ev += 1;
             }
         }
+        x_in[base..base + PASS].copy_from_slice(&x);
     }
 }
 
@@ -97,6 +101,7 @@ pub fn resonate_x4(
     bank: Bank<'_>,
     y1: &mut [f64],
     y2: &mut [f64],
+    x_in: &mut [f64],
     events: &[(usize, usize, f64)],
     drive: &[f64],
     out: &mut [f64],
@@ -112,7 +117,7 @@ pub fn resonate_x4(
         let gain: [f64x4; 4] = std::array::from_fn(|g| load(bank.gain, at(g)));
         let mut s1: [f64x4; 4] = std::array::from_fn(|g| load(y1, at(g)));
         let mut s2: [f64x4; 4] = std::array::from_fn(|g| load(y2, at(g)));
-        let mut x = [f64x4::ZERO; 4];
+        let mut x: [f64x4; 4] = std::array::from_fn(|g| load(x_in, at(g)));
         let mut ev = 0;
         for (n, o) in out.iter_mut().enumerate() {
             let mut acc = f64x4::ZERO;
@@ -140,6 +145,7 @@ pub fn resonate_x4(
         for g in 0..4 {
             y1[at(g)..at(g) + 4].copy_from_slice(&s1[g].to_array());
             y2[at(g)..at(g) + 4].copy_from_slice(&s2[g].to_array());
+            x_in[at(g)..at(g) + 4].copy_from_slice(&x[g].to_array());
         }
     }
 }
@@ -182,12 +188,23 @@ mod tests {
             (300, 0, 0.25),
             (301, 2, 1.5),
         ];
-        let (mut y1, mut y2) = (vec![0.1; m], vec![-0.05; m]);
-        let (mut z1, mut z2) = (y1.clone(), y2.clone());
+        let (mut y1, mut y2, mut x1) = (vec![0.1; m], vec![-0.05; m], vec![0.02; m]);
+        let (mut z1, mut z2, mut x2) = (y1.clone(), y2.clone(), x1.clone());
         let (mut a, mut b) = (vec![0.0; 1000], vec![0.0; 1000]);
-        resonate(bank, &mut y1, &mut y2, &events, &drive, &mut a);
-        resonate_x4(bank, &mut z1, &mut z2, &events, &drive, &mut b);
+        resonate(bank, &mut y1, &mut y2, &mut x1, &events, &drive, &mut a);
+        resonate_x4(bank, &mut z1, &mut z2, &mut x2, &events, &drive, &mut b);
         assert_eq!(a, b);
-        assert_eq!((y1, y2), (z1, z2));
+        assert_eq!((&y1, &y2, &x1), (&z1, &z2, &x2));
+        // In two pieces, the input at the last sample of the first carried into the
+        // second: the same sound as at once.
+        let (mut w1, mut w2, mut xw) = (vec![0.1; m], vec![-0.05; m], vec![0.02; m]);
+        let mut c = vec![0.0; 1000];
+        let split = 301; // event (300, 0) is the first piece's last sample
+        let (early, late): (Vec<_>, Vec<_>) = events.iter().partition(|e| e.0 < split);
+        let late: Vec<_> = late.iter().map(|&(n, s, w)| (n - split, s, w)).collect();
+        let (c0, c1) = c.split_at_mut(split);
+        resonate_x4(bank, &mut w1, &mut w2, &mut xw, &early, &drive, c0);
+        resonate_x4(bank, &mut w1, &mut w2, &mut xw, &late, &drive, c1);
+        assert_eq!(c, b);
     }
 }

@@ -32,7 +32,7 @@
 //! duration = 1e-4               # s of contact (half-sine force; default contact_time)
 //! ```
 
-use super::sound::{sound_material, Cull, Rayleigh, SoundParams, Synth, SOUND_MATERIALS};
+use super::sound::{sound_material, Cull, Pulse, Rayleigh, SoundParams, Synth, SOUND_MATERIALS};
 use super::{analyse_desc, Analysis, ModalError, Selector};
 use crate::fem::scene::{estimated_bytes, BeamTable, MeshTable};
 use crate::fem::{FemDesc, FemMass, FemMaterial, Material};
@@ -125,7 +125,18 @@ pub struct ModalSound {
     heard_impulse: [f64; 3],
     /// Steps that rendered nothing because the sound reached [`super::sound::MAX_SECONDS`].
     clipped: bool,
+    /// Each vertex's contact impulse at the last step it was heard in (N s), and the
+    /// vertices where that is not zero.
+    prev: Vec<[f64; 3]>,
+    pushed: Vec<u32>,
+    /// The DC blocker's state (last input and output) and pole.
+    dc: (f64, f64),
+    dc_pole: f64,
 }
+
+/// Corner of the DC blocker on the rendered sound (Hz): below hearing, far below any mode
+/// a body that rings has.
+pub const DC_CORNER_HZ: f64 = 20.0;
 
 impl ModalSound {
     /// The sound so far (one value per sample).
@@ -363,7 +374,7 @@ pub fn build(ctx: &Context<'_>) -> Result<Box<dyn Simulation>, SceneError> {
     for (k, h) in hits.iter().enumerate() {
         let impulse = h.direction.map(|c| c * h.impulse);
         synth
-            .strike(h.time, h.vertex, impulse, h.duration)
+            .strike(h.time, h.vertex, impulse, Pulse::HalfSine(h.duration))
             .map_err(|e| ctx.error(&at(&[&"hit", &k]), e))?;
     }
     Ok(Box::new(ModalSound {
@@ -382,6 +393,10 @@ pub fn build(ctx: &Context<'_>) -> Result<Box<dyn Simulation>, SceneError> {
         strikes: 0,
         heard_impulse: [0.0; 3],
         clipped: false,
+        prev: Vec::new(),
+        pushed: Vec::new(),
+        dc: (0.0, 0.0),
+        dc_pole: (-2.0 * std::f64::consts::PI * DC_CORNER_HZ / rate as f64).exp(),
     }))
 }
 
@@ -390,13 +405,23 @@ impl Simulation for ModalSound {
         let end = self.t + dt;
         let rate = self.sample_rate as f64;
         let limit = (super::sound::MAX_SECONDS * rate) as u64;
-        let target = ((end * rate).round() as u64).min(limit);
+        let target = self.synth.sample_at(end).min(limit);
         let have = self.synth.rendered();
         if target > have {
             let from = self.samples.len();
             self.samples.resize(from + (target - have) as usize, 0.0);
             self.synth.render(&mut self.samples[from..]);
-        } else if (end * rate).round() as u64 > limit {
+            // A DC blocker, y[n] = x[n] - x[n-1] + p y[n-1]: a steady push deflects the
+            // body, which the acceleration proxy `w^2 q` would hear as an offset.
+            let (mut x1, mut y1) = self.dc;
+            for s in &mut self.samples[from..] {
+                let y = *s - x1 + self.dc_pole * y1;
+                x1 = *s;
+                y1 = y;
+                *s = y;
+            }
+            self.dc = (x1, y1);
+        } else if self.synth.sample_at(end) > limit {
             self.clipped = true;
         }
         self.t = end;
@@ -527,15 +552,56 @@ impl Simulation for ModalSound {
                 impulses.vertex_count
             ));
         }
+        // A contact that keeps pushing as it pushed the step before is a steady push (a
+        // body resting on the floor): that part goes in as a constant force over the
+        // step, so consecutive steps join into a steady input; only what exceeds it is an
+        // impact, a half-sine of the contact time. (As half-sines every step, a resting
+        // body buzzed at the step rate: a comb at 1, 2, 3 kHz with dt = 1 ms.)
+        if self.prev.len() != n {
+            self.prev = vec![[0.0; 3]; n];
+        }
+        let old = std::mem::take(&mut self.pushed);
         for &(v, j) in &impulses.impulses {
             self.heard += 1;
             for (sum, jc) in self.heard_impulse.iter_mut().zip(j) {
                 *sum += jc;
             }
-            if j != [0.0; 3] {
-                self.strikes += 1;
+            let vi = v as usize;
+            if vi >= n {
+                return Err(format!("vertex {v} out of range ({n} vertices)"));
+            }
+            let p = self.prev[vi];
+            let len = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+            let steady: [f64; 3] = if len > 0.0 {
+                let along = (j[0] * p[0] + j[1] * p[1] + j[2] * p[2]) / len;
+                let keep = along.clamp(0.0, len) / len;
+                p.map(|c| c * keep)
+            } else {
+                [0.0; 3]
+            };
+            let impact: [f64; 3] = std::array::from_fn(|c| j[c] - steady[c]);
+            if steady != [0.0; 3] {
                 self.synth
-                    .strike(impulses.time, v as usize, j, self.contact_time)?;
+                    .strike(impulses.time, vi, steady, Pulse::Box(impulses.dt))?;
+            }
+            if impact != [0.0; 3] {
+                self.strikes += 1;
+                self.synth.strike(
+                    impulses.time,
+                    vi,
+                    impact,
+                    Pulse::HalfSine(self.contact_time),
+                )?;
+            }
+        }
+        // Vertices that stopped touching push no more.
+        for v in old {
+            self.prev[v as usize] = [0.0; 3];
+        }
+        for &(v, j) in &impulses.impulses {
+            self.prev[v as usize] = j;
+            if j != [0.0; 3] {
+                self.pushed.push(v);
             }
         }
         Ok(())

@@ -101,6 +101,17 @@ pub enum SoundError {
     Params(String),
 }
 
+/// How a strike's impulse is spread over the samples.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Pulse {
+    /// A half-sine force over this contact time (s; one sample when shorter than one):
+    /// an impact.
+    HalfSine(f64),
+    /// A constant force over this time (s): a steady push, such as a resting contact's
+    /// share of one simulation step.
+    Box(f64),
+}
+
 /// Which strikes decide the quiet cull of a [`Synth`].
 #[derive(Clone, Copy, Debug)]
 pub enum Cull<'a> {
@@ -128,6 +139,8 @@ pub struct Synth {
     gain: Vec<f64>,
     y1: Vec<f64>,
     y2: Vec<f64>,
+    /// Each mode's input at the last sample rendered, which enters the next one.
+    x: Vec<f64>,
     /// The shapes of the modes in the bank, `[vertex][component][slot]`: a strike's drive
     /// row is three contiguous rows of `m`.
     shapes: Vec<f64>,
@@ -260,6 +273,7 @@ impl Synth {
             gain,
             y1: vec![0.0; m],
             y2: vec![0.0; m],
+            x: vec![0.0; m],
             shapes,
             pending: Vec::new(),
             sources: Vec::new(),
@@ -285,16 +299,26 @@ impl Synth {
         self.rendered
     }
 
+    /// The sample whose interval holds time `t` (s), `floor(t r)` with a millionth of a
+    /// sample's slack against rounding (so `k / r` maps to k). Rendering up to
+    /// `sample_at(t)` leaves that sample for strikes arriving at t.
+    pub fn sample_at(&self, t: f64) -> u64 {
+        (t * self.rate + 1e-6).floor().max(0.0) as u64
+    }
+
     /// Schedules a strike at vertex `vertex` with impulse `impulse` (N s, a vector: its
-    /// direction is the strike's) at `time` (s) as a half-sine force over `duration` (s;
-    /// 0 for one sample). A strike before the first sample not yet rendered starts there.
+    /// direction is the strike's) from `time` (s), spread over its samples as `pulse`
+    /// says. A strike before the first sample not yet rendered starts there.
     pub fn strike(
         &mut self,
         time: f64,
         vertex: usize,
         impulse: [f64; 3],
-        duration: f64,
+        pulse: Pulse,
     ) -> Result<(), String> {
+        let duration = match pulse {
+            Pulse::HalfSine(d) | Pulse::Box(d) => d,
+        };
         if vertex >= self.n {
             return Err(format!(
                 "vertex {vertex} out of range ({} vertices)",
@@ -320,31 +344,46 @@ impl Synth {
                 row[k] * impulse[0] + row[m + k] * impulse[1] + row[2 * m + k] * impulse[2]
             }),
         );
-        // The half-sine's share of the impulse in each sample it spans.
         let h = 1.0 / self.rate;
         let n0 = ((time * self.rate).round().max(0.0) as u64).max(self.rendered);
-        let span = (duration * self.rate).ceil().max(1.0) as u64;
-        let at = self.pending.partition_point(|e| e.0 < n0);
-        let mut new = Vec::with_capacity(span as usize);
-        for k in 0..span {
-            let weight = if duration <= h {
-                if k == 0 {
-                    1.0
-                } else {
-                    0.0
+        let before = self.pending.len();
+        match pulse {
+            // The half-sine's share of the impulse in each sample it spans.
+            Pulse::HalfSine(d) if d > h => {
+                let span = (d * self.rate).ceil() as u64;
+                for k in 0..span {
+                    let t0 = (k as f64 * h).min(d);
+                    let t1 = ((k + 1) as f64 * h).min(d);
+                    let w = 0.5 * ((PI * t0 / d).cos() - (PI * t1 / d).cos());
+                    if w != 0.0 {
+                        self.pending.push((n0 + k, source, w));
+                    }
                 }
-            } else {
-                let t0 = (k as f64 * h).min(duration);
-                let t1 = ((k + 1) as f64 * h).min(duration);
-                0.5 * ((PI * t0 / duration).cos() - (PI * t1 / duration).cos())
-            };
-            if weight != 0.0 {
-                new.push((n0 + k, source, weight));
             }
+            // Each sample interval [k h, (k + 1) h) takes the share of [t, t + d) it
+            // overlaps: boxes of consecutive intervals add up to the same input in every
+            // sample, so a steady push is a steady input (no ripple at the rate of the
+            // pushes).
+            Pulse::Box(d) if d > 0.0 => {
+                let t = time.max(0.0);
+                let first = self.sample_at(t);
+                let last = ((t + d) * self.rate).ceil() as u64;
+                for k in first..last.max(first + 1) {
+                    let (a, b) = (k as f64 * h, (k + 1) as f64 * h);
+                    let w = ((t + d).min(b) - t.max(a)).max(0.0) / d;
+                    if w > 0.0 {
+                        // A share due before the first sample not rendered joins it.
+                        self.pending.push((k.max(self.rendered), source, w));
+                    }
+                }
+            }
+            Pulse::Box(_) => self.pending.push((n0, source, 1.0)),
+            Pulse::HalfSine(_) => self.pending.push((n0, source, 1.0)),
         }
-        self.pending.splice(at..at, new);
         // Stable: strikes at one sample keep their order of arrival.
-        self.pending.sort_by_key(|e| e.0);
+        if !self.pending[before.saturating_sub(1)..].is_sorted_by_key(|e| e.0) {
+            self.pending.sort_by_key(|e| e.0);
+        }
         Ok(())
     }
 
@@ -368,6 +407,7 @@ impl Synth {
                 },
                 &mut self.y1,
                 &mut self.y2,
+                &mut self.x,
                 &self.events,
                 &self.sources,
                 out,
@@ -421,7 +461,7 @@ pub fn synthesize(
         }
         let impulse = hit.direction.map(|c| hit.impulse * c / len);
         synth
-            .strike(hit.time, hit.vertex, impulse, hit.duration)
+            .strike(hit.time, hit.vertex, impulse, Pulse::HalfSine(hit.duration))
             .map_err(bad)?;
     }
     let mut samples = vec![0.0; (params.duration * synth.rate).round() as usize];
