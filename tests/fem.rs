@@ -2534,3 +2534,28 @@ fn fem_scenes_precondition_pcg_with_smoothed_aggregation_by_default() {
         "per solve: {default} against {jacobi}"
     );
 }
+
+/// `fem::settings` is what a `[fem]` scene without a named preconditioner runs: smoothed
+/// aggregation wherever PCG runs, the rest of `MechSettings::new` unchanged; a named
+/// direct solver is left alone.
+#[test]
+fn library_settings_for_elasticity_use_smoothed_aggregation() {
+    use largestep::integrate::LinearSolverKind;
+    use largestep::solve::Preconditioner;
+    let s = largestep::fem::settings(Method::BackwardEuler);
+    let plain = MechSettings::new(Method::BackwardEuler);
+    match (s.linear, plain.linear) {
+        (LinearSolverKind::Auto(p), LinearSolverKind::Auto(q)) => {
+            assert_eq!(p.preconditioner, Preconditioner::SmoothedAggregation);
+            assert_eq!(q.preconditioner, Preconditioner::BlockJacobi);
+            assert_eq!(p.tolerance, q.tolerance);
+        }
+        other => panic!("expected Auto, got {other:?}"),
+    }
+    assert_eq!(s.newton.tolerance, plain.newton.tolerance);
+    let mut direct = plain;
+    direct.linear = LinearSolverKind::Cholesky;
+    let before = format!("{:?}", direct.linear);
+    largestep::fem::elasticity_preconditioner(&mut direct);
+    assert_eq!(format!("{:?}", direct.linear), before);
+}

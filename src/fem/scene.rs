@@ -57,12 +57,10 @@
 
 use super::mesh::{box_mesh, TetMesh};
 use super::{FemDesc, FemMaterial, Material};
-use crate::integrate::LinearSolverKind;
 use crate::scene::shared::{self, ObstacleTables};
 use crate::scene::{path, Context, Key, PathPart, SceneError};
 use crate::simulation::path::{PathTurn, VertexPath};
 use crate::simulation::{MechSimulation, Simulation};
-use crate::solve::Preconditioner;
 use crate::validate::{ModelError, MAX_COORDINATE};
 use serde::Deserialize;
 
@@ -350,12 +348,7 @@ pub fn build(ctx: &Context<'_>) -> Result<Box<dyn Simulation>, SceneError> {
     }
     let mut settings = ctx.settings;
     if !ctx.preconditioner_given {
-        // 3-D elasticity: where PCG runs, smoothed aggregation with rigid-body modes
-        // keeps its iterations flat (14 on the 19,683-unknown cantilever, where block
-        // Jacobi, the general default, takes 986).
-        if let LinearSolverKind::Auto(p) | LinearSolverKind::Pcg(p) = &mut settings.linear {
-            p.preconditioner = Preconditioner::SmoothedAggregation;
-        }
+        super::elasticity_preconditioner(&mut settings);
     }
     let sim = MechSimulation::new(model, state, settings)
         .map_err(|e| ctx.error_at(&path(&[&"scene", &"integrator"]), e.to_string()))?;
