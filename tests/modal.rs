@@ -836,6 +836,26 @@ mod scenes {
             (re * re + im * im).sqrt()
         };
         assert!(at(f1) > 10.0 * at(0.9 * f1) && at(f1) > 10.0 * at(1.1 * f1));
+        // The three strongest peaks of the spectrum up to 4 kHz (a 2 Hz grid) each lie
+        // within 1% of a damped modal frequency.
+        let grid: Vec<(f64, f64)> = (100..2_000)
+            .map(|k| 2.0 * k as f64)
+            .map(|f| (f, at(f)))
+            .collect();
+        let mut peaks: Vec<(f64, f64)> = grid
+            .windows(3)
+            .filter(|w| w[1].1 > w[0].1 && w[1].1 > w[2].1)
+            .map(|w| w[1])
+            .collect();
+        peaks.sort_by(|a, b| b.1.total_cmp(&a.1));
+        let ringing = &sound.synth().info().frequencies_hz;
+        for &(f, _) in &peaks[..3] {
+            let near = ringing
+                .iter()
+                .map(|&m| (m / f - 1.0).abs())
+                .fold(f64::INFINITY, f64::min);
+            assert!(near < 0.01, "peak at {f} Hz, modes {ringing:?}");
+        }
         // Silence before the hit at 0.05 s, sound after it.
         assert!(samples[..2_000].iter().all(|&s| s == 0.0));
         assert!(samples[2_300..2_500].iter().any(|&s| s != 0.0));
