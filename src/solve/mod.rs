@@ -17,6 +17,7 @@ pub mod filter;
 pub mod multigrid;
 pub mod newton;
 pub mod pcg;
+pub mod poisson;
 
 pub use amg::SmoothedAggregation;
 pub use cholesky::SparseCholesky;
@@ -25,6 +26,7 @@ pub use filter::{Approach, Filter};
 pub use multigrid::Multigrid;
 pub use newton::{Newton, NewtonParams, NewtonProblem};
 pub use pcg::{Pcg, PcgParams, Preconditioner};
+pub use poisson::{CellKind, GridPoisson, PoissonParams, PoissonPreconditioner};
 
 /// What a solver reports on success.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
