@@ -96,6 +96,8 @@ struct Level {
     kind: Vec<CellKind>,
     /// `d_i / h^2` of fluid cells (0 elsewhere, and for a fluid cell with no open face).
     diag: Vec<f64>,
+    /// 1 on fluid cells, 0 elsewhere.
+    mask: Vec<f64>,
     /// Fluid cells within two cells of a non-fluid cell or the grid's edge, in order:
     /// the band that gets extra smoothing (McAdams et al. 2010, section 4).
     band: Vec<usize>,
@@ -143,7 +145,12 @@ impl Level {
             })
             .collect();
         let band_r = vec![0.0; band.len()];
+        let mask = kind
+            .iter()
+            .map(|&k| if k == CellKind::Fluid { 1.0 } else { 0.0 })
+            .collect();
         Level {
+            mask,
             n,
             inv_h2,
             band,
@@ -160,14 +167,41 @@ impl Level {
         self.n[0] * self.n[1]
     }
 
-    /// `y = A x` (zero off the fluid cells).
+    /// Calls `f(idx, (A x)_idx)` for every cell of slab k (zero off the fluid cells), x
+    /// zero off the fluid cells (every vector the solver hands in is): then the sum over
+    /// a cell's neighbours needs no look at their kinds, and cells away from the grid's
+    /// edge need no bounds checks either.
+    #[inline]
+    fn slab_rows(&self, k: usize, x: &[f64], mut f: impl FnMut(usize, f64)) {
+        let [nx, ny, nz] = self.n;
+        let s = nx * ny;
+        let c = self.inv_h2;
+        let inner_k = k > 0 && k + 1 < nz;
+        for j in 0..ny {
+            let base = k * s + j * nx;
+            let inner = inner_k && j > 0 && j + 1 < ny;
+            for i in 0..nx {
+                let idx = base + i;
+                let off = if inner && i > 0 && i + 1 < nx {
+                    (x[idx - 1] + x[idx + 1])
+                        + (x[idx - nx] + x[idx + nx])
+                        + (x[idx - s] + x[idx + s])
+                } else {
+                    let mut o = 0.0;
+                    for_neighbours(self.n, idx, |q| o += x[q]);
+                    o
+                };
+                f(idx, self.mask[idx] * (self.diag[idx] * x[idx] - c * off));
+            }
+        }
+    }
+
+    /// `y = A x` (zero off the fluid cells; x zero there).
     fn apply(&self, y: &mut [f64], x: &[f64]) {
         let slab = self.slab();
         y.par_chunks_mut(slab).enumerate().for_each(|(k, ys)| {
-            for (local, yi) in ys.iter_mut().enumerate() {
-                let idx = k * slab + local;
-                *yi = self.row(idx, x);
-            }
+            let base = k * slab;
+            self.slab_rows(k, x, |idx, v| ys[idx - base] = v);
         });
     }
 
@@ -178,11 +212,7 @@ impl Level {
             return 0.0;
         }
         let mut off = 0.0;
-        for_neighbours(self.n, idx, |j| {
-            if self.kind[j] == CellKind::Fluid {
-                off += x[j];
-            }
-        });
+        for_neighbours(self.n, idx, |j| off += x[j]);
         self.diag[idx] * x[idx] - self.inv_h2 * off
     }
 
@@ -192,14 +222,10 @@ impl Level {
         let mut r = std::mem::take(&mut self.r);
         let this = &*self;
         r.par_chunks_mut(slab).enumerate().for_each(|(k, rs)| {
-            for (local, ri) in rs.iter_mut().enumerate() {
-                let idx = k * slab + local;
-                *ri = if this.kind[idx] == CellKind::Fluid {
-                    this.b[idx] - this.row(idx, &this.x)
-                } else {
-                    0.0
-                };
-            }
+            let base = k * slab;
+            this.slab_rows(k, &this.x, |idx, ax| {
+                rs[idx - base] = this.mask[idx] * (this.b[idx] - ax);
+            });
         });
         self.r = r;
     }
@@ -415,7 +441,8 @@ impl GridPoisson {
         self.singular
     }
 
-    /// `y = A x` on the grid.
+    /// `y = A x` on the grid; x must be zero off the fluid cells (as every solution
+    /// [`GridPoisson::solve`] returns is).
     pub fn apply(&self, y: &mut [f64], x: &[f64]) {
         self.levels[0].apply(y, x);
     }
@@ -474,40 +501,37 @@ impl GridPoisson {
         {
             let (fine, coarse) = self.levels.split_at_mut(l + 1);
             let (f, c) = (&fine[l], &mut coarse[0]);
-            // Coarse right side: R r with R = P^T / 8 (module docs), gathered per coarse
-            // cell from the fine cells whose interpolation reaches it (within one fine
-            // cell of its children).
+            // Coarse right side: R r with R = P^T / 8 (module docs). Per coarse slab, the
+            // four fine slabs whose interpolation reaches it (its children's and one on
+            // each side) add their shares in a fixed order: each fine cell is visited
+            // twice, not once per coarse cell around it.
             let (cnx, cny) = (c.n[0], c.n[1]);
             let cslab = cnx * cny;
-            let ckind = &c.kind;
-            let cn = c.n;
+            let fslab = f.n[0] * f.n[1];
+            let (ckind, cn, cmask) = (&c.kind, c.n, &c.mask);
             c.b.par_chunks_mut(cslab).enumerate().for_each(|(ck, bs)| {
-                for (local, bc) in bs.iter_mut().enumerate() {
-                    let cidx = ck * cslab + local;
-                    *bc = 0.0;
-                    if ckind[cidx] != CellKind::Fluid {
-                        continue;
-                    }
-                    let centre = [local % cnx, local / cnx, ck];
-                    let lo = centre.map(|v| (2 * v).saturating_sub(1));
-                    let mut sum = 0.0;
-                    for k in lo[2]..(2 * centre[2] + 3).min(f.n[2]) {
-                        for j in lo[1]..(2 * centre[1] + 3).min(f.n[1]) {
-                            for i in lo[0]..(2 * centre[0] + 3).min(f.n[0]) {
-                                let fidx = i + f.n[0] * (j + f.n[1] * k);
-                                if f.kind[fidx] != CellKind::Fluid {
-                                    continue;
-                                }
-                                let (cells, w) = weights(f.n, [i, j, k], cn, ckind);
-                                for (cc, wc) in cells.iter().zip(&w) {
-                                    if *cc == cidx {
-                                        sum += wc * f.r[fidx];
-                                    }
-                                }
+                bs.fill(0.0);
+                let base = ck * cslab;
+                for k in (2 * ck).saturating_sub(1)..(2 * ck + 3).min(f.n[2]) {
+                    for local in 0..fslab {
+                        let fidx = k * fslab + local;
+                        let rf = f.r[fidx];
+                        if rf == 0.0 {
+                            continue; // off the fluid cells, or nothing to add
+                        }
+                        let (cells, w) =
+                            weights(f.n, [local % f.n[0], local / f.n[0], k], cn, ckind);
+                        for (cc, wc) in cells.iter().zip(&w) {
+                            if (base..base + cslab).contains(cc) {
+                                bs[cc - base] += wc * rf;
                             }
                         }
                     }
-                    *bc = sum / 8.0;
+                }
+                // Only fluid cells carry unknowns (a fluid child's empty parent got a
+                // share that the coarse problem has no place for).
+                for (b, m) in bs.iter_mut().zip(&cmask[base..base + cslab]) {
+                    *b *= m / 8.0;
                 }
             });
         }
