@@ -145,8 +145,8 @@ enum Command {
         #[arg(long, default_value_t = largestep::modal::DEFAULT_COUNT)]
         count: usize,
         /// Mass matrix: consistent or lumped.
-        #[arg(long, default_value = "consistent", value_parser = ["consistent", "lumped"])]
-        mass: String,
+        #[arg(long, default_value = "consistent")]
+        mass: largestep::fem::FemMass,
         /// Vertices held fixed: x<=V (also y, z and >=), box:X0,Y0,Z0,X1,Y1,Z1 or
         /// vertices:I,J,... (from 0).
         #[arg(long)]
@@ -375,11 +375,7 @@ fn main() -> ExitCode {
                 poisson,
                 density,
                 count,
-                mass: if mass == "lumped" {
-                    largestep::fem::FemMass::Lumped
-                } else {
-                    largestep::fem::FemMass::Consistent
-                },
+                mass,
                 fixed,
             };
             modes(&mesh, &options, json, out, &limits)

@@ -385,21 +385,11 @@ impl VertexContacts {
         moved
     }
 
-    /// Appends the vertices held by a contact or approaching an obstacle (sorted, each
-    /// once) to `out`.
+    /// Appends the vertices held by a contact or approaching an obstacle to `out` (a
+    /// vertex on two surfaces twice; callers sort and dedup what they gathered).
     pub fn touching(&self, out: &mut Vec<u32>) {
-        let start = out.len();
         out.extend(self.contacts.iter().map(|c| c.vertex));
         out.extend(self.approach.iter().map(|a| a.0));
-        out[start..].sort_unstable();
-        let mut k = start;
-        for i in start..out.len() {
-            if k == start || out[i] != out[k - 1] {
-                out[k] = out[i];
-                k += 1;
-            }
-        }
-        out.truncate(k);
     }
 
     /// Records, for every contact, the normal component of the force `f` (N,

@@ -138,6 +138,21 @@ pub enum FemMass {
     Consistent,
 }
 
+impl std::str::FromStr for FemMass {
+    type Err = String;
+
+    /// `lumped` or `consistent` (scene tables and `largestep modes --mass`).
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "lumped" => Ok(FemMass::Lumped),
+            "consistent" => Ok(FemMass::Consistent),
+            other => Err(format!(
+                "unknown mass `{other}`; expected lumped or consistent"
+            )),
+        }
+    }
+}
+
 /// Integrator settings for 3-D elasticity: [`crate::integrate::MechSettings::new`] with
 /// [`elasticity_preconditioner`] applied. What the `[fem]` scene uses when `[solver]`
 /// names no preconditioner; an engine stepping a [`Fem`] through

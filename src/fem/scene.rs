@@ -400,34 +400,20 @@ pub fn mesh(
         }
         (None, Some(m)) => {
             let file = ctx.base.join(&m.file);
-            let read = if let Some(kind) = ["obj", "off"]
-                .into_iter()
-                .find(|k| file.extension().is_some_and(|e| e.eq_ignore_ascii_case(k)))
-            {
+            let read = if super::voxel::is_surface_file(&file) {
                 let h = m.voxel.ok_or_else(|| {
                     ctx.error(
                         &at(&[&"mesh", &"file"]),
                         "a surface mesh needs `voxel`, the cube size of the voxel mesher",
                     )
                 })?;
-                let surface = if kind == "obj" {
-                    crate::io::read_obj(&file, ctx.limits.max_file_bytes)
-                } else {
-                    crate::io::read_off(&file, ctx.limits.max_file_bytes)
-                }
-                .map_err(|e| ctx.error(&at(&[&"mesh", &"file"]), e.to_string()))?;
-                // About 150 bytes per grid cube while meshing (flags, corner table,
-                // vertices and six tetrahedra).
-                let max_cells = (ctx.limits.max_memory / 150).min(u32::MAX as u64 / 8) as usize;
+                let surface = super::voxel::read_surface(&file, ctx.limits.max_file_bytes)
+                    .map_err(|e| ctx.error(&at(&[&"mesh", &"file"]), e.to_string()))?;
+                let max_cells = (ctx.limits.max_memory / super::voxel::BYTES_PER_CUBE)
+                    .min(u32::MAX as u64 / 8) as usize;
                 let v = super::voxel::voxel_mesh(&surface, h, max_cells)
                     .map_err(|e| ctx.error(&at(&[&"mesh", &"voxel"]), e.to_string()))?;
-                if v.unsnapped > 0 {
-                    notes.push(format!(
-                        "voxel mesher: {} of {} boundary vertices left off the surface (moving them would have flattened an element)",
-                        v.unsnapped,
-                        v.snapped + v.unsnapped
-                    ));
-                }
+                notes.extend(v.note());
                 Ok(v.mesh)
             } else {
                 super::mesh::read_volume_mesh(&file, ctx.limits.max_file_bytes).map(|(m, v)| {
@@ -688,15 +674,9 @@ pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
     }
     desc.gravity = ctx.gravity;
     desc.definiteness_fix = t.definiteness_fix.unwrap_or(true);
-    desc.mass = match t.mass.as_deref() {
-        None | Some("lumped") => super::FemMass::Lumped,
-        Some("consistent") => super::FemMass::Consistent,
-        Some(other) => {
-            return Err(ctx.error(
-                &at(&[&"mass"]),
-                format!("unknown mass `{other}`; expected lumped or consistent"),
-            ))
-        }
+    desc.mass = match &t.mass {
+        None => super::FemMass::Lumped,
+        Some(m) => m.parse().map_err(|e| ctx.error(&at(&[&"mass"]), e))?,
     };
     Ok(desc)
 }

@@ -61,6 +61,41 @@ pub enum VoxelError {
     Nothing(f64),
 }
 
+/// Bytes the mesher holds per grid cube while meshing (flags, corner table, vertices and
+/// six tetrahedra): callers turn a memory budget into `max_cells` with it.
+pub const BYTES_PER_CUBE: u64 = 150;
+
+/// Whether `file` names a closed triangle surface the mesher takes (`.obj`, `.off`).
+pub fn is_surface_file(file: &std::path::Path) -> bool {
+    file.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("obj") || e.eq_ignore_ascii_case("off"))
+}
+
+/// Reads the closed surface `file` (`.obj` or `.off`, at most `max_bytes`).
+pub fn read_surface(file: &std::path::Path, max_bytes: u64) -> Result<Mesh, crate::io::ReadError> {
+    if file
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("off"))
+    {
+        crate::io::read_off(file, max_bytes)
+    } else {
+        crate::io::read_obj(file, max_bytes)
+    }
+}
+
+impl VoxelMesh {
+    /// What to tell the user when boundary vertices stayed off the surface.
+    pub fn note(&self) -> Option<String> {
+        (self.unsnapped > 0).then(|| {
+            format!(
+                "voxel mesher: {} of {} boundary vertices left off the surface (moving them would have flattened an element)",
+                self.unsnapped,
+                self.snapped + self.unsnapped
+            )
+        })
+    }
+}
+
 /// Meshes the inside of the closed surface `surface` with cubes of side `h` (at most
 /// `max_cells` grid cubes); see the module docs.
 pub fn voxel_mesh(surface: &Mesh, h: f64, max_cells: usize) -> Result<VoxelMesh, VoxelError> {

@@ -13,6 +13,7 @@ pub mod scene;
 pub mod sound;
 
 use crate::fem::mesh::{read_volume_mesh, TetMesh};
+use crate::fem::voxel;
 use crate::fem::{Fem, FemDesc, FemMass, FemMaterial, Material};
 use crate::io::ReadError;
 use crate::simulation::MechModel;
@@ -263,44 +264,33 @@ pub fn analyse(
     options: &ModesOptions,
     max_bytes: u64,
 ) -> Result<Analysis, ModalError> {
-    let surface = ["obj", "off"]
-        .into_iter()
-        .find(|k| file.extension().is_some_and(|e| e.eq_ignore_ascii_case(k)));
     let mut notes = Vec::new();
-    let (mesh, veg) = match surface {
-        None => read_volume_mesh(file, max_bytes)?,
-        Some(kind) => {
-            let s = if kind == "obj" {
-                crate::io::read_obj(file, max_bytes)?
-            } else {
-                crate::io::read_off(file, max_bytes)?
-            };
-            let h = match options.voxel {
-                Some(h) => h,
-                None => {
-                    // The longest side of the bounding box (positions component-major).
-                    let n = s.positions.len() / 3;
-                    let side = |c: usize| {
-                        let p = &s.positions[c * n..(c + 1) * n];
-                        let hi = p.iter().fold(f64::NEG_INFINITY, |a, &b| a.max(b));
-                        let lo = p.iter().fold(f64::INFINITY, |a, &b| a.min(b));
-                        hi - lo
-                    };
-                    (0..3).map(side).fold(0.0, f64::max) / VOXELS_ACROSS
-                }
-            };
-            let v = crate::fem::voxel::voxel_mesh(&s, h, MAX_VOXELS)
-                .map_err(|e| ModalError::Input(format!("{}: {e}", file.display())))?;
-            notes.push(format!(
-                "voxel-meshed with cubes of {h:.4e} ({} x {} x {} grid); {} of {} boundary vertices snapped to the surface",
-                v.cells[0],
-                v.cells[1],
-                v.cells[2],
-                v.snapped,
-                v.snapped + v.unsnapped
-            ));
-            (v.mesh, None)
-        }
+    let (mesh, veg) = if !voxel::is_surface_file(file) {
+        read_volume_mesh(file, max_bytes)?
+    } else {
+        let s = voxel::read_surface(file, max_bytes)?;
+        let h = match options.voxel {
+            Some(h) => h,
+            None => {
+                // The longest side of the bounding box (positions component-major).
+                let n = s.positions.len() / 3;
+                let side = |c: usize| {
+                    let p = &s.positions[c * n..(c + 1) * n];
+                    let hi = p.iter().fold(f64::NEG_INFINITY, |a, &b| a.max(b));
+                    let lo = p.iter().fold(f64::INFINITY, |a, &b| a.min(b));
+                    hi - lo
+                };
+                (0..3).map(side).fold(0.0, f64::max) / VOXELS_ACROSS
+            }
+        };
+        let v = voxel::voxel_mesh(&s, h, MAX_VOXELS)
+            .map_err(|e| ModalError::Input(format!("{}: {e}", file.display())))?;
+        notes.push(format!(
+            "voxel-meshed with cubes of {h:.4e} ({} x {} x {} grid)",
+            v.cells[0], v.cells[1], v.cells[2]
+        ));
+        notes.extend(v.note());
+        (v.mesh, None)
     };
     let TetMesh { positions, tets } = mesh;
     if options.count == 0 {

@@ -208,15 +208,9 @@ pub fn build(ctx: &Context<'_>) -> Result<Box<dyn Simulation>, SceneError> {
             ))
         }
     };
-    let mass = match t.mass.as_deref() {
-        None | Some("consistent") => FemMass::Consistent,
-        Some("lumped") => FemMass::Lumped,
-        Some(other) => {
-            return Err(ctx.error(
-                &at(&[&"mass"]),
-                format!("mass is \"consistent\" or \"lumped\", not \"{other}\""),
-            ))
-        }
+    let mass = match &t.mass {
+        None => FemMass::Consistent,
+        Some(m) => m.parse().map_err(|e| ctx.error(&at(&[&"mass"]), e))?,
     };
     let rate = match t.sample_rate {
         None => 44_100,
@@ -240,11 +234,11 @@ pub fn build(ctx: &Context<'_>) -> Result<Box<dyn Simulation>, SceneError> {
     };
     // The sound's samples, held until the run ends (its last step may pass the
     // duration by up to dt).
-    let seconds = (ctx.duration + ctx.dt).min(super::sound::MAX_SECONDS);
+    let sound_seconds = (ctx.duration + ctx.dt).min(super::sound::MAX_SECONDS);
     ctx.memory(
         &at(&[&"sample_rate"]),
-        &format!("{seconds} s of sound at {rate} Hz"),
-        8.0 * seconds * rate as f64,
+        &format!("{sound_seconds} s of sound at {rate} Hz"),
+        8.0 * sound_seconds * rate as f64,
     )?;
     let contact_time = ctx.non_negative(
         t.contact_time.unwrap_or(1e-4),
@@ -380,7 +374,9 @@ pub fn build(ctx: &Context<'_>) -> Result<Box<dyn Simulation>, SceneError> {
     Ok(Box::new(ModalSound {
         analysis,
         synth,
-        samples: Vec::new(),
+        // The whole sound, checked against the memory budget above: no reallocation
+        // while it plays.
+        samples: Vec::with_capacity((sound_seconds * rate as f64).ceil() as usize + 1),
         sample_rate: rate,
         triangles,
         contacts: t.contacts,
@@ -560,7 +556,6 @@ impl Simulation for ModalSound {
         if self.prev.len() != n {
             self.prev = vec![[0.0; 3]; n];
         }
-        let old = std::mem::take(&mut self.pushed);
         for &(v, j) in &impulses.impulses {
             self.heard += 1;
             for (sum, jc) in self.heard_impulse.iter_mut().zip(j) {
@@ -595,9 +590,10 @@ impl Simulation for ModalSound {
             }
         }
         // Vertices that stopped touching push no more.
-        for v in old {
+        for &v in &self.pushed {
             self.prev[v as usize] = [0.0; 3];
         }
+        self.pushed.clear();
         for &(v, j) in &impulses.impulses {
             self.prev[v as usize] = j;
             if j != [0.0; 3] {

@@ -10,7 +10,7 @@ use crate::integrate::{IntegrateError, StepInfo};
 use crate::io::{write_atomically, write_obj, write_ply, Mesh, MeshRef};
 use crate::limits::Limits;
 use crate::render::preview::PreviewSettings;
-use crate::simulation::{Energy, FrameData, Simulation};
+use crate::simulation::{Audio, Energy, FrameData, Simulation};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -672,26 +672,28 @@ impl Runner {
     /// The WAV file of each system that makes sound: `sound.wav` for the first,
     /// `sound_<table>_<k>.wav` for any further one.
     pub fn sound_files(&self) -> Vec<PathBuf> {
-        let mut k = 0;
+        self.sounds().map(|(path, _)| path).collect()
+    }
+
+    /// Each system's sound with its WAV file's path ([`Runner::sound_files`]).
+    fn sounds(&self) -> impl Iterator<Item = (PathBuf, Audio<'_>)> {
         self.systems
             .iter()
-            .filter(|s| s.sim.audio().is_some())
-            .map(|s| {
-                k += 1;
-                let name = if k == 1 {
+            .filter_map(|s| s.sim.audio().map(|a| (s.table, a)))
+            .enumerate()
+            .map(|(k, (table, a))| {
+                let name = if k == 0 {
                     "sound.wav".to_string()
                 } else {
-                    format!("sound_{}_{k}.wav", s.table)
+                    format!("sound_{table}_{}.wav", k + 1)
                 };
-                self.out_dir.join(name)
+                (self.out_dir.join(name), a)
             })
-            .collect()
     }
 
     /// Writes [`Runner::sound_files`] (16-bit mono WAV, scaled to 0.9 of full scale).
     fn write_sound(&self) -> Result<(), RunError> {
-        let audio = self.systems.iter().filter_map(|s| s.sim.audio());
-        for (path, a) in self.sound_files().into_iter().zip(audio) {
+        for (path, a) in self.sounds() {
             if a.samples.is_empty() {
                 continue;
             }
@@ -876,9 +878,8 @@ impl Runner {
     /// ([`Runner::sound_files`]: `sound.wav` gives `spectrogram.png`, `sound_x_2.wav`
     /// gives `spectrogram_x_2.png`). Works after a failed run too.
     pub fn write_spectrograms(&self) -> Result<Vec<PathBuf>, RunError> {
-        let audio = self.systems.iter().filter_map(|s| s.sim.audio());
         let mut written = Vec::new();
-        for (wav, a) in self.sound_files().into_iter().zip(audio) {
+        for (wav, a) in self.sounds() {
             if a.samples.is_empty() {
                 continue;
             }

@@ -319,7 +319,8 @@ pub struct MechSimulation<M: MechModel> {
 /// What recording contact impulses needs (see [`MechSimulation::record_contact_impulses`]).
 #[derive(Clone, Debug, Default)]
 struct ImpulseRecorder {
-    /// Positions when recording began: the frame the impulses are given in.
+    /// Positions when recording began, less their centre of mass: the frame the impulses
+    /// are given in.
     initial: Vec<f64>,
     /// Velocities at the start of the step.
     v0: Vec<f64>,
@@ -348,6 +349,13 @@ fn size_of(x: &[f64]) -> f64 {
         }
     }
     d2.sqrt().max(1.0)
+}
+
+/// The centre of mass (m) of the component-major positions `x` with `mass` per vertex.
+fn centre_of_mass(mass: &[f64], x: &[f64]) -> [f64; 3] {
+    let n = mass.len();
+    let total: f64 = mass.iter().sum();
+    std::array::from_fn(|c| (0..n).map(|i| mass[i] * x[c * n + i]).sum::<f64>() / total)
 }
 
 /// The largest speed in component-major velocities (m/s); NaN if any is NaN.
@@ -577,8 +585,13 @@ impl<M: MechModel> MechSimulation<M> {
             self.impulses = None;
         } else if self.impulses.is_none() {
             let n = self.model.vertex_count();
+            let centre = centre_of_mass(self.model.mass(), self.state.x.as_slice());
+            let mut initial = self.state.x.as_slice().to_vec();
+            for (c, part) in initial.chunks_mut(n.max(1)).enumerate() {
+                part.iter_mut().for_each(|p| *p -= centre[c]);
+            }
             self.impulses = Some(Box::new(ImpulseRecorder {
-                initial: self.state.x.as_slice().to_vec(),
+                initial,
                 v0: vec![0.0; 3 * n],
                 force: vec![0.0; 3 * n],
                 force_impulse: vec![0.0; 3 * n],
@@ -632,18 +645,14 @@ impl<M: MechModel> MechSimulation<M> {
         let (x, v) = (self.state.x.as_slice(), self.state.v.as_slice());
         let n = self.model.vertex_count();
         let mass = self.model.mass();
-        // The best-fit rotation: polar factor of A = sum m (x - c)(X - C)^T.
-        let total: f64 = mass.iter().sum();
-        let centre = |p: &[f64]| -> [f64; 3] {
-            std::array::from_fn(|c| (0..n).map(|i| mass[i] * p[c * n + i]).sum::<f64>() / total)
-        };
-        let (c, c0) = (centre(x), centre(&r.initial));
+        // The best-fit rotation: polar factor of A = sum m (x - c)(X - C)^T (X - C kept
+        // from when recording began).
+        let c = centre_of_mass(mass, x);
         let mut a = [0.0; 9];
         for i in 0..n {
             for j in 0..3 {
                 for k in 0..3 {
-                    a[3 * j + k] +=
-                        mass[i] * (x[j * n + i] - c[j]) * (r.initial[k * n + i] - c0[k]);
+                    a[3 * j + k] += mass[i] * (x[j * n + i] - c[j]) * r.initial[k * n + i];
                 }
             }
         }

@@ -115,8 +115,9 @@ impl Energy {
 
 /// What a simulation writes per frame.
 ///
-/// Meshes are what the mechanical domains write today; volumes (fluids), skeletons
-/// (characters) and audio (modal sound) will be variants of their own.
+/// Meshes are what the mechanical domains write today; volumes (fluids) and skeletons
+/// (characters) will be variants of their own. Sound is not per frame: a system hands
+/// its whole sound over through [`Simulation::audio`].
 #[derive(Clone, Copy, Debug)]
 #[non_exhaustive]
 pub enum FrameData<'a> {
