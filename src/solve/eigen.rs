@@ -59,6 +59,21 @@ pub enum Mass<'a> {
     Consistent(&'a Bsr3),
 }
 
+impl Mass<'_> {
+    /// `y = M x` (x and y component-major, 3n values).
+    pub fn times(&self, y: &mut [f64], x: &[f64]) {
+        match self {
+            Mass::Lumped(m) => {
+                let n = m.len();
+                for (d, (yd, xd)) in y.iter_mut().zip(x).enumerate() {
+                    *yd = m[d % n] * xd;
+                }
+            }
+            Mass::Consistent(m) => m.spmv(y, x),
+        }
+    }
+}
+
 /// Settings of [`lowest_modes`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct EigenParams {
@@ -439,14 +454,7 @@ impl<'a> ShiftInvert<'a> {
     /// `y = M x` with fixed unknowns zero.
     fn mass_times(&self, y: &mut [f64], x: &[f64]) {
         let n = self.k.n();
-        match self.mass {
-            Mass::Lumped(m) => {
-                for (d, (yd, xd)) in y.iter_mut().zip(x).enumerate() {
-                    *yd = m[d % n] * xd;
-                }
-            }
-            Mass::Consistent(m) => m.spmv(y, x),
-        }
+        self.mass.times(y, x);
         for (d, yd) in y.iter_mut().enumerate() {
             if self.fixed[d % n] {
                 *yd = 0.0;
@@ -886,14 +894,7 @@ fn residuals(k: &Bsr3, mass: Mass<'_>, fixed: &[bool], modes: &mut Modes) {
         .map(|j| {
             let x = modes.mode(j);
             k.spmv(&mut kx, x);
-            match mass {
-                Mass::Lumped(m) => {
-                    for (d, (y, v)) in mx.iter_mut().zip(x).enumerate() {
-                        *y = m[d % n] * v;
-                    }
-                }
-                Mass::Consistent(m) => m.spmv(&mut mx, x),
-            }
+            mass.times(&mut mx, x);
             let l = modes.eigenvalues[j];
             let (mut num, mut nk, mut nm, mut nx) = (0.0, 0.0, 0.0, 0.0);
             for d in (0..3 * n).filter(|d| !fixed[d % n]) {
