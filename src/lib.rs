@@ -18,6 +18,8 @@ pub mod cloth;
 pub mod collide;
 #[cfg(feature = "fem")]
 pub mod fem;
+#[cfg(feature = "fluid")]
+pub mod fluid;
 pub mod integrate;
 pub mod io;
 pub mod limits;

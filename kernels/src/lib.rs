@@ -19,6 +19,7 @@
 pub mod cloth;
 pub mod fem;
 pub mod fem_diag;
+pub mod fluid;
 pub mod interp;
 pub mod mass_spring;
 pub mod modal;

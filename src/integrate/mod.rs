@@ -224,6 +224,15 @@ pub enum IntegrateError {
         /// What to try.
         hint: &'static str,
     },
+    /// A system's own step failed (a fluid's CFL refusal, a non-finite cell), with its
+    /// message naming where.
+    #[error("{why}")]
+    Failed {
+        /// Step number (1-based).
+        step: u64,
+        /// What failed and where, with what to try.
+        why: String,
+    },
     /// A state whose size does not match the model's.
     #[error("the state has {got} vertices, the model {expected}")]
     StateSize {

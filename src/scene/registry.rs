@@ -41,6 +41,11 @@ pub const DOMAINS: &[Domain] = &[
         table: "fem",
         build: crate::fem::scene::build,
     },
+    #[cfg(feature = "fluid")]
+    Domain {
+        table: "fluid",
+        build: crate::fluid::scene::build,
+    },
     #[cfg(feature = "modal")]
     Domain {
         table: "sound",

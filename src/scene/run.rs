@@ -10,7 +10,7 @@ use crate::integrate::{IntegrateError, StepInfo};
 use crate::io::{write_atomically, write_obj, write_ply, Mesh, MeshRef};
 use crate::limits::Limits;
 use crate::render::preview::PreviewSettings;
-use crate::simulation::{Audio, Energy, FrameData, Simulation};
+use crate::simulation::{Audio, Energy, Simulation};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -499,9 +499,7 @@ impl Runner {
     /// (vertices and elements concatenated) when the scene has several.
     fn with_frame<R>(&self, f: impl FnOnce(MeshRef<'_>) -> R) -> R {
         fn mesh(s: &System) -> MeshRef<'_> {
-            match s.sim.frame() {
-                FrameData::Mesh(m) => m,
-            }
+            s.sim.frame().mesh()
         }
         if let [one] = &self.systems[..] {
             return f(mesh(one));

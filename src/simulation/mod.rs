@@ -115,15 +115,60 @@ impl Energy {
 
 /// What a simulation writes per frame.
 ///
-/// Meshes are what the mechanical domains write today; volumes (fluids) and skeletons
-/// (characters) will be variants of their own. Sound is not per frame: a system hands
-/// its whole sound over through [`Simulation::audio`].
-#[derive(Clone, Copy, Debug)]
+/// Meshes are what the mechanical domains write; grids are what fluids write (the
+/// runner draws their slices and renders their density); skeletons (characters) will be
+/// a variant of their own. Sound is not per frame: a system hands its whole sound over
+/// through [`Simulation::audio`].
+#[derive(Clone, Debug)]
 #[non_exhaustive]
 pub enum FrameData<'a> {
     /// Vertices with surface triangles, segments (springs, chains), both, or neither
     /// (points).
     Mesh(MeshRef<'a>),
+    /// Fields on a grid of cells.
+    Grid(GridRef<'a>),
+}
+
+/// A field on a grid's cells (one value per cell, x fastest), and what it means, which
+/// says how it is drawn.
+#[derive(Clone, Copy, Debug)]
+pub enum GridField<'a> {
+    /// Velocity at cell centres, component-major (3 x cells), m/s: drawn as its
+    /// magnitude.
+    Speed(&'a [f64]),
+    /// Vorticity (1/s): the z component in 2-D (signed), the magnitude in 3-D.
+    Vorticity(&'a [f64]),
+    /// Smoke density (volume-rendered in 3-D, a grey map in 2-D).
+    Density(&'a [f64]),
+}
+
+/// A grid of `cells` cubes of side `h` from `origin`, with its fields.
+#[derive(Clone, Debug)]
+pub struct GridRef<'a> {
+    /// Cells along x, y, z (z = 1: 2-D).
+    pub cells: [usize; 3],
+    /// Cell side (m).
+    pub h: f64,
+    /// Lower corner (m).
+    pub origin: [f64; 3],
+    /// Solid cells, if any.
+    pub solid: Option<&'a [bool]>,
+    /// The fields.
+    pub fields: Vec<GridField<'a>>,
+}
+
+impl<'a> FrameData<'a> {
+    /// The mesh of a mesh frame; an empty mesh for a grid.
+    pub fn mesh(&self) -> MeshRef<'a> {
+        match self {
+            FrameData::Mesh(m) => *m,
+            FrameData::Grid(_) => MeshRef {
+                positions: &[],
+                triangles: &[],
+                segments: &[],
+            },
+        }
+    }
 }
 
 /// The impulses a system's obstacles gave its vertices over its last step
@@ -184,7 +229,6 @@ pub trait Simulation: Send {
     fn warnings(&self) -> Vec<String> {
         Vec::new()
     }
-    /// Whether the system has a volume to write as a frame ([`Simulation::write_volume`]).
     /// Starts or stops recording [`Simulation::contact_impulses`] (a listener asked for
     /// them; off by default, since they cost a force evaluation a step). Systems without
     /// contacts ignore it.
@@ -211,6 +255,7 @@ pub trait Simulation: Send {
         None
     }
 
+    /// Whether the system has a volume to write as a frame ([`Simulation::write_volume`]).
     fn has_volume(&self) -> bool {
         false
     }

@@ -14,6 +14,7 @@ pub mod cholesky;
 pub mod dense;
 pub mod eigen;
 pub mod filter;
+pub mod krylov;
 pub mod multigrid;
 pub mod newton;
 pub mod pcg;
@@ -26,7 +27,7 @@ pub use filter::{Approach, Filter};
 pub use multigrid::Multigrid;
 pub use newton::{Newton, NewtonParams, NewtonProblem};
 pub use pcg::{Pcg, PcgParams, Preconditioner};
-pub use poisson::{CellKind, GridPoisson, PoissonParams, PoissonPreconditioner};
+pub use poisson::{CellKind, GridPoisson, PoissonParams, PoissonPreconditioner, Side};
 
 /// What a solver reports on success.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]

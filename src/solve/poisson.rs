@@ -7,8 +7,9 @@
 //! fluid cell i, `(A p)_i = (d_i p_i - sum_j p_j) / h^2` over its face neighbours j
 //! that are fluid, with `d_i` the number of its neighbours that are fluid or empty: an
 //! empty neighbour is a Dirichlet condition `p = 0` (a free surface, an open boundary),
-//! a solid one or the domain's edge a Neumann condition (a wall). A is symmetric and
-//! positive definite when some fluid cell touches an empty one; with walls all round it
+//! a solid one a Neumann condition (a wall). Beyond the grid's edge each side is a wall,
+//! open (as an empty cell) or periodic ([`Side`]). A is symmetric and
+//! positive definite when some fluid cell touches an empty cell or an open side; otherwise it
 //! is singular with the constant null space, and the solve keeps every iterate at zero
 //! mean over the fluid cells (the right side must then have zero mean: it is projected
 //! there, as a compatible divergence field has).
@@ -44,6 +45,19 @@ pub enum CellKind {
     Solid = 1,
     /// Empty: air or outside an open boundary (Dirichlet, p = 0).
     Empty = 2,
+}
+
+/// What lies beyond one side of the grid.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Side {
+    /// A wall: Neumann, no flux.
+    #[default]
+    Wall,
+    /// Open (outflow): Dirichlet `p = 0` half a cell outside, as an empty cell there.
+    Open,
+    /// Periodic: the opposite side's cells are the neighbours (both sides of the axis
+    /// must say so).
+    Periodic,
 }
 
 /// The preconditioner of [`GridPoisson::solve`].
@@ -91,6 +105,8 @@ const OMEGA: f64 = 6.0 / 7.0;
 #[derive(Clone, Debug)]
 struct Level {
     n: [usize; 3],
+    /// Beyond each side, low and high per axis.
+    sides: [[Side; 2]; 3],
     /// 1 / h^2.
     inv_h2: f64,
     kind: Vec<CellKind>,
@@ -118,27 +134,38 @@ struct Level {
 
 impl Level {
     /// A level; `coarse`: one that finer levels interpolate from (it needs `interior`).
-    fn new(n: [usize; 3], h: f64, kind: Vec<CellKind>, coarse: bool) -> Level {
+    fn new(
+        n: [usize; 3],
+        sides: [[Side; 2]; 3],
+        h: f64,
+        kind: Vec<CellKind>,
+        coarse: bool,
+    ) -> Level {
         let inv_h2 = 1.0 / (h * h);
         let cells = kind.len();
+        let per = periodic(&sides);
         let mut diag = vec![0.0; cells];
         for (idx, d) in diag.iter_mut().enumerate() {
             if kind[idx] != CellKind::Fluid {
                 continue;
             }
-            let mut count = 0;
-            for_neighbours(n, idx, |j| {
+            let mut count = open_faces(n, &sides, idx);
+            for_neighbours(n, per, idx, |j| {
                 if kind[j] != CellKind::Solid {
                     count += 1;
                 }
             });
             *d = count as f64 * inv_h2;
         }
-        // The band: fluid cells with fewer than six fluid neighbours, dilated once.
+        // The band: fluid cells with fewer fluid neighbours than a cell has (six in 3-D,
+        // four in 2-D), dilated once.
+        let full = 2 * n.iter().filter(|&&c| c > 1).count();
         let near = |idx: usize| {
             let mut fluid = 0;
-            for_neighbours(n, idx, |j| fluid += usize::from(kind[j] == CellKind::Fluid));
-            fluid < 6
+            for_neighbours(n, per, idx, |j| {
+                fluid += usize::from(kind[j] == CellKind::Fluid)
+            });
+            fluid < full
         };
         let edge: Vec<bool> = (0..cells)
             .map(|i| kind[i] == CellKind::Fluid && near(i))
@@ -147,7 +174,7 @@ impl Level {
             .filter(|&i| {
                 kind[i] == CellKind::Fluid && {
                     let mut any = edge[i];
-                    for_neighbours(n, i, |j| any |= edge[j]);
+                    for_neighbours(n, per, i, |j| any |= edge[j]);
                     any
                 }
             })
@@ -179,6 +206,7 @@ impl Level {
             interior,
             x2: vec![0.0; cells],
             n,
+            sides,
             inv_h2,
             band,
             band_r,
@@ -206,10 +234,11 @@ impl Level {
         let c = self.inv_h2;
         let base = k * s + j * nx;
         let inner = k > 0 && k + 1 < nz && j > 0 && j + 1 < ny && nx > 2;
+        let per = periodic(&self.sides);
         let edge = |i: usize| {
             let idx = base + i;
             let mut o = 0.0;
-            for_neighbours(self.n, idx, |q| o += x[q]);
+            for_neighbours(self.n, per, idx, |q| o += x[q]);
             self.mask[idx] * (self.diag[idx] * x[idx] - c * o)
         };
         if !inner {
@@ -271,7 +300,7 @@ impl Level {
             return 0.0;
         }
         let mut off = 0.0;
-        for_neighbours(self.n, idx, |j| off += x[j]);
+        for_neighbours(self.n, periodic(&self.sides), idx, |j| off += x[j]);
         self.diag[idx] * x[idx] - self.inv_h2 * off
     }
 
@@ -312,13 +341,15 @@ impl Level {
 /// The trilinear (cell-centred) interpolation of fine cell `c` of a grid `fine` from the
 /// coarse grid `coarse` with kinds `ckind`: its parent's weight 27/64 and the parent's
 /// neighbours towards the cell 9/64, 3/64 and 1/64 (3/4 and 1/4 along each axis). A
-/// neighbour that is empty contributes zero (p = 0 there); one that is solid or outside
-/// hands its weight to the parent (a wall: the value reflected). Returns eight coarse
-/// indices and weights (repeats allowed).
+/// neighbour that is empty or beyond an open side contributes zero (p = 0 there); one
+/// that is solid or beyond a wall hands its weight to the parent (the value reflected);
+/// beyond a periodic side it is the cell at the other end. Returns eight coarse indices
+/// and weights (repeats allowed).
 #[inline]
 fn weights(
     c: [usize; 3],
     coarse: [usize; 3],
+    sides: &[[Side; 2]; 3],
     ckind: &[CellKind],
     cinterior: &[bool],
 ) -> ([usize; 8], [f64; 8]) {
@@ -355,28 +386,38 @@ fn weights(
     for (m, (cm, wm)) in cells.iter_mut().zip(w.iter_mut()).enumerate() {
         let mut q = parent;
         let mut weight = 1.0;
-        let mut inside = true;
+        // Beyond a side: which one.
+        let mut beyond = None;
         for a in 0..3 {
             if m >> a & 1 == 1 {
                 weight *= 0.25;
                 if c[a] % 2 == 0 {
-                    if q[a] == 0 {
-                        inside = false;
-                    } else {
+                    if q[a] > 0 {
                         q[a] -= 1;
+                    } else if sides[a][0] == Side::Periodic && coarse[a] > 1 {
+                        q[a] = coarse[a] - 1;
+                    } else {
+                        beyond = Some(sides[a][0]);
                     }
-                } else if q[a] + 1 >= coarse[a] {
-                    inside = false;
-                } else {
+                } else if q[a] + 1 < coarse[a] {
                     q[a] += 1;
+                } else if sides[a][1] == Side::Periodic && coarse[a] > 1 {
+                    q[a] = 0;
+                } else {
+                    beyond = Some(sides[a][1]);
                 }
             } else {
                 weight *= 0.75;
             }
         }
         *wm = weight;
-        if !inside {
-            continue; // the parent's
+        match beyond {
+            Some(Side::Open) => {
+                *wm = 0.0;
+                continue;
+            }
+            Some(_) => continue, // a wall: the parent's
+            None => {}
         }
         let qidx = q[0] + coarse[0] * (q[1] + coarse[1] * q[2]);
         match ckind[qidx] {
@@ -388,30 +429,44 @@ fn weights(
     (cells, w)
 }
 
-/// Calls `f` with the index of each face neighbour of cell `idx` inside the grid `n`.
+/// Which axes are periodic.
+fn periodic(sides: &[[Side; 2]; 3]) -> [bool; 3] {
+    sides.map(|s| s[0] == Side::Periodic)
+}
+
+/// How many faces of cell `idx` lie on an open side of the grid.
+fn open_faces(n: [usize; 3], sides: &[[Side; 2]; 3], idx: usize) -> usize {
+    let c = [idx % n[0], (idx / n[0]) % n[1], idx / (n[0] * n[1])];
+    (0..3)
+        .map(|a| {
+            usize::from(c[a] == 0 && sides[a][0] == Side::Open)
+                + usize::from(c[a] + 1 == n[a] && sides[a][1] == Side::Open)
+        })
+        .sum()
+}
+
+/// Calls `f` with the index of each face neighbour of cell `idx` in the grid `n`: inside
+/// it, or across a periodic axis (`per`) at the other end (an axis of one cell has no
+/// neighbours along it).
 #[inline]
-fn for_neighbours(n: [usize; 3], idx: usize, mut f: impl FnMut(usize)) {
+fn for_neighbours(n: [usize; 3], per: [bool; 3], idx: usize, mut f: impl FnMut(usize)) {
     let (nx, ny) = (n[0], n[1]);
-    let i = idx % nx;
-    let j = (idx / nx) % ny;
-    let k = idx / (nx * ny);
-    if i > 0 {
-        f(idx - 1);
-    }
-    if i + 1 < nx {
-        f(idx + 1);
-    }
-    if j > 0 {
-        f(idx - nx);
-    }
-    if j + 1 < ny {
-        f(idx + nx);
-    }
-    if k > 0 {
-        f(idx - nx * ny);
-    }
-    if k + 1 < n[2] {
-        f(idx + nx * ny);
+    let c = [idx % nx, (idx / nx) % ny, idx / (nx * ny)];
+    let stride = [1, nx, nx * ny];
+    for a in 0..3 {
+        if n[a] < 2 {
+            continue;
+        }
+        if c[a] > 0 {
+            f(idx - stride[a]);
+        } else if per[a] {
+            f(idx + (n[a] - 1) * stride[a]);
+        }
+        if c[a] + 1 < n[a] {
+            f(idx + stride[a]);
+        } else if per[a] {
+            f(idx - (n[a] - 1) * stride[a]);
+        }
     }
 }
 
@@ -430,8 +485,19 @@ pub struct GridPoisson {
 
 impl GridPoisson {
     /// The problem on `n[0] x n[1] x n[2]` cells of side `h` (x fastest) with the cell
-    /// kinds `kind`; 2-D grids have `n[2] = 1`.
+    /// kinds `kind` and walls all round; 2-D grids have `n[2] = 1`.
     pub fn new(n: [usize; 3], h: f64, kind: Vec<CellKind>) -> Result<Self, SolveError> {
+        Self::with_sides(n, h, kind, [[Side::Wall; 2]; 3])
+    }
+
+    /// [`GridPoisson::new`] with what lies beyond each side (`sides[axis][0]` low,
+    /// `[1]` high). A periodic axis must be periodic on both sides.
+    pub fn with_sides(
+        n: [usize; 3],
+        h: f64,
+        kind: Vec<CellKind>,
+        sides: [[Side; 2]; 3],
+    ) -> Result<Self, SolveError> {
         let cells = n.iter().try_fold(1usize, |a, &b| a.checked_mul(b));
         if cells != Some(kind.len()) || kind.is_empty() {
             return Err(SolveError::Invalid(format!(
@@ -447,22 +513,34 @@ impl GridPoisson {
                 "cell size must be positive and finite, not {h}"
             )));
         }
+        if let Some(a) =
+            (0..3).find(|&a| (sides[a][0] == Side::Periodic) != (sides[a][1] == Side::Periodic))
+        {
+            return Err(SolveError::Invalid(format!(
+                "axis {a} is periodic on one side only"
+            )));
+        }
+        let per = periodic(&sides);
         let mut singular = true;
         for (idx, &c) in kind.iter().enumerate() {
             if c == CellKind::Fluid {
-                for_neighbours(n, idx, |j| {
+                if open_faces(n, &sides, idx) > 0 {
+                    singular = false;
+                }
+                for_neighbours(n, per, idx, |j| {
                     if kind[j] == CellKind::Empty {
                         singular = false;
                     }
                 });
             }
         }
-        let mut levels = vec![Level::new(n, h, kind, false)];
+        let mut levels = vec![Level::new(n, sides, h, kind, false)];
         let mut h = h;
         while levels.last().is_some_and(|l| l.kind.len() > COARSEST_CELLS) {
             let fine = levels.last().expect("one level at least");
             let nc = fine.n.map(|c| c.div_ceil(2));
-            if nc == fine.n {
+            // A periodic axis coarsens only while it halves exactly.
+            if nc == fine.n || (0..3).any(|a| per[a] && fine.n[a] % 2 == 1) {
                 break;
             }
             let mut kind = vec![CellKind::Solid; nc[0] * nc[1] * nc[2]];
@@ -492,7 +570,7 @@ impl GridPoisson {
                 };
             }
             h *= 2.0;
-            levels.push(Level::new(nc, h, kind, true));
+            levels.push(Level::new(nc, sides, h, kind, true));
         }
         let cells = levels[0].kind.len();
         Ok(Self {
@@ -583,6 +661,9 @@ impl GridPoisson {
             let cslab = cnx * cny;
             let fslab = f.n[0] * f.n[1];
             let (ckind, cn, cmask, cint) = (&c.kind, c.n, &c.mask, &c.interior);
+            let sides = &c.sides;
+            // R = P^T / (children per coarse cell): 8 in 3-D, 4 in 2-D.
+            let scale = 1.0 / (1usize << f.n.iter().filter(|&&v| v > 1).count()) as f64;
             c.b.par_chunks_mut(cslab).enumerate().for_each(|(ck, bs)| {
                 bs.fill(0.0);
                 let base = ck * cslab;
@@ -594,7 +675,7 @@ impl GridPoisson {
                             continue; // off the fluid cells, or nothing to add
                         }
                         let (cells, w) =
-                            weights([local % f.n[0], local / f.n[0], k], cn, ckind, cint);
+                            weights([local % f.n[0], local / f.n[0], k], cn, sides, ckind, cint);
                         for (cc, wc) in cells.iter().zip(&w) {
                             if (base..base + cslab).contains(cc) {
                                 bs[cc - base] += wc * rf;
@@ -605,7 +686,7 @@ impl GridPoisson {
                 // Only fluid cells carry unknowns (a fluid child's empty parent got a
                 // share that the coarse problem has no place for).
                 for (b, m) in bs.iter_mut().zip(&cmask[base..base + cslab]) {
-                    *b *= m / 8.0;
+                    *b *= m * scale;
                 }
             });
         }
@@ -616,10 +697,12 @@ impl GridPoisson {
             let (fnx, fny) = (f.n[0], f.n[1]);
             let fslab = fnx * fny;
             let (cx, fkind, cn, ckind, cint) = (&c.x, &f.kind, c.n, &c.kind, &c.interior);
+            let sides = &c.sides;
             f.x.par_chunks_mut(fslab).enumerate().for_each(|(k, xs)| {
                 for (local, xf) in xs.iter_mut().enumerate() {
                     if fkind[k * fslab + local] == CellKind::Fluid {
-                        let (cells, w) = weights([local % fnx, local / fnx, k], cn, ckind, cint);
+                        let (cells, w) =
+                            weights([local % fnx, local / fnx, k], cn, sides, ckind, cint);
                         let mut v = 0.0;
                         for (cc, wc) in cells.iter().zip(&w) {
                             v += wc * cx[*cc];

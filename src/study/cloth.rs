@@ -21,7 +21,6 @@
 use super::{log_slope, max_distance, write_file, write_plot_and_numbers, Progress, StudyError};
 use crate::plot::{Curve, Panel, Scale};
 use crate::scene::Scene;
-use crate::simulation::FrameData;
 use serde::Serialize;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -78,7 +77,7 @@ fn run_scene(text: &str) -> (Option<Vec<f64>>, f64, usize) {
             Err(_) => return (None, t0.elapsed().as_secs_f64(), iterations),
         }
     }
-    let FrameData::Mesh(mesh) = sim.frame();
+    let mesh = sim.frame().mesh();
     (
         Some(mesh.positions.to_vec()),
         t0.elapsed().as_secs_f64(),
