@@ -280,6 +280,10 @@ fn plain(v: f64) -> String {
 
 /// A linear-axis tick label: [`crate::io::human`].
 fn linear_tick(v: &f64) -> String {
+    // Ticks stepped from a range's start land a rounding error off zero (-2.8e-17).
+    if v.abs() < 1e-12 {
+        return "0".into();
+    }
     crate::io::human(*v)
 }
 

@@ -425,6 +425,9 @@ fn parsers_and_scene_builders_survive_mutated_input() {
                 .replace("n = [8, 8, 8]", "n = [3, 3, 3]")
                 .replace("cells = [50, 4, 4]", "cells = [6, 2, 2]")
                 .replace("modes = 60", "modes = 8")
+                .replace("cells = [64, 96, 64]", "cells = [6, 8, 6]")
+                .replace("cells = [64, 64, 1]", "cells = [8, 8, 1]")
+                .replace("cells = [128, 192, 1]", "cells = [8, 12, 1]")
         })
         .collect();
     scenes.sort();

@@ -14,7 +14,8 @@
 //!   sign with the interval's difference), which creates no new extrema.
 //! - Back traces (Stam 1999; Bridson 2015, chapter 3) follow the velocity backwards from a
 //!   node for `dt`, by the midpoint rule (RK2) or Ralston's third-order rule (RK3), and
-//!   clamp the foot into the domain along closed axes.
+//!   clamp the foot into the domain along closed axes. The feet are computed once per
+//!   layout and step ([`trace_feet`]) and shared by every pass and field that needs them.
 //! - The corrected schemes (MacCormack, Selle et al. 2008; BFECC, Kim et al. 2005) limit
 //!   their result to the range of the original field's nodes around the foot
 //!   ([`advect_limited`]), which keeps them stable.
@@ -296,80 +297,94 @@ pub fn node_range(values: &[f64], f: &Field, p: [f64; 3]) -> (f64, f64) {
     (lo, hi)
 }
 
-/// Settings of one advection pass.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Advect {
-    /// Time step over the cell size (s/m); negative to trace forwards (the reverse pass of
-    /// the corrected schemes).
-    pub dt: f64,
-    /// Back-trace rule.
-    pub trace: Trace,
-    /// Interpolation of the advected field.
-    pub interp: Interp,
+/// Runs `f(node, index, out)` over every node of `layout`, parallel over z-slabs.
+/// Tasks are z-slabs in 3-D and eighths of the grid in 2-D (one slab would leave the
+/// other cores idle).
+fn for_nodes<T: Send>(
+    out: &mut [T],
+    per_node: usize,
+    layout: &Field,
+    f: impl Fn([usize; 3], usize, &mut [T]) + Sync,
+) {
+    let (nx, ny) = (layout.n[0], layout.n[1]);
+    // At least 4k nodes a task: smaller ones cost more to hand out than to run.
+    let rows = if layout.n[2] > 1 {
+        ny
+    } else {
+        (4096 / nx).clamp(1, ny)
+    };
+    let chunk = rows * nx;
+    out.par_chunks_mut(chunk * per_node)
+        .enumerate()
+        .for_each(|(t, s)| {
+            for (local, o) in s.chunks_mut(per_node).enumerate() {
+                let i = t * chunk + local;
+                f([i % nx, (i / nx) % ny, i / (nx * ny)], i, o);
+            }
+        });
 }
 
-/// Runs `f(node, out)` over every node of `layout`, parallel over z-slabs.
-fn for_nodes(out: &mut [f64], layout: &Field, f: impl Fn([usize; 3], &mut f64) + Sync) {
-    let slab = layout.n[0] * layout.n[1];
-    let nx = layout.n[0];
-    out.par_chunks_mut(slab).enumerate().for_each(|(k, s)| {
-        for (local, o) in s.iter_mut().enumerate() {
-            f([local % nx, local / nx, k], o);
-        }
+/// `feet` = where each node of `layout` was `params.dt` ago (cell units, three f32 per
+/// node, node-major): the back traces every pass of one advection shares.
+pub fn trace_feet(feet: &mut [f32], layout: &Field, vel: &Velocity<'_>, dt: f64, trace: Trace) {
+    assert_eq!(feet.len(), 3 * layout.len(), "three coordinates per node");
+    for_nodes(feet, 3, layout, |c, _, o| {
+        let p = vel.trace(layout.position(c), dt, trace);
+        o[0] = p[0] as f32;
+        o[1] = p[1] as f32;
+        o[2] = p[2] as f32;
     });
 }
 
-/// `out` = the field `values` (layout `layout`) carried by the velocity `vel` for
-/// `params.dt`: each node takes the value at the foot of its back trace.
-pub fn advect(out: &mut [f64], values: &[f64], layout: &Field, vel: &Velocity<'_>, params: Advect) {
-    assert_eq!(
-        values.len(),
-        layout.len(),
-        "field length must match its layout"
+#[inline]
+fn foot(feet: &[f32], i: usize) -> [f64; 3] {
+    [
+        feet[3 * i] as f64,
+        feet[3 * i + 1] as f64,
+        feet[3 * i + 2] as f64,
+    ]
+}
+
+/// `out` = the field `values` (layout `layout`) sampled at each node's foot
+/// ([`trace_feet`]): one semi-Lagrangian advection.
+pub fn advect(out: &mut [f64], values: &[f64], layout: &Field, feet: &[f32], interp: Interp) {
+    let len = layout.len();
+    assert!(
+        values.len() == len && out.len() == len && feet.len() == 3 * len,
+        "field lengths must match their layout"
     );
-    assert_eq!(
-        out.len(),
-        values.len(),
-        "output length must match the field"
-    );
-    for_nodes(out, layout, |c, o| {
-        let foot = vel.trace(layout.position(c), params.dt, params.trace);
-        *o = sample(values, layout, foot, params.interp);
+    for_nodes(out, 1, layout, |_, i, o| {
+        o[0] = sample(values, layout, foot(feet, i), interp);
     });
 }
 
-/// `out = clamp(corrected, range of `original` around the foot)` node by node, where
+/// `out = clamp(corrected, range of original around the foot)` node by node, where
 /// `corrected` is `advected + (original - back) / 2` (MacCormack: `back` is the advected
-/// field carried back) or a precomputed value when `back` is `None` (BFECC passes its
-/// advected corrected field as `advected`). The foot is `params`' back trace.
+/// field carried back) or `advected` itself when `back` is `None` (BFECC passes its
+/// advected corrected field).
 pub fn advect_limited(
     out: &mut [f64],
     original: &[f64],
     advected: &[f64],
     back: Option<&[f64]>,
     layout: &Field,
-    vel: &Velocity<'_>,
-    params: Advect,
+    feet: &[f32],
 ) {
     let len = layout.len();
     assert!(
-        original.len() == len && advected.len() == len && out.len() == len,
+        original.len() == len && advected.len() == len && out.len() == len && feet.len() == 3 * len,
         "field lengths must match their layout"
     );
     if let Some(b) = back {
         assert_eq!(b.len(), len, "field lengths must match their layout");
     }
-    let nx = layout.n[0];
-    let ny = layout.n[1];
-    for_nodes(out, layout, |c, o| {
-        let idx = c[0] + nx * (c[1] + ny * c[2]);
+    for_nodes(out, 1, layout, |_, i, o| {
         let v = match back {
-            Some(b) => advected[idx] + 0.5 * (original[idx] - b[idx]),
-            None => advected[idx],
+            Some(b) => advected[i] + 0.5 * (original[i] - b[i]),
+            None => advected[i],
         };
-        let foot = vel.trace(layout.position(c), params.dt, params.trace);
-        let (lo, hi) = node_range(original, layout, foot);
-        *o = if v.is_nan() { v } else { v.clamp(lo, hi) };
+        let (lo, hi) = node_range(original, layout, foot(feet, i));
+        o[0] = if v.is_nan() { v } else { v.clamp(lo, hi) };
     });
 }
 

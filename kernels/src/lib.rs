@@ -28,6 +28,7 @@ pub mod render;
 pub mod sparse;
 pub mod v3;
 pub mod vec;
+pub mod volume;
 
 /// Rows (or vertices) per task in the parallel drivers. Fixed, so that partial sums are
 /// formed over the same ranges whatever the thread count (determinism), and large enough

@@ -113,7 +113,7 @@ enum Command {
     /// Run a study: error against run time, orders, stability.
     Study {
         /// Which study (integrators, jello-stability, jello-accuracy, cloth-accuracy, cloth-stability,
-        /// fem-accuracy, fem-stability, modes).
+        /// fem-accuracy, fem-stability, modes, fluids, poisson, cavity).
         name: String,
         /// Output folder for the report (default: out/studies; `--out docs/studies`
         /// regenerates the committed reports).
@@ -486,7 +486,20 @@ fn run(
             status = ExitCode::from(1);
         }
     }
-    if preview {
+    if preview && runner.has_grid_preview() {
+        match runner.finish_grid_preview() {
+            Ok(Some((n, seconds))) => println!(
+                "  preview        {n} PNG frames, animation.gif and contact-sheet.png in {} ({:.1} ms/frame)",
+                runner.out_dir().join("preview").display(),
+                1e3 * seconds / n.max(1) as f64
+            ),
+            Ok(None) => {}
+            Err(e) => {
+                eprintln!("error: {e}");
+                status = ExitCode::from(1);
+            }
+        }
+    } else if preview {
         let settings = runner.output().preview;
         let dir = runner.out_dir().join("preview");
         let frames = runner.kept_frames();

@@ -35,7 +35,7 @@ pub mod validation;
 use crate::collide::Obstacle;
 use crate::solve::{CellKind, GridPoisson, PoissonParams, Side, SolveError, SolveInfo};
 use crate::validate::{check, ModelError, Rule};
-use largestep_kernels::fluid::{self as kf, Advect, Field, Velocity};
+use largestep_kernels::fluid::{self as kf, Field, Velocity};
 pub use largestep_kernels::fluid::{Interp, Trace};
 use std::time::Instant;
 
@@ -331,6 +331,9 @@ pub struct FluidState {
     pub steps: u64,
     /// Sub-steps taken.
     pub substeps: u64,
+    /// Work done on the fluid since the start (J): by forces and sources (the kinetic
+    /// energy they add) and by moving lids (their shear stress times their speed).
+    pub external_work: f64,
 }
 
 /// Scratch buffers (allocated once).
@@ -341,6 +344,9 @@ pub struct FluidWork {
     rhs: Vec<f64>,
     /// Scratch of the corrected advection schemes per component (empty without one).
     tmp: [[Vec<f64>; 2]; 3],
+    /// Back-trace feet of one layout (three f32 per node), forwards and backwards (the
+    /// second empty without a corrected scheme).
+    feet: [Vec<f32>; 2],
     next: [Vec<f64>; 3],
     scalar_tmp: [Vec<f64>; 3],
     force: [Vec<f64>; 3],
@@ -671,6 +677,7 @@ impl FluidDesc {
             time: 0.0,
             steps: 0,
             substeps: 0,
+            external_work: 0.0,
         };
         fluid.initial_velocity(&mut state);
         fluid.apply_sources(&mut state, true);
@@ -687,6 +694,15 @@ impl FluidDesc {
                 [vec![0.0; len], vec![0.0; len]]
             }),
             next: std::array::from_fn(|a| vec![0.0; faces(a)]),
+            feet: {
+                let most = (0..dims).map(faces).max().unwrap_or(0).max(cells);
+                let back = if self.advection.correction == Correction::None {
+                    0
+                } else {
+                    3 * most
+                };
+                [vec![0.0; 3 * most], vec![0.0; back]]
+            },
             scalar_tmp: std::array::from_fn(|_| vec![0.0; cells]),
             force: std::array::from_fn(|a| {
                 let any = self.vorticity > 0.0 || self.buoyancy.is_some();
@@ -987,10 +1003,18 @@ impl Fluid {
             substeps: sub,
             ..FluidStepInfo::default()
         };
+        let driven = d.force != [0.0; 3]
+            || d.buoyancy.is_some()
+            || d.vorticity > 0.0
+            || !d.sources.is_empty();
         for _ in 0..sub {
             self.advect(s, w, h);
+            let before = if driven { self.kinetic_energy(s) } else { 0.0 };
             self.add_forces(s, w, h);
             self.apply_sources(s, false);
+            if driven {
+                s.external_work += self.kinetic_energy(s) - before;
+            }
             if let Some(diff) = &self.diffusion {
                 let t = Instant::now();
                 for (a, df) in diff.iter().enumerate().take(self.dims) {
@@ -1006,6 +1030,7 @@ impl Fluid {
                 let mut u = std::mem::take(&mut s.u);
                 self.sync_faces(&mut u);
                 s.u = u;
+                s.external_work += h * self.lid_power(s);
                 info.solve_seconds += t.elapsed().as_secs_f64();
             }
             let p = self.project(s, w, h).map_err(|e| FluidError::Solve {
@@ -1036,41 +1061,53 @@ impl Fluid {
     /// Step 1: advection of velocity and scalars by the velocity at the start.
     fn advect(&self, s: &mut FluidState, w: &mut FluidWork, dt: f64) {
         let d = &self.desc;
-        let params = Advect {
-            dt: dt / d.h,
-            trace: d.advection.trace,
-            interp: d.advection.interp,
-        };
+        let adv = d.advection;
         let vel = self.velocity(&s.u);
+        let corrected = adv.correction != Correction::None;
+        // The feet of one layout at a time, forwards and (corrected schemes) backwards.
+        let feet = |layout: &Field, feet: &mut [Vec<f32>; 2]| {
+            let len = 3 * layout.len();
+            kf::trace_feet(&mut feet[0][..len], layout, &vel, dt / d.h, adv.trace);
+            if corrected {
+                kf::trace_feet(&mut feet[1][..len], layout, &vel, -dt / d.h, adv.trace);
+            }
+            (len, if corrected { len } else { 0 })
+        };
         for a in 0..self.dims {
             let layout = self.face_field(a);
+            let (lf, lb) = feet(&layout, &mut w.feet);
+            let [f0, f1] = &w.feet;
             let [s0, s1] = &mut w.tmp[a];
             advect_one(
                 &mut w.next[a],
                 &s.u[a],
                 [s0, s1],
                 &layout,
-                &vel,
-                params,
-                d.advection.correction,
+                [&f0[..lf], &f1[..lb]],
+                adv.interp,
+                adv.correction,
             );
         }
-        let cell = self.cell_field();
-        let [t0, t1, t2] = &mut w.scalar_tmp;
-        for field in [&mut s.density, &mut s.temperature] {
-            if field.is_empty() {
-                continue;
+        if !s.density.is_empty() || !s.temperature.is_empty() {
+            let cell = self.cell_field();
+            let (lf, lb) = feet(&cell, &mut w.feet);
+            let [f0, f1] = &w.feet;
+            let [t0, t1, t2] = &mut w.scalar_tmp;
+            for field in [&mut s.density, &mut s.temperature] {
+                if field.is_empty() {
+                    continue;
+                }
+                advect_one(
+                    t0,
+                    field,
+                    [t1, t2],
+                    &cell,
+                    [&f0[..lf], &f1[..lb]],
+                    adv.interp,
+                    adv.correction,
+                );
+                field.copy_from_slice(t0);
             }
-            advect_one(
-                t0,
-                field,
-                [t1, t2],
-                &cell,
-                &vel,
-                params,
-                d.advection.correction,
-            );
-            field.copy_from_slice(t0);
         }
         for a in 0..self.dims {
             std::mem::swap(&mut s.u[a], &mut w.next[a]);
@@ -1448,6 +1485,35 @@ impl Fluid {
         0.5 * d.density * vol * e
     }
 
+    /// The power the moving lids put in (W): on each face beside a lid, the shear force
+    /// `rho nu (U - u) 2 / h` times the face's area `h^2` (a 2-D fluid is one cell deep)
+    /// times the lid's speed U: the discrete form of the ghost coupling of the viscosity
+    /// solve.
+    fn lid_power(&self, s: &FluidState) -> f64 {
+        let d = &self.desc;
+        let n = d.cells;
+        let mut p = 0.0;
+        for (b, sides) in d.boundaries.iter().enumerate().take(self.dims) {
+            for (side, bd) in sides.iter().enumerate() {
+                let Boundary::Lid(v) = bd else { continue };
+                for a in (0..self.dims).filter(|&a| a != b) {
+                    let mut fnn = n;
+                    fnn[a] += 1;
+                    for f in 0..s.u[a].len() {
+                        let c = coords(fnn, f);
+                        let edge = if side == 0 { 0 } else { n[b] - 1 };
+                        if c[b] != edge || self.fixed[a][f] {
+                            continue;
+                        }
+                        let shear = d.density * d.viscosity * (v[a] - s.u[a][f]) * 2.0 / d.h;
+                        p += shear * d.h * d.h * v[a];
+                    }
+                }
+            }
+        }
+        p
+    }
+
     /// The velocity at cell centres, component-major (3 x cells).
     pub fn cell_velocity(&self, s: &FluidState) -> Vec<f64> {
         let cells = self.desc.cell_count();
@@ -1516,37 +1582,35 @@ impl Fluid {
     }
 }
 
-/// `out` = `values` advected; the corrected schemes use the two scratch buffers.
+/// `out` = `values` advected along the feet `fwd` (and, for the corrected schemes, back
+/// along `back`, the forward traces), with two scratch buffers.
 fn advect_one(
     out: &mut [f64],
     values: &[f64],
     scratch: [&mut [f64]; 2],
     layout: &Field,
-    vel: &Velocity<'_>,
-    params: Advect,
+    feet: [&[f32]; 2],
+    interp: Interp,
     correction: Correction,
 ) {
     let [s0, s1] = scratch;
-    let back = Advect {
-        dt: -params.dt,
-        ..params
-    };
+    let [fwd, back] = feet;
     match correction {
-        Correction::None => kf::advect(out, values, layout, vel, params),
+        Correction::None => kf::advect(out, values, layout, fwd, interp),
         Correction::MacCormack => {
-            kf::advect(s0, values, layout, vel, params);
-            kf::advect(s1, s0, layout, vel, back);
-            kf::advect_limited(out, values, s0, Some(s1), layout, vel, params);
+            kf::advect(s0, values, layout, fwd, interp);
+            kf::advect(s1, s0, layout, back, interp);
+            kf::advect_limited(out, values, s0, Some(s1), layout, fwd);
         }
         Correction::Bfecc => {
-            kf::advect(s0, values, layout, vel, params);
-            kf::advect(s1, s0, layout, vel, back);
+            kf::advect(s0, values, layout, fwd, interp);
+            kf::advect(s1, s0, layout, back, interp);
             // s1 = values + (values - back) / 2, carried forth and limited.
             for (t, v) in s1.iter_mut().zip(values) {
                 *t = v + 0.5 * (v - *t);
             }
-            kf::advect(s0, s1, layout, vel, params);
-            kf::advect_limited(out, values, s0, None, layout, vel, params);
+            kf::advect(s0, s1, layout, fwd, interp);
+            kf::advect_limited(out, values, s0, None, layout, fwd);
         }
     }
 }

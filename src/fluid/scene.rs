@@ -485,9 +485,8 @@ pub struct FluidSim {
     /// Steps that were split by the CFL condition, and the most sub-steps one took.
     split_steps: u64,
     most_substeps: usize,
-    /// Cell velocity and vorticity of the present state, for frames.
-    cell_velocity: Vec<f64>,
-    vorticity: Vec<f64>,
+    /// Cell velocity and vorticity of the present state, computed when a frame asks.
+    fields: std::sync::OnceLock<(Vec<f64>, Vec<f64>)>,
 }
 
 impl FluidSim {
@@ -501,8 +500,7 @@ impl FluidSim {
             last: FluidStepInfo::default(),
             split_steps: 0,
             most_substeps: 0,
-            cell_velocity: Vec::new(),
-            vorticity: Vec::new(),
+            fields: std::sync::OnceLock::new(),
         };
         sim.refresh_fields();
         Ok(sim)
@@ -521,8 +519,17 @@ impl FluidSim {
     }
 
     fn refresh_fields(&mut self) {
-        self.cell_velocity = self.fluid.cell_velocity(&self.state);
-        self.vorticity = self.fluid.vorticity(&self.state);
+        self.fields = std::sync::OnceLock::new();
+    }
+
+    /// The cell-centred velocity and the vorticity of the present state.
+    fn fields(&self) -> &(Vec<f64>, Vec<f64>) {
+        self.fields.get_or_init(|| {
+            (
+                self.fluid.cell_velocity(&self.state),
+                self.fluid.vorticity(&self.state),
+            )
+        })
     }
 
     /// The model.
@@ -537,6 +544,7 @@ impl FluidSim {
 
     /// The state, to set a field (the next step starts from it).
     pub fn state_mut(&mut self) -> &mut FluidState {
+        self.refresh_fields();
         &mut self.state
     }
 
@@ -571,13 +579,13 @@ impl FluidSim {
         writeln!(w, "SPACING {} {} {}", d.h, d.h, d.h)?;
         writeln!(w, "CELL_DATA {cells}")?;
         writeln!(w, "VECTORS velocity double")?;
+        let (v, vorticity) = self.fields();
         for c in 0..cells {
-            let v = &self.cell_velocity;
             writeln!(w, "{} {} {}", v[c], v[cells + c], v[2 * cells + c])?;
         }
         let pressure = self.pressure();
         let mut scalars: Vec<(&str, &[f64])> =
-            vec![("pressure", &pressure), ("vorticity", &self.vorticity)];
+            vec![("pressure", &pressure), ("vorticity", vorticity)];
         if !self.state.density.is_empty() {
             scalars.push(("density", &self.state.density));
         }
@@ -625,7 +633,8 @@ impl Simulation for FluidSim {
     fn energy(&self) -> Energy {
         Energy {
             kinetic: self.fluid.kinetic_energy(&self.state),
-            ..Energy::default()
+            potential: 0.0,
+            external_work: self.state.external_work,
         }
     }
 
@@ -635,10 +644,8 @@ impl Simulation for FluidSim {
 
     fn frame(&self) -> FrameData<'_> {
         let d = self.fluid.desc();
-        let mut fields = vec![
-            GridField::Speed(&self.cell_velocity),
-            GridField::Vorticity(&self.vorticity),
-        ];
+        let (v, w) = self.fields();
+        let mut fields = vec![GridField::Speed(v), GridField::Vorticity(w)];
         if !self.state.density.is_empty() {
             fields.push(GridField::Density(&self.state.density));
         }

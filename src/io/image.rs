@@ -4,7 +4,7 @@
 use std::io::Write;
 
 /// An 8-bit sRGB-ish RGB image, row-major, top row first.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Image {
     /// Width (pixels).
     pub width: u32,

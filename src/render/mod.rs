@@ -29,6 +29,7 @@
 
 mod camera;
 pub mod preview;
+pub mod volume;
 
 pub use camera::{
     Basis, Bounds, Camera, CameraSpec, DEFAULT_AZIMUTH_DEG, DEFAULT_ELEVATION_DEG, DEFAULT_FOV_DEG,

@@ -78,7 +78,7 @@ impl std::fmt::Display for PreviewSummary {
 
 /// Frame indices `0..n` chosen evenly, `m` of them (all when `n <= m`), first and last
 /// included.
-fn evenly(n: usize, m: usize) -> Vec<usize> {
+pub fn evenly(n: usize, m: usize) -> Vec<usize> {
     if n <= m || m < 2 {
         return (0..n.min(m.max(1))).collect();
     }
@@ -278,23 +278,36 @@ pub fn write_preview(
         }
         progress(k + 1, frames.len());
     }
-    // GIF delays are whole hundredths of a second and at least 2 (browsers slow shorter
-    // ones down): play in real time with the subsampled frames.
-    let stride = frames.len() as f64 / gif_images.len() as f64;
-    let delay = (100.0 * settings.frame_interval * stride)
-        .round()
-        .clamp(2.0, 65535.0) as u16;
-    let path = dir.join("animation.gif");
-    write_atomically(&path, |w| write_gif(w, &gif_images, delay)).map_err(file_err(&path))?;
-    let path = dir.join("contact-sheet.png");
-    let sheet_image = Image::contact_sheet(&sheet_images, settings.sheet_cols, 4);
-    write_atomically(&path, |w| write_png(w, &sheet_image)).map_err(file_err(&path))?;
+    write_animation(dir, &gif_images, &sheet_images, frames.len(), settings)?;
     Ok(PreviewSummary {
         frames: frames.len(),
         dir: dir.to_path_buf(),
         warnings,
         render_seconds,
     })
+}
+
+/// Writes `dir/animation.gif` from `gif_images` (evenly chosen among `frames` frames) and
+/// `dir/contact-sheet.png` from `sheet_images`.
+pub fn write_animation(
+    dir: &Path,
+    gif_images: &[Image],
+    sheet_images: &[Image],
+    frames: usize,
+    settings: &PreviewSettings,
+) -> Result<(), RenderError> {
+    // GIF delays are whole hundredths of a second and at least 2 (browsers slow shorter
+    // ones down): play in real time with the subsampled frames.
+    let stride = frames as f64 / gif_images.len().max(1) as f64;
+    let delay = (100.0 * settings.frame_interval * stride)
+        .round()
+        .clamp(2.0, 65535.0) as u16;
+    let path = dir.join("animation.gif");
+    write_atomically(&path, |w| write_gif(w, gif_images, delay)).map_err(file_err(&path))?;
+    let path = dir.join("contact-sheet.png");
+    let sheet_image = Image::contact_sheet(sheet_images, settings.sheet_cols, 4);
+    write_atomically(&path, |w| write_png(w, &sheet_image)).map_err(file_err(&path))?;
+    Ok(())
 }
 
 /// Reads every `*.obj` in `dir`, in name order (frames written by `largestep run` sort by

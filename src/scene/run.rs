@@ -10,7 +10,8 @@ use crate::integrate::{IntegrateError, StepInfo};
 use crate::io::{write_atomically, write_obj, write_ply, Mesh, MeshRef};
 use crate::limits::Limits;
 use crate::render::preview::PreviewSettings;
-use crate::simulation::{Audio, Energy, Simulation};
+use crate::render::volume::{slice, Slice, VolumeRenderer, VolumeSettings};
+use crate::simulation::{Audio, Energy, FrameData, Simulation};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -316,6 +317,9 @@ pub enum RunError {
     /// The run would exceed a limit (steps); nothing was run.
     #[error("{0}")]
     Limit(String),
+    /// A picture could not be made (a camera that sees nothing, say).
+    #[error("preview: {0}")]
+    Render(String),
     /// The energy is not finite although every position and velocity is: values beyond
     /// what f64 can square and sum (a mass of 1e308 kg, say).
     #[error("frame {frame} (t = {time} s): the energy is not finite (kinetic {kinetic:e} J, potential {potential:e} J) although every position and velocity is: masses, velocities or stiffnesses too large for double precision; check them{}", if *frame > 0 { format!("\n  {frames_written} frames written before remain valid in {}", out.display()) } else { String::new() })]
@@ -371,9 +375,24 @@ pub struct Runner {
     out_dir: PathBuf,
     records: Vec<FrameRecord>,
     kept: Option<Vec<Mesh>>,
+    /// Pictures of grid frames (fluids) for the preview, when frames are kept.
+    grid_preview: Option<GridPreview>,
     /// Whether a system listens to the others' contact impulses (they record them then).
     listening: bool,
 }
+
+/// The preview of grid frames, made as they are written: each frame's picture is
+/// written at once (`preview/frame_NNNNN.png`) and kept shrunk for the animation.
+#[derive(Default)]
+struct GridPreview {
+    renderer: VolumeRenderer,
+    image: crate::io::Image,
+    shrunk: Vec<crate::io::Image>,
+    seconds: f64,
+}
+
+/// Pixels on the longer side of a slice picture.
+const SLICE_SIZE: u32 = 512;
 
 /// Why a step of the scene failed.
 enum StepFail {
@@ -401,6 +420,7 @@ impl Runner {
             out_dir: out_dir.to_path_buf(),
             records: Vec::new(),
             kept: None,
+            grid_preview: None,
             listening,
         }
     }
@@ -512,6 +532,97 @@ impl Runner {
     /// per vertex and frame, topology shared).
     pub fn keep_frames(&mut self, keep: bool) {
         self.kept = keep.then(Vec::new);
+        let grids = self
+            .systems
+            .iter()
+            .any(|s| matches!(s.sim.frame(), FrameData::Grid(_)));
+        self.grid_preview = (keep && grids).then(GridPreview::default);
+    }
+
+    /// Whether the preview is made of grid pictures (written during the run) instead of
+    /// meshes.
+    pub fn has_grid_preview(&self) -> bool {
+        self.grid_preview.is_some()
+    }
+
+    /// Writes the animation and contact sheet of the grid pictures made during the run;
+    /// returns the frames and the seconds spent rendering.
+    pub fn finish_grid_preview(&self) -> Result<Option<(usize, f64)>, RunError> {
+        let Some(g) = &self.grid_preview else {
+            return Ok(None);
+        };
+        if g.shrunk.is_empty() {
+            return Ok(Some((0, 0.0)));
+        }
+        let dir = self.out_dir.join("preview");
+        let settings = &self.output.preview;
+        let gif: Vec<crate::io::Image> =
+            crate::render::preview::evenly(g.shrunk.len(), settings.animation_max_frames)
+                .into_iter()
+                .map(|k| g.shrunk[k].clone())
+                .collect();
+        let sheet: Vec<crate::io::Image> =
+            crate::render::preview::evenly(g.shrunk.len(), settings.sheet_frames)
+                .into_iter()
+                .map(|k| g.shrunk[k].clone())
+                .collect();
+        crate::render::preview::write_animation(&dir, &gif, &sheet, g.shrunk.len(), settings)
+            .map_err(|e| RunError::Render(e.to_string()))?;
+        Ok(Some((g.shrunk.len(), g.seconds)))
+    }
+
+    /// Writes frame k's pictures of the grid systems: the speed and vorticity slices
+    /// (`slices/`), when frame files are written, and the preview picture.
+    fn write_grid_pictures(&mut self, k: usize) -> Result<(), RunError> {
+        let files = self.output.frames != FrameFormat::None;
+        let several = self.systems.len() > 1;
+        for s in &self.systems {
+            let FrameData::Grid(g) = s.sim.frame() else {
+                continue;
+            };
+            if files {
+                let dir = self.out_dir.join("slices");
+                std::fs::create_dir_all(&dir).map_err(io_err(&dir))?;
+                for which in [Slice::Speed, Slice::Vorticity] {
+                    let im = slice(&g, which, SLICE_SIZE);
+                    let name = if several {
+                        format!("{}_{}_{k:05}.png", which.name(), s.table)
+                    } else {
+                        format!("{}_{k:05}.png", which.name())
+                    };
+                    let path = dir.join(name);
+                    write_atomically(&path, |w| crate::io::write_png(w, &im))
+                        .map_err(io_err(&path))?;
+                }
+            }
+            if let Some(p) = &mut self.grid_preview {
+                let mut vs = VolumeSettings {
+                    width: self.output.preview.render.width,
+                    height: self.output.preview.render.height,
+                    camera: self.output.preview.camera,
+                    ..VolumeSettings::default()
+                };
+                vs.step = 1.0;
+                let t0 = Instant::now();
+                p.renderer
+                    .render(&g, &vs, &mut p.image)
+                    .map_err(|e| RunError::Render(e.to_string()))?;
+                p.seconds += t0.elapsed().as_secs_f64();
+                let dir = self.out_dir.join("preview");
+                std::fs::create_dir_all(&dir).map_err(io_err(&dir))?;
+                let path = dir.join(format!("frame_{k:05}.png"));
+                write_atomically(&path, |w| crate::io::write_png(w, &p.image))
+                    .map_err(io_err(&path))?;
+                let shrink = p
+                    .image
+                    .width
+                    .div_ceil(self.output.preview.animation_max_width.max(1))
+                    .max(1);
+                p.shrunk.push(p.image.downsample(shrink));
+                break; // one system's pictures make the preview
+            }
+        }
+        Ok(())
     }
 
     /// The frames kept so far (empty unless [`Runner::keep_frames`] was set).
@@ -595,6 +706,7 @@ impl Runner {
     }
 
     fn write_frame(&mut self, k: usize) -> Result<bool, RunError> {
+        self.write_grid_pictures(k)?;
         let copy = self.kept.is_some().then(|| self.with_frame(Mesh::from_ref));
         if let (Some(kept), Some(mut m)) = (&mut self.kept, copy) {
             if let Some(prev) = kept.last() {

@@ -187,11 +187,19 @@ impl Level {
         let interior = (0..if coarse { cells } else { 0 })
             .map(|idx| {
                 let c = [idx % n[0], (idx / n[0]) % n[1], idx / (n[0] * n[1])];
-                if (0..3).any(|a| c[a] == 0 || c[a] + 1 >= n[a]) {
+                // An axis of one cell (2-D) has no neighbours to check along it.
+                if (0..3).any(|a| n[a] > 1 && (c[a] == 0 || c[a] + 1 >= n[a])) {
                     return false;
                 }
-                (0..27).all(|m| {
-                    let q = [c[0] + m % 3 - 1, c[1] + (m / 3) % 3 - 1, c[2] + m / 9 - 1];
+                let span = |a: usize| if n[a] > 1 { 3 } else { 1 };
+                (0..span(0) * span(1) * span(2)).all(|m| {
+                    let d = [
+                        m % span(0),
+                        (m / span(0)) % span(1),
+                        m / (span(0) * span(1)),
+                    ];
+                    let q: [usize; 3] =
+                        std::array::from_fn(|a| if n[a] > 1 { c[a] + d[a] - 1 } else { c[a] });
                     kind[q[0] + n[0] * (q[1] + n[1] * q[2])] == CellKind::Fluid
                 })
             })
@@ -218,10 +226,6 @@ impl Level {
         }
     }
 
-    fn slab(&self) -> usize {
-        self.n[0] * self.n[1]
-    }
-
     /// Writes `(A x)` of the cells of row j of slab k into `out` (nx values; zero off the
     /// fluid cells), x zero off the fluid cells (every vector the solver hands in is):
     /// then the sum over a cell's neighbours needs no look at their kinds, and cells
@@ -233,7 +237,8 @@ impl Level {
         let s = nx * ny;
         let c = self.inv_h2;
         let base = k * s + j * nx;
-        let inner = k > 0 && k + 1 < nz && j > 0 && j + 1 < ny && nx > 2;
+        let flat = nz == 1;
+        let inner = (flat || (k > 0 && k + 1 < nz)) && j > 0 && j + 1 < ny && nx > 2;
         let per = periodic(&self.sides);
         let edge = |i: usize| {
             let idx = base + i;
@@ -253,8 +258,15 @@ impl Level {
         let xc = &x[a..b];
         let (xw, xe) = (&x[a - 1..b - 1], &x[a + 1..b + 1]);
         let (xs, xn) = (&x[a - nx..b - nx], &x[a + nx..b + nx]);
-        let (xd, xu) = (&x[a - s..b - s], &x[a + s..b + s]);
         let (d, m) = (&self.diag[a..b], &self.mask[a..b]);
+        if flat {
+            for (t, o) in out[1..nx - 1].iter_mut().enumerate() {
+                let off = (xw[t] + xe[t]) + (xs[t] + xn[t]);
+                *o = m[t] * (d[t] * xc[t] - c * off);
+            }
+            return;
+        }
+        let (xd, xu) = (&x[a - s..b - s], &x[a + s..b + s]);
         for (t, o) in out[1..nx - 1].iter_mut().enumerate() {
             let off = (xw[t] + xe[t]) + (xs[t] + xn[t]) + (xd[t] + xu[t]);
             *o = m[t] * (d[t] * xc[t] - c * off);
@@ -263,34 +275,50 @@ impl Level {
 
     /// `y = A x` (zero off the fluid cells; x zero there).
     fn apply(&self, y: &mut [f64], x: &[f64]) {
-        let slab = self.slab();
-        let nx = self.n[0];
-        y.par_chunks_mut(slab).enumerate().for_each(|(k, ys)| {
-            for (j, row) in ys.chunks_mut(nx).enumerate() {
-                self.row_into(k, j, x, row);
+        let (nx, ny) = (self.n[0], self.n[1]);
+        let rows = self.task_rows();
+        y.par_chunks_mut(rows * nx).enumerate().for_each(|(t, ys)| {
+            for (lr, row) in ys.chunks_mut(nx).enumerate() {
+                let r = t * rows + lr;
+                self.row_into(r / ny, r % ny, x, row);
             }
         });
+    }
+
+    /// Rows of x per parallel task: a z-slab in 3-D, in 2-D (one slab) enough rows for a
+    /// task's work to outweigh handing it out.
+    fn task_rows(&self) -> usize {
+        // At least 16k cells a task: smaller ones cost more to hand out than to run.
+        let (nx, ny) = (self.n[0], self.n[1]);
+        if self.n[2] > 1 {
+            ny
+        } else {
+            (16_384 / nx).clamp(1, ny)
+        }
     }
 
     /// `out = f(A x, b, x, inverse diagonal)` row by row for level vectors (the residual
     /// and the fused Jacobi sweep).
     fn rows_with(&self, out: &mut [f64], f: impl Fn(f64, f64, f64, f64) -> f64 + Sync) {
-        let slab = self.slab();
-        let nx = self.n[0];
-        out.par_chunks_mut(slab).enumerate().for_each(|(k, os)| {
-            for (j, row) in os.chunks_mut(nx).enumerate() {
-                self.row_into(k, j, &self.x, row);
-                let base = k * slab + j * nx;
-                let (b, x, inv) = (
-                    &self.b[base..base + nx],
-                    &self.x[base..base + nx],
-                    &self.inv_diag[base..base + nx],
-                );
-                for (t, o) in row.iter_mut().enumerate() {
-                    *o = f(*o, b[t], x[t], inv[t]);
+        let (nx, ny) = (self.n[0], self.n[1]);
+        let rows = self.task_rows();
+        out.par_chunks_mut(rows * nx)
+            .enumerate()
+            .for_each(|(t, os)| {
+                for (lr, row) in os.chunks_mut(nx).enumerate() {
+                    let r = t * rows + lr;
+                    self.row_into(r / ny, r % ny, &self.x, row);
+                    let base = r * nx;
+                    let (b, x, inv) = (
+                        &self.b[base..base + nx],
+                        &self.x[base..base + nx],
+                        &self.inv_diag[base..base + nx],
+                    );
+                    for (t, o) in row.iter_mut().enumerate() {
+                        *o = f(*o, b[t], x[t], inv[t]);
+                    }
                 }
-            }
-        });
+            });
     }
 
     /// `(A x)_idx`.
@@ -367,18 +395,30 @@ fn weights(
     let parent = c.map(|v| v / 2);
     let pidx = parent[0] + coarse[0] * (parent[1] + coarse[1] * parent[2]);
     if cinterior[pidx] {
-        // Every neighbour is a fluid cell of the grid: no boundary rule.
+        // Every neighbour is a fluid cell of the grid: no boundary rule. In 2-D (one
+        // coarse cell along z) the z neighbours' weights go to the plane's cells.
+        let flat = coarse[2] == 1;
         let step = [1isize, coarse[0] as isize, (coarse[0] * coarse[1]) as isize];
         let sign = c.map(|v| if v % 2 == 0 { -1isize } else { 1 });
         let cells = std::array::from_fn(|m| {
             let mut q = pidx as isize;
-            for a in 0..3 {
+            for a in 0..if flat { 2 } else { 3 } {
                 if m >> a & 1 == 1 {
                     q += sign[a] * step[a];
                 }
             }
             q as usize
         });
+        if flat {
+            let w = std::array::from_fn(|m| {
+                if m < 4 {
+                    TENSOR[m] + TENSOR[m + 4]
+                } else {
+                    0.0
+                }
+            });
+            return (cells, w);
+        }
         return (cells, TENSOR);
     }
     let mut cells = [pidx; 8];

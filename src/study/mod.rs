@@ -6,6 +6,10 @@
 mod cloth;
 #[cfg(feature = "fem")]
 mod fem;
+#[cfg(feature = "fluid")]
+mod fluid;
+#[cfg(feature = "fluid")]
+pub use fluid::poisson_problem;
 mod integrators;
 #[cfg(feature = "mass-spring")]
 mod jello;
@@ -93,6 +97,12 @@ const STUDIES: &[Study] = &[
     ("fem-stability", fem::stability),
     #[cfg(feature = "modal")]
     ("modes", modal::modes),
+    #[cfg(feature = "fluid")]
+    ("fluids", fluid::fluids),
+    #[cfg(feature = "fluid")]
+    ("poisson", fluid::poisson),
+    #[cfg(feature = "fluid")]
+    ("cavity", fluid::cavity_study),
 ];
 
 /// The names of the studies built in.
