@@ -82,9 +82,11 @@ pub struct Volume<'a> {
     pub block: usize,
     /// Blocks along x, y, z.
     pub blocks: [usize; 3],
-    /// Largest density per block ([`block_max`]); infinite for a block with a solid
-    /// cell (never skipped).
+    /// Largest density per block ([`block_max`]).
     pub block_max: &'a [f32],
+    /// Largest solid occupancy per block (empty without solids): blocks with a solid are
+    /// never skipped, and only they test for the solid surface.
+    pub block_solid: &'a [f32],
 }
 
 /// The view and the shading.
@@ -115,6 +117,62 @@ pub struct View {
     pub solid_colour: [f32; 3],
     /// Background colour at the bottom and top of the image.
     pub background: [[f32; 3]; 2],
+    /// The transfer function tabulated for the step ([`View::tabulate`]): per density
+    /// bin, colour times light colour times opacity, and the opacity
+    /// `1 - exp(-sigma step)`; the last entry covers every density beyond `table_max`.
+    pub table: Vec<[f32; 4]>,
+    /// Density of the table's last bin.
+    pub table_max: f32,
+    /// The least density with extinction: densities below it are clear.
+    pub clear_until: f32,
+}
+
+/// Bins of the tabulated transfer function.
+pub const TABLE_BINS: usize = 1024;
+
+impl View {
+    /// Tabulates the transfer function for the step and light colour (call after setting
+    /// them): a table lookup and no `exp` per sample.
+    pub fn tabulate(&mut self) {
+        let p = &self.transfer.points;
+        self.table_max = p[p.len() - 1].0.max(1e-6);
+        self.table = (0..TABLE_BINS)
+            .map(|i| {
+                let d = self.table_max * i as f32 / (TABLE_BINS - 1) as f32;
+                let (c, sigma) = self.transfer.at(d);
+                let a = 1.0 - (-sigma.max(0.0) * self.step).exp();
+                [
+                    a * c[0] * self.light_colour[0],
+                    a * c[1] * self.light_colour[1],
+                    a * c[2] * self.light_colour[2],
+                    a,
+                ]
+            })
+            .collect();
+        // The clear range: up to the first point with extinction (0 when the first has).
+        self.clear_until = if p[0].2 > 0.0 {
+            f32::NEG_INFINITY
+        } else {
+            p.iter()
+                .take_while(|q| q.2 <= 0.0)
+                .last()
+                .map_or(0.0, |q| q.0)
+        };
+    }
+
+    /// The tabulated `[r a, g a, b a, a]` at density `d` (nearest bin).
+    #[inline(always)]
+    pub fn lookup(&self, d: f32) -> [f32; 4] {
+        let t = (d / self.table_max * (TABLE_BINS - 1) as f32).clamp(0.0, (TABLE_BINS - 1) as f32);
+        self.table[(t + 0.5) as usize]
+    }
+
+    /// Whether every density up to `d` is clear (a block with that largest density can be
+    /// skipped).
+    #[inline(always)]
+    pub fn clear_below(&self, d: f32) -> bool {
+        d <= self.clear_until
+    }
 }
 
 #[inline]
@@ -124,7 +182,7 @@ fn index(n: [usize; 3], i: usize, j: usize, k: usize) -> usize {
 
 /// Trilinear sample of a cell-centred field at `p` (cell units; centres at `i + 1/2`),
 /// clamped to the grid.
-#[inline]
+#[inline(always)]
 pub fn trilinear(f: &[f32], n: [usize; 3], p: [f32; 3]) -> f32 {
     let mut i = [0usize; 3];
     let mut t = [0f32; 3];
@@ -175,9 +233,11 @@ pub fn block_max(out: &mut [f32], density: &[f32], n: [usize; 3], block: usize) 
 /// through the density with extinction `sigma(d)` per cell: a sweep along the dominant
 /// axis of `to_light`, starting at the lit face (transmittance 1), each cell taking the
 /// previous slab's value at the point one slab towards the light (bilinear) times
-/// `exp(-sigma path)` over the path between them.
+/// `exp(-sigma path)` over the path between them. Each slab is computed in parallel into
+/// `slab` (scratch of at least one slab's cells), then copied into place.
 pub fn light_transmittance(
     out: &mut [f32],
+    slab: &mut [f32],
     density: &[f32],
     n: [usize; 3],
     to_light: [f32; 3],
@@ -188,17 +248,13 @@ pub fn light_transmittance(
         .max_by(|&x, &y| to_light[x].abs().total_cmp(&to_light[y].abs()))
         .unwrap_or(1);
     let (b, c) = ((a + 1) % 3, (a + 2) % 3);
+    assert!(slab.len() >= n[b] * n[c], "scratch of one slab");
+    let slab = &mut slab[..n[b] * n[c]];
     let la = to_light[a];
     // Per slab step towards the light: one cell along a, and the light's slope on b, c.
     let (sb, sc) = (to_light[b] / la.abs(), to_light[c] / la.abs());
     let path = (1.0 + sb * sb + sc * sc).sqrt();
-    let toward = if la > 0.0 { 1isize } else { -1 };
-    let order: Vec<usize> = if toward > 0 {
-        (0..n[a]).rev().collect()
-    } else {
-        (0..n[a]).collect()
-    };
-    let cell = |ia: usize, ib: usize, ic: usize| {
+    let cell = move |ia: usize, ib: usize, ic: usize| {
         let mut q = [0usize; 3];
         q[a] = ia;
         q[b] = ib;
@@ -206,28 +262,35 @@ pub fn light_transmittance(
         index(n, q[0], q[1], q[2])
     };
     let mut prev: Option<usize> = None;
-    for &ia in &order {
+    for step in 0..n[a] {
+        let ia = if la > 0.0 { n[a] - 1 - step } else { step };
+        {
+            let out = &*out;
+            slab.par_chunks_mut(n[b]).enumerate().for_each(|(ic, row)| {
+                for (ib, t) in row.iter_mut().enumerate() {
+                    *t = match prev {
+                        None => 1.0,
+                        Some(pa) => {
+                            // The point one slab towards the light, bilinear in slab pa.
+                            let fb = (ib as f32 + sb).clamp(0.0, (n[b] - 1) as f32);
+                            let fc = (ic as f32 + sc).clamp(0.0, (n[c] - 1) as f32);
+                            let (b0, c0) = (fb as usize, fc as usize);
+                            let (b1, c1) = ((b0 + 1).min(n[b] - 1), (c0 + 1).min(n[c] - 1));
+                            let (tb, tc) = (fb - b0 as f32, fc - c0 as f32);
+                            let v = |x: usize, y: usize| out[cell(pa, x, y)];
+                            let t0 = v(b0, c0) + tb * (v(b1, c0) - v(b0, c0));
+                            let t1 = v(b0, c1) + tb * (v(b1, c1) - v(b0, c1));
+                            let lit = t0 + tc * (t1 - t0);
+                            let d = 0.5 * (density[cell(ia, ib, ic)] + density[cell(pa, b0, c0)]);
+                            lit * (-transfer.at(d).1 * path).exp()
+                        }
+                    };
+                }
+            });
+        }
         for ic in 0..n[c] {
             for ib in 0..n[b] {
-                let here = cell(ia, ib, ic);
-                let t = match prev {
-                    None => 1.0,
-                    Some(pa) => {
-                        // The point one slab towards the light, bilinear in slab pa.
-                        let fb = (ib as f32 + sb).clamp(0.0, (n[b] - 1) as f32);
-                        let fc = (ic as f32 + sc).clamp(0.0, (n[c] - 1) as f32);
-                        let (b0, c0) = (fb as usize, fc as usize);
-                        let (b1, c1) = ((b0 + 1).min(n[b] - 1), (c0 + 1).min(n[c] - 1));
-                        let (tb, tc) = (fb - b0 as f32, fc - c0 as f32);
-                        let v = |x: usize, y: usize| out[cell(pa, x, y)];
-                        let t0 = v(b0, c0) + tb * (v(b1, c0) - v(b0, c0));
-                        let t1 = v(b0, c1) + tb * (v(b1, c1) - v(b0, c1));
-                        let lit = t0 + tc * (t1 - t0);
-                        let d = 0.5 * (density[here] + density[cell(pa, b0, c0)]);
-                        lit * (-transfer.at(d).1 * path).exp()
-                    }
-                };
-                out[here] = t;
+                out[cell(ia, ib, ic)] = slab[ib + n[b] * ic];
             }
         }
         prev = Some(ia);
@@ -268,6 +331,11 @@ pub fn render(rgb: &mut [u8], vol: &Volume<'_>, view: &View) {
         vol.solid.is_empty() || vol.solid.len() == cells,
         "one occupancy per cell"
     );
+    assert_eq!(
+        view.table.len(),
+        TABLE_BINS,
+        "the transfer function is tabulated"
+    );
     let aspect = w as f32 / h as f32;
     rgb.par_chunks_mut(w * 3).enumerate().for_each(|(y, row)| {
         let sy = (1.0 - 2.0 * (y as f32 + 0.5) / h as f32) * view.tan_half_fov;
@@ -307,7 +375,8 @@ fn march(vol: &Volume<'_>, view: &View, o: [f32; 3], d: [f32; 3], bg: [f32; 3]) 
         let q: [usize; 3] =
             std::array::from_fn(|a| ((p[a] / blk).max(0.0) as usize).min(vol.blocks[a] - 1));
         let bi = q[0] + vol.blocks[0] * (q[1] + vol.blocks[1] * q[2]);
-        if view.transfer.clear_below(vol.block_max[bi]) {
+        let solid_block = !vol.block_solid.is_empty() && vol.block_solid[bi] > 0.0;
+        if !solid_block && view.clear_below(vol.block_max[bi]) {
             let mut exit = f32::INFINITY;
             for a in 0..3 {
                 if d[a] != 0.0 {
@@ -324,8 +393,20 @@ fn march(vol: &Volume<'_>, view: &View, o: [f32; 3], d: [f32; 3], bg: [f32; 3]) 
             t += skip * step;
             continue;
         }
-        if !vol.solid.is_empty() && trilinear(vol.solid, vol.n, p) >= 0.5 {
-            // The surface: Lambert with the occupancy's gradient as the normal.
+        if solid_block && trilinear(vol.solid, vol.n, p) >= 0.5 {
+            // The surface, found between the last sample and this one by bisection, then
+            // shaded by Lambert with the occupancy's gradient as the normal.
+            let (mut lo, mut hi) = (t - step, t);
+            for _ in 0..5 {
+                let mid = 0.5 * (lo + hi);
+                let q = [o[0] + mid * d[0], o[1] + mid * d[1], o[2] + mid * d[2]];
+                if trilinear(vol.solid, vol.n, q) >= 0.5 {
+                    hi = mid;
+                } else {
+                    lo = mid;
+                }
+            }
+            let p = [o[0] + hi * d[0], o[1] + hi * d[1], o[2] + hi * d[2]];
             let e = 0.5;
             let g: [f32; 3] = std::array::from_fn(|a| {
                 let mut hi = p;
@@ -347,13 +428,13 @@ fn march(vol: &Volume<'_>, view: &View, o: [f32; 3], d: [f32; 3], bg: [f32; 3]) 
             return col;
         }
         let rho = trilinear(vol.density, vol.n, p);
-        let (c, sigma) = view.transfer.at(rho);
-        if sigma > 0.0 {
-            let a = 1.0 - (-sigma * step).exp();
+        let [cr, cg, cb, a] = view.lookup(rho);
+        if a > 0.0 {
             let lit = view.ambient + trilinear(vol.light, vol.n, p);
-            for ((ck, cc), lk) in col.iter_mut().zip(c).zip(view.light_colour) {
-                *ck += trans * a * cc * lk * lit;
-            }
+            let w = trans * lit;
+            col[0] += w * cr;
+            col[1] += w * cg;
+            col[2] += w * cb;
             trans *= 1.0 - a;
             if trans < EARLY_STOP {
                 return col;
@@ -387,7 +468,8 @@ mod tests {
             points: vec![(0.0, [1.0; 3], 0.1), (1.0, [1.0; 3], 0.1)],
         };
         let mut out = vec![0.0; 128];
-        light_transmittance(&mut out, &density, n, [0.0, 1.0, 0.0], &tf);
+        let mut slab = vec![0.0; 16];
+        light_transmittance(&mut out, &mut slab, &density, n, [0.0, 1.0, 0.0], &tf);
         // Light from +y: the top slab gets 1, each slab below exp(-0.1) less.
         for j in 0..8 {
             let t = out[index(n, 1, j, 1)];

@@ -60,6 +60,7 @@ pub struct VolumeRenderer {
     solid: Vec<f32>,
     blocks: Vec<f32>,
     solid_blocks: Vec<f32>,
+    slab: Vec<f32>,
 }
 
 /// The smoke density of a grid frame, if it has one.
@@ -100,20 +101,25 @@ impl VolumeRenderer {
         let nb = n.map(|c| c.div_ceil(BLOCK));
         self.blocks.resize(nb.iter().product(), 0.0);
         kv::block_max(&mut self.blocks, &self.density, n, BLOCK);
+        self.solid_blocks.clear();
         if !self.solid.is_empty() {
             self.solid_blocks.resize(self.blocks.len(), 0.0);
             kv::block_max(&mut self.solid_blocks, &self.solid, n, BLOCK);
-            for (b, &sb) in self.blocks.iter_mut().zip(&self.solid_blocks) {
-                if sb > 0.0 {
-                    *b = f32::INFINITY;
-                }
-            }
         }
         let to_light = crate::kernels::v3::length_and_unit(s.to_light)
             .map_or([0.0, 1.0, 0.0], |u| u.1)
             .map(|x| x as f32);
         self.light.resize(cells, 0.0);
-        kv::light_transmittance(&mut self.light, &self.density, n, to_light, &s.transfer);
+        let most = n[0] * n[1] * n[2] / n.iter().min().copied().unwrap_or(1).max(1);
+        self.slab.resize(most, 0.0);
+        kv::light_transmittance(
+            &mut self.light,
+            &mut self.slab,
+            &self.density,
+            n,
+            to_light,
+            &s.transfer,
+        );
         // The camera frames the grid's box (m); the ray caster works in cell units.
         let mut bounds = Bounds::EMPTY;
         bounds.add(g.origin);
@@ -131,7 +137,7 @@ impl VolumeRenderer {
             std::array::from_fn(|a| ((p[a] - g.origin[a]) / g.h) as f32)
         };
         let f32v = |v: [f64; 3]| v.map(|x| x as f32);
-        let view = View {
+        let mut view = View {
             width: s.width as usize,
             height: s.height as usize,
             eye: cell(basis.eye),
@@ -146,7 +152,11 @@ impl VolumeRenderer {
             to_light,
             solid_colour: [0.55, 0.45, 0.35],
             background: [[0.08, 0.09, 0.11], [0.22, 0.26, 0.32]],
+            table: Vec::new(),
+            table_max: 1.0,
+            clear_until: 0.0,
         };
+        view.tabulate();
         let vol = Volume {
             n,
             density: &self.density,
@@ -155,6 +165,7 @@ impl VolumeRenderer {
             block: BLOCK,
             blocks: nb,
             block_max: &self.blocks,
+            block_solid: &self.solid_blocks,
         };
         if image.width != s.width || image.height != s.height {
             *image = Image::new(s.width, s.height);
