@@ -4,23 +4,13 @@
 use largestep::collide::Obstacle;
 use largestep::fluid::scene::FluidSim;
 use largestep::fluid::validation::{
-    centerlines, profile_error, taylor_green_viscosity, GHIA_RE100_U, GHIA_RE100_V,
+    cavity, centerlines, profile_error, taylor_green, taylor_green_viscosity, GHIA_RE100_U,
+    GHIA_RE100_V,
 };
 use largestep::fluid::{
     Boundary, Buoyancy, Correction, FluidDesc, FluidError, Initial, Interp, Source,
 };
 use std::f64::consts::PI;
-
-fn taylor_green(n: usize, nu: f64, sides: Boundary) -> FluidDesc {
-    FluidDesc {
-        cells: [n, n, 1],
-        h: 2.0 * PI / n as f64,
-        boundaries: [[sides; 2], [sides; 2], [Boundary::Wall; 2]],
-        viscosity: nu,
-        initial: Initial::TaylorGreen { speed: 1.0 },
-        ..FluidDesc::default()
-    }
-}
 
 /// Runs the Taylor-Green vortex for `t` at `dt` and returns its effective viscosity.
 fn effective_nu(d: &FluidDesc, dt: f64, t: f64) -> f64 {
@@ -155,18 +145,7 @@ fn fluid_at_rest_under_gravity_stays_at_rest_with_hydrostatic_pressure() {
 #[test]
 fn lid_driven_cavity_matches_ghia_at_re_100() {
     let n = 32;
-    let d = FluidDesc {
-        cells: [n, n, 1],
-        h: 1.0 / n as f64,
-        boundaries: [
-            [Boundary::Wall; 2],
-            [Boundary::Wall, Boundary::Lid([1.0, 0.0, 0.0])],
-            [Boundary::Wall; 2],
-        ],
-        viscosity: 0.01,
-        ..FluidDesc::default()
-    };
-    let mut sim = FluidSim::new(&d).unwrap();
+    let mut sim = FluidSim::new(&cavity(n)).unwrap();
     let dt = 0.02;
     let mut prev = sim.state().u[0].clone();
     let mut change = f64::INFINITY;
@@ -318,4 +297,135 @@ fn bad_input_is_refused_clearly() {
     sim.state_mut().u[0][5] = f64::NAN;
     let e = sim.advance(0.01).expect_err("nan").to_string();
     assert!(e.contains("step 1") && e.contains("not finite"), "{e}");
+}
+
+/// A fresh folder under the target directory for one test's files.
+fn scratch(name: &str) -> std::path::PathBuf {
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// A closed surface voxelised on the grid makes solid cells where its inside is; one
+/// outside the domain is refused at its table's line.
+#[test]
+fn mesh_obstacles_are_voxelised_on_the_grid() {
+    let dir = scratch("fluid-mesh");
+    // A cube of side 0.4 centred at the origin (outward triangles).
+    let v = [
+        [-0.2, -0.2, -0.2],
+        [0.2, -0.2, -0.2],
+        [0.2, 0.2, -0.2],
+        [-0.2, 0.2, -0.2],
+        [-0.2, -0.2, 0.2],
+        [0.2, -0.2, 0.2],
+        [0.2, 0.2, 0.2],
+        [-0.2, 0.2, 0.2],
+    ];
+    let f = [
+        [1, 3, 2],
+        [1, 4, 3],
+        [5, 6, 7],
+        [5, 7, 8],
+        [1, 2, 6],
+        [1, 6, 5],
+        [2, 3, 7],
+        [2, 7, 6],
+        [3, 4, 8],
+        [3, 8, 7],
+        [4, 1, 5],
+        [4, 5, 8],
+    ];
+    let mut obj = String::new();
+    for p in v {
+        obj += &format!("v {} {} {}\n", p[0], p[1], p[2]);
+    }
+    for t in f {
+        obj += &format!("f {} {} {}\n", t[0], t[1], t[2]);
+    }
+    std::fs::write(dir.join("cube.obj"), obj).unwrap();
+    let scene = |translate: &str| {
+        format!(
+            "[scene]\ndt = 0.01\nduration = 0.02\n[fluid]\ncells = [20, 20, 20]\nsize = 1.0\n[[fluid.mesh]]\nfile = \"cube.obj\"\ntranslate = {translate}\n"
+        )
+    };
+    std::fs::write(dir.join("in.toml"), scene("[0.5, 0.5, 0.5]")).unwrap();
+    let s = largestep::scene::Scene::load(&dir.join("in.toml")).unwrap();
+    let sim = s.systems[0].sim.downcast_ref::<FluidSim>().unwrap();
+    let solid = sim.fluid().solid().unwrap().iter().filter(|&&b| b).count();
+    // The cube covers 8 x 8 x 8 cells of 0.05 m.
+    assert_eq!(solid, 512);
+    std::fs::write(dir.join("out.toml"), scene("[5.0, 0.5, 0.5]")).unwrap();
+    let e = largestep::scene::Scene::load(&dir.join("out.toml"))
+        .expect_err("outside")
+        .to_string();
+    assert!(
+        e.contains("out.toml:7") && e.contains("no cell centre"),
+        "{e}"
+    );
+}
+
+/// `largestep run` on a fluid writes VTK image data, speed and vorticity slices and, with
+/// `--preview`, a rendered picture per frame with the animation and contact sheet;
+/// `largestep study cavity` writes the JSON the issue spells out.
+#[test]
+fn the_command_line_writes_fluid_frames_slices_previews_and_the_cavity_json() {
+    let exe = env!("CARGO_BIN_EXE_largestep");
+    let dir = scratch("fluid-cli");
+    let scene = dir.join("smoke.toml");
+    std::fs::write(
+        &scene,
+        "[scene]\ndt = 0.02\nduration = 0.04\n[fluid]\ncells = [12, 16, 12]\nsize = 1.0\n[fluid.buoyancy]\nheat = 1.0\n[[fluid.source]]\ncenter = [0.5, 0.2, 0.5]\nradius = 0.15\ndensity = 1.0\ntemperature = 1.0\n[[fluid.sphere]]\ncenter = [0.5, 0.7, 0.5]\nradius = 0.15\n[output]\nframes = \"vtk\"\nevery = 1\nwidth = 160\nheight = 90\n",
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let run = std::process::Command::new(exe)
+        .args(["run", scene.to_str().unwrap(), "--preview", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    for f in [
+        "frames/frame_00002.vtk",
+        "slices/speed_00002.png",
+        "slices/vorticity_00002.png",
+        "preview/frame_00002.png",
+        "preview/animation.gif",
+        "preview/contact-sheet.png",
+    ] {
+        assert!(out.join(f).exists(), "{f} missing");
+    }
+    let vtk = std::fs::read_to_string(out.join("frames/frame_00002.vtk")).unwrap();
+    assert!(vtk.contains("DATASET STRUCTURED_POINTS") && vtk.contains("CELL_DATA 2304"));
+    assert!(vtk.contains("SCALARS density") && vtk.contains("VECTORS velocity"));
+    let studies = dir.join("studies");
+    let study = std::process::Command::new(exe)
+        .args(["study", "cavity", "--quick", "--out"])
+        .arg(&studies)
+        .output()
+        .unwrap();
+    assert!(
+        study.status.success(),
+        "{}",
+        String::from_utf8_lossy(&study.stderr)
+    );
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(studies.join("cavity.json")).unwrap())
+            .unwrap();
+    assert_eq!(json["re"], 100);
+    let n = json["n"].as_u64().unwrap() as usize;
+    for key in ["u_centerline", "v_centerline"] {
+        let line = json[key].as_array().unwrap();
+        assert_eq!(line.len(), n + 2, "{key}: the wall values and n faces");
+        assert!(line.iter().all(|p| p.as_array().unwrap().len() == 2));
+    }
+    // u = 1 at the lid, 0 at the bottom.
+    let u = json["u_centerline"].as_array().unwrap();
+    assert_eq!(u[0][1], 0.0);
+    assert_eq!(u[n + 1][1], 1.0);
 }

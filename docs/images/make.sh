@@ -48,3 +48,10 @@ for s in sound-bar sound-bowl sound-nut; do
   "$ls" run "scenes/$s.toml" --out "$work/$s" >/dev/null
   cp "$work/$s/spectrogram.png" "docs/images/$s-spectrogram.png"
 done
+# The fluid scenes: their previews are drawn during the run (a colour map of the smoke in
+# 2-D, a volume rendering in 3-D) at the scene's preview size.
+for s in fluid-smoke-2d fluid-smoke-3d; do
+  echo "$s: scenes/$s.toml"
+  "$ls" run "scenes/$s.toml" --out "$work/$s" --preview >/dev/null
+  cp "$work/$s/preview/contact-sheet.png" "docs/images/$s.png"
+done

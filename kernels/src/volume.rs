@@ -55,16 +55,6 @@ impl Transfer {
         let last = p[p.len() - 1];
         (last.1, last.2)
     }
-
-    /// Whether every density in `[0, d]` is transparent (extinction zero).
-    #[inline]
-    pub fn clear_below(&self, d: f32) -> bool {
-        // Extinction is piecewise linear: zero on [0, d] when it is zero at 0, at d and
-        // at every point between.
-        self.at(0.0).1 <= 0.0
-            && self.at(d).1 <= 0.0
-            && self.points.iter().all(|p| p.0 > d || p.2 <= 0.0)
-    }
 }
 
 /// A density grid with its acceleration and lighting grids.
@@ -450,14 +440,13 @@ mod tests {
     use super::*;
 
     #[test]
-    fn transfer_is_piecewise_linear_and_knows_where_it_is_clear() {
+    fn transfer_is_piecewise_linear_and_constant_beyond_its_points() {
         let tf = Transfer {
             points: vec![(0.05, [1.0; 3], 0.0), (1.0, [0.0; 3], 2.0)],
         };
         assert_eq!(tf.at(0.0).1, 0.0);
         assert!((tf.at(0.525).1 - 1.0).abs() < 1e-6);
-        assert!(tf.clear_below(0.04));
-        assert!(!tf.clear_below(0.5));
+        assert!((tf.at(2.0).1 - 2.0).abs() < 1e-6);
     }
 
     #[test]
@@ -476,5 +465,75 @@ mod tests {
             let e = (-0.1f32 * (7 - j) as f32).exp();
             assert!((t - e).abs() < 1e-5, "slab {j}: {t} vs {e}");
         }
+    }
+
+    /// Skipping clear blocks changes no pixel: the samples stay on the same lattice and
+    /// the skipped ones would have added nothing.
+    #[test]
+    fn empty_space_skipping_changes_no_pixel() {
+        let n = [24, 24, 24];
+        let cells = 24 * 24 * 24;
+        let density: Vec<f32> = (0..cells)
+            .map(|i| {
+                let (x, y, z) = ((i % 24) as f32, ((i / 24) % 24) as f32, (i / 576) as f32);
+                let r2 = (x - 12.0).powi(2) + (y - 8.0).powi(2) + (z - 12.0).powi(2);
+                (1.0 - r2 / 25.0).max(0.0)
+            })
+            .collect();
+        let transfer = Transfer {
+            points: vec![(0.05, [1.0; 3], 0.0), (1.0, [1.0, 0.9, 0.8], 0.8)],
+        };
+        let mut light = vec![0.0; cells];
+        let mut slab = vec![0.0; 576];
+        light_transmittance(
+            &mut light,
+            &mut slab,
+            &density,
+            n,
+            [0.0, 1.0, 0.0],
+            &transfer,
+        );
+        let nb = [3, 3, 3];
+        let mut blocks = vec![0.0; 27];
+        block_max(&mut blocks, &density, n, 8);
+        let mut view = View {
+            width: 48,
+            height: 32,
+            eye: [12.0, 12.0, 60.0],
+            right: [1.0, 0.0, 0.0],
+            up: [0.0, 1.0, 0.0],
+            forward: [0.0, 0.0, -1.0],
+            tan_half_fov: 0.4,
+            step: 0.7,
+            transfer,
+            light_colour: [1.0; 3],
+            ambient: 0.2,
+            to_light: [0.0, 1.0, 0.0],
+            solid_colour: [0.5; 3],
+            background: [[0.1; 3], [0.3; 3]],
+            table: Vec::new(),
+            table_max: 1.0,
+            clear_until: 0.0,
+        };
+        view.tabulate();
+        let image = |block_max: &[f32]| {
+            let mut rgb = vec![0u8; 48 * 32 * 3];
+            let vol = Volume {
+                n,
+                density: &density,
+                light: &light,
+                solid: &[],
+                block: 8,
+                blocks: nb,
+                block_max,
+                block_solid: &[],
+            };
+            render(&mut rgb, &vol, &view);
+            rgb
+        };
+        let skipped = image(&blocks);
+        let full = image(&[f32::INFINITY; 27]);
+        assert_eq!(skipped, full);
+        assert!(skipped.iter().any(|&c| c > 120), "the ball shows");
     }
 }

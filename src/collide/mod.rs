@@ -20,11 +20,13 @@
 
 mod contacts;
 mod edges;
+mod inside;
 mod penalty;
 mod sdf;
 
 pub use contacts::{VertexContacts, CONTACT_THICKNESS};
 pub use edges::edge_through_triangle;
+pub use inside::cells_inside;
 pub use penalty::Penalty;
 pub use sdf::SdfGrid;
 

@@ -2,11 +2,8 @@
 //! surface on a grid of cubes, each cube split into six tetrahedra as `box_mesh` splits
 //! them (conforming), the boundary vertices then moved onto the surface.
 //!
-//! 1. Inside: the cubes whose centre is inside, by ray parity along +x. Each triangle
-//!    adds the x where it crosses the rays of the grid rows its y-z box covers (a 2-D
-//!    point-in-triangle test); a centre is inside when an odd number of crossings lie
-//!    before it. The rows are shifted off the grid by an irrational fraction of a cube so
-//!    that no ray meets a mesh vertex or edge of an axis-aligned surface exactly.
+//! 1. Inside: the cubes whose centre is inside, by ray parity along +x
+//!    (`crate::collide::cells_inside`, shared with the fluid's mesh obstacles).
 //! 2. Tetrahedra: six per inside cube, vertices shared by index (a dense table over the
 //!    grid's corners, sized and checked before it is allocated).
 //! 3. Snapping: every vertex on the boundary (of a face that belongs to one tetrahedron)
@@ -65,23 +62,7 @@ pub enum VoxelError {
 /// six tetrahedra): callers turn a memory budget into `max_cells` with it.
 pub const BYTES_PER_CUBE: u64 = 150;
 
-/// Whether `file` names a closed triangle surface the mesher takes (`.obj`, `.off`).
-pub fn is_surface_file(file: &std::path::Path) -> bool {
-    file.extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("obj") || e.eq_ignore_ascii_case("off"))
-}
-
-/// Reads the closed surface `file` (`.obj` or `.off`, at most `max_bytes`).
-pub fn read_surface(file: &std::path::Path, max_bytes: u64) -> Result<Mesh, crate::io::ReadError> {
-    if file
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("off"))
-    {
-        crate::io::read_off(file, max_bytes)
-    } else {
-        crate::io::read_obj(file, max_bytes)
-    }
-}
+pub use crate::io::{is_surface_file, read_surface};
 
 impl VoxelMesh {
     /// What to tell the user when boundary vertices stayed off the surface.
@@ -128,63 +109,8 @@ pub fn voxel_mesh(surface: &Mesh, h: f64, max_cells: usize) -> Result<VoxelMesh,
     let n = count.map(|c| c as usize);
     // The grid, centred on the surface's box.
     let origin: [f64; 3] = std::array::from_fn(|c| 0.5 * (lo[c] + hi[c]) - 0.5 * n[c] as f64 * h);
-    // Row (j, k)'s ray: y = origin + (j + 1/2 + dy) h, z likewise.
-    let (dy, dz) = (1e-4 * std::f64::consts::SQRT_2, 1e-4 * std::f64::consts::PI);
-    let ray = |j: usize, k: usize| {
-        (
-            origin[1] + (j as f64 + 0.5 + dy) * h,
-            origin[2] + (k as f64 + 0.5 + dz) * h,
-        )
-    };
-    let mut crossings: Vec<Vec<f64>> = vec![Vec::new(); n[1] * n[2]];
-    for t in surface.triangles.iter() {
-        let [a, b, c] = t.map(p);
-        let (ylo, yhi) = (a[1].min(b[1]).min(c[1]), a[1].max(b[1]).max(c[1]));
-        let (zlo, zhi) = (a[2].min(b[2]).min(c[2]), a[2].max(b[2]).max(c[2]));
-        let row = |v: f64, o: f64, d: f64, m: usize| {
-            ((v - o) / h - 0.5 - d).clamp(-1.0, m as f64) as isize
-        };
-        let (j0, j1) = (
-            row(ylo, origin[1], dy, n[1]).max(0),
-            row(yhi, origin[1], dy, n[1]) + 1,
-        );
-        let (k0, k1) = (
-            row(zlo, origin[2], dz, n[2]).max(0),
-            row(zhi, origin[2], dz, n[2]) + 1,
-        );
-        // The triangle's signed area in the y-z plane.
-        let det = (b[1] - a[1]) * (c[2] - a[2]) - (c[1] - a[1]) * (b[2] - a[2]);
-        if det == 0.0 {
-            continue;
-        }
-        for j in j0 as usize..(j1.max(0) as usize).min(n[1]) {
-            for k in k0 as usize..(k1.max(0) as usize).min(n[2]) {
-                let (y, z) = ray(j, k);
-                // Barycentric coordinates of (y, z).
-                let u = ((y - a[1]) * (c[2] - a[2]) - (c[1] - a[1]) * (z - a[2])) / det;
-                let v = ((b[1] - a[1]) * (z - a[2]) - (y - a[1]) * (b[2] - a[2])) / det;
-                if u >= 0.0 && v >= 0.0 && u + v <= 1.0 {
-                    crossings[j + n[1] * k].push(a[0] + u * (b[0] - a[0]) + v * (c[0] - a[0]));
-                }
-            }
-        }
-    }
+    let inside = crate::collide::cells_inside(surface, origin, h, n);
     let cell = |i: usize, j: usize, k: usize| i + n[0] * (j + n[1] * k);
-    let mut inside = vec![false; n[0] * n[1] * n[2]];
-    for k in 0..n[2] {
-        for j in 0..n[1] {
-            let xs = &mut crossings[j + n[1] * k];
-            xs.sort_by(f64::total_cmp);
-            let mut before = 0;
-            for i in 0..n[0] {
-                let x = origin[0] + (i as f64 + 0.5) * h;
-                while before < xs.len() && xs[before] < x {
-                    before += 1;
-                }
-                inside[cell(i, j, k)] = before % 2 == 1;
-            }
-        }
-    }
     if !inside.iter().any(|&b| b) {
         return Err(VoxelError::Nothing(h));
     }

@@ -37,6 +37,10 @@
 //! [[fluid.sphere]]              # obstacles: sphere, box, capsule, plane, sdf
 //! center = [0.5, 0.5, 0.0]
 //! radius = 0.1
+//! [[fluid.mesh]]                # a closed surface voxelised on the grid (solid inside)
+//! file = "bowl.obj"
+//! scale = 1.0                   # then
+//! translate = [0.5, 0.5, 0.5]   # m
 //! ```
 
 use super::{
@@ -107,6 +111,21 @@ pub struct FluidTable {
     pub capsule: Vec<CapsuleTable>,
     #[serde(default)]
     pub sdf: Vec<SdfTable>,
+    #[serde(default)]
+    pub mesh: Vec<MeshObstacleTable>,
+}
+
+/// `[[fluid.mesh]]`: a closed surface (`.obj`, `.off`) whose inside is solid, voxelised
+/// on the fluid's grid (cells whose centre is inside).
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MeshObstacleTable {
+    pub file: String,
+    /// Scale, then translation (m), applied to the file's vertices.
+    #[serde(default)]
+    pub scale: Option<f64>,
+    #[serde(default)]
+    pub translate: Option<[f64; 3]>,
 }
 
 /// One axis of `[fluid.boundary]`: a name for both sides, or `[low, high]`.
@@ -394,13 +413,61 @@ pub fn desc(ctx: &Context<'_>, t: &FluidTable) -> Result<FluidDesc, SceneError> 
             sdf: &t.sdf,
         },
     )?;
+    let origin = t.origin.unwrap_or([0.0; 3]);
+    let mut solid_cells: Option<Vec<bool>> = None;
+    for (k, m) in t.mesh.iter().enumerate() {
+        let key = path(&[&"mesh", &k]);
+        let file = ctx.base.join(&m.file);
+        if !crate::io::is_surface_file(&file) {
+            return Err(ctx.error(
+                &key,
+                format!(
+                    "{}: a mesh obstacle is a closed surface, .obj or .off",
+                    m.file
+                ),
+            ));
+        }
+        let mut surface = crate::io::read_surface(&file, ctx.limits.max_file_bytes)
+            .map_err(SceneError::from_read)?;
+        let scale = ctx.positive(m.scale.unwrap_or(1.0), &key, "scale")?;
+        let shift = m.translate.unwrap_or([0.0; 3]);
+        if !shift.iter().all(|x| x.is_finite()) {
+            return Err(ctx.error(&key, "translate must be finite"));
+        }
+        let nv = surface.positions.len() / 3;
+        for (a, comp) in surface.positions.chunks_mut(nv.max(1)).enumerate().take(3) {
+            for v in comp {
+                *v = *v * scale + shift[a];
+            }
+        }
+        if surface.triangles.is_empty() || !surface.positions.iter().all(|x| x.is_finite()) {
+            return Err(ctx.error(
+                &key,
+                format!("{}: no triangles, or a vertex that is not finite", m.file),
+            ));
+        }
+        let inside = crate::collide::cells_inside(&surface, origin, h, cells);
+        if !inside.iter().any(|&b| b) {
+            return Err(ctx.error(
+                &key,
+                format!(
+                    "{}: no cell centre of the grid lies inside it (outside the domain, open, inside out, or thinner than a cell)",
+                    m.file
+                ),
+            ));
+        }
+        let s = solid_cells.get_or_insert_with(|| vec![false; inside.len()]);
+        for (a, b) in s.iter_mut().zip(inside) {
+            *a |= b;
+        }
+    }
     let d = FluidDesc {
         cells,
         h,
-        origin: t.origin.unwrap_or([0.0; 3]),
+        origin,
         boundaries,
         obstacles,
-        solid_cells: None,
+        solid_cells,
         viscosity,
         density: t.density.unwrap_or(1.0),
         force: t.force.unwrap_or([0.0; 3]),

@@ -108,3 +108,34 @@ pub fn taylor_green_viscosity(e0: f64, e: f64, t: f64, length: f64) -> f64 {
     let k = 2.0 * std::f64::consts::PI / length;
     -(e / e0).ln() / (4.0 * k * k * t)
 }
+
+/// The lid-driven cavity of the benchmark: the unit square in `n x n` cells, no-slip
+/// walls, the lid (y = 1) sliding at 1 m/s along x, nu = 0.01 m^2/s (Re = 100).
+pub fn cavity(n: usize) -> super::FluidDesc {
+    use super::Boundary;
+    super::FluidDesc {
+        cells: [n, n, 1],
+        h: 1.0 / n as f64,
+        boundaries: [
+            [Boundary::Wall; 2],
+            [Boundary::Wall, Boundary::Lid([1.0, 0.0, 0.0])],
+            [Boundary::Wall; 2],
+        ],
+        viscosity: 0.01,
+        ..super::FluidDesc::default()
+    }
+}
+
+/// The Taylor-Green vortex of speed 1 on the square of side 2 pi in `n x n` cells (k = 1)
+/// with kinematic viscosity `nu`, its x and y sides all `sides` (periodic or slip).
+pub fn taylor_green(n: usize, nu: f64, sides: super::Boundary) -> super::FluidDesc {
+    use super::Boundary;
+    super::FluidDesc {
+        cells: [n, n, 1],
+        h: 2.0 * std::f64::consts::PI / n as f64,
+        boundaries: [[sides; 2], [sides; 2], [Boundary::Wall; 2]],
+        viscosity: nu,
+        initial: super::Initial::TaylorGreen { speed: 1.0 },
+        ..super::FluidDesc::default()
+    }
+}

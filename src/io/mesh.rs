@@ -511,3 +511,22 @@ pub fn parse_off(text: &str, name: &str) -> Result<Mesh, ReadError> {
         segments: Vec::new().into(),
     })
 }
+
+/// Whether `file` names a closed triangle surface (`.obj`, `.off`): what the voxel mesher
+/// and the fluid's mesh obstacles take.
+pub fn is_surface_file(file: &std::path::Path) -> bool {
+    file.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("obj") || e.eq_ignore_ascii_case("off"))
+}
+
+/// Reads the closed surface `file` (`.obj` or `.off`, at most `max_bytes`).
+pub fn read_surface(file: &std::path::Path, max_bytes: u64) -> Result<Mesh, ReadError> {
+    if file
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("off"))
+    {
+        read_off(file, max_bytes)
+    } else {
+        read_obj(file, max_bytes)
+    }
+}

@@ -130,6 +130,10 @@ struct Level {
     r: Vec<f64>,
     /// The second buffer of the Jacobi sweeps.
     x2: Vec<f64>,
+    /// Scratch rows of the row-wise transfers: one coarse row per z-slab of this level
+    /// (its restriction's x-transposed rows as a coarse level, its prolongation's blended
+    /// coarse rows as a fine one).
+    rows: Vec<f64>,
 }
 
 impl Level {
@@ -213,6 +217,7 @@ impl Level {
             inv_diag,
             interior,
             x2: vec![0.0; cells],
+            rows: Vec::new(),
             n,
             sides,
             inv_h2,
@@ -341,10 +346,20 @@ impl Level {
 
     /// `sweeps` damped Jacobi sweeps on `A x = b` over the boundary band only.
     fn smooth_band(&mut self, sweeps: usize) {
+        // Band cells per parallel task (the residuals, then the updates; fixed chunks, so
+        // the bits do not depend on the thread count).
+        const CHUNK: usize = 4096;
         for _ in 0..sweeps {
             let mut br = std::mem::take(&mut self.band_r);
-            for (r, &i) in br.iter_mut().zip(&self.band) {
-                *r = self.b[i] - self.row(i, &self.x);
+            {
+                let this = &*self;
+                br.par_chunks_mut(CHUNK)
+                    .zip(this.band.par_chunks(CHUNK))
+                    .for_each(|(rs, cells)| {
+                        for (r, &i) in rs.iter_mut().zip(cells) {
+                            *r = this.b[i] - this.row(i, &this.x);
+                        }
+                    });
             }
             for (r, &i) in br.iter().zip(&self.band) {
                 if self.diag[i] > 0.0 {
@@ -612,6 +627,16 @@ impl GridPoisson {
             h *= 2.0;
             levels.push(Level::new(nc, sides, h, kind, true));
         }
+        // Row scratch: a coarse level's restriction rows are its own width, one per own
+        // slab; a fine level's prolongation rows the next level's width, one per own slab.
+        for l in 0..levels.len() {
+            let width = if l + 1 < levels.len() {
+                levels[l + 1].n[0].max(levels[l].n[0])
+            } else {
+                levels[l].n[0]
+            };
+            levels[l].rows = vec![0.0; levels[l].n[2] * width];
+        }
         let cells = levels[0].kind.len();
         Ok(Self {
             levels,
@@ -704,31 +729,96 @@ impl GridPoisson {
             let sides = &c.sides;
             // R = P^T / (children per coarse cell): 8 in 3-D, 4 in 2-D.
             let scale = 1.0 / (1usize << f.n.iter().filter(|&&v| v > 1).count()) as f64;
-            c.b.par_chunks_mut(cslab).enumerate().for_each(|(ck, bs)| {
-                bs.fill(0.0);
-                let base = ck * cslab;
-                for k in (2 * ck).saturating_sub(1)..(2 * ck + 3).min(f.n[2]) {
-                    for local in 0..fslab {
-                        let fidx = k * fslab + local;
-                        let rf = f.r[fidx];
-                        if rf == 0.0 {
-                            continue; // off the fluid cells, or nothing to add
-                        }
-                        let (cells, w) =
-                            weights([local % f.n[0], local / f.n[0], k], cn, sides, ckind, cint);
-                        for (cc, wc) in cells.iter().zip(&w) {
-                            if (base..base + cslab).contains(cc) {
-                                bs[cc - base] += wc * rf;
+            let (fnx, fny) = (f.n[0], f.n[1]);
+            let flat = c.n[2] == 1;
+            let crow = c.rows.len() / c.n[2];
+            c.b.par_chunks_mut(cslab)
+                .zip(c.rows.par_chunks_mut(crow))
+                .enumerate()
+                .for_each(|(ck, (bs, t))| {
+                    bs.fill(0.0);
+                    let base = ck * cslab;
+                    for k in (2 * ck).saturating_sub(1)..(2 * ck + 3).min(f.n[2]) {
+                        // The share of this fine slab's rows that lands in coarse slab ck:
+                        // 3/4 from the children's slab, 1/4 from a neighbour's (1 in 2-D).
+                        let wz = if flat {
+                            1.0
+                        } else if k / 2 == ck {
+                            0.75
+                        } else {
+                            0.25
+                        };
+                        for j in 0..fny {
+                            // Cells whose parent is interior take the separable trilinear
+                            // weights: transposed along x into t, then spread over the
+                            // parent's row (3/4) and its neighbour row towards j (1/4).
+                            // The others scatter through `weights`.
+                            let (pj, jy) = (
+                                j / 2,
+                                if j % 2 == 0 {
+                                    (j / 2).wrapping_sub(1)
+                                } else {
+                                    j / 2 + 1
+                                },
+                            );
+                            let pk = k / 2;
+                            let row_ck = pk == ck || flat;
+                            let mut any = false;
+                            t[..cnx].fill(0.0);
+                            for i in 0..fnx {
+                                let fidx = k * fslab + j * fnx + i;
+                                let rf = f.r[fidx];
+                                if rf == 0.0 {
+                                    continue; // off the fluid cells, or nothing to add
+                                }
+                                let pidx = i / 2 + cnx * (pj + cny * pk);
+                                if cint[pidx] {
+                                    let ci = i / 2;
+                                    let cs = if i % 2 == 0 { ci - 1 } else { ci + 1 };
+                                    t[ci] += 0.75 * rf;
+                                    t[cs] += 0.25 * rf;
+                                    any = true;
+                                    continue;
+                                }
+                                let (cells, w) = weights([i, j, k], cn, sides, ckind, cint);
+                                for (cc, wc) in cells.iter().zip(&w) {
+                                    if (base..base + cslab).contains(cc) {
+                                        bs[cc - base] += wc * rf;
+                                    }
+                                }
+                            }
+                            if !any {
+                                continue;
+                            }
+                            // An interior parent has both rows inside the grid; the rows
+                            // of this fine slab reach coarse slab ck when ck is the
+                            // parent's slab or its neighbour towards k.
+                            let reaches = row_ck || {
+                                let kz = if k % 2 == 0 {
+                                    pk.wrapping_sub(1)
+                                } else {
+                                    pk + 1
+                                };
+                                kz == ck
+                            };
+                            if !reaches {
+                                continue;
+                            }
+                            for (row, wy) in [(pj, 0.75), (jy, 0.25)] {
+                                let w = wz * wy;
+                                let b = &mut bs[row * cnx..(row + 1) * cnx];
+                                for (bb, tt) in b.iter_mut().zip(&t[..cnx]) {
+                                    *bb += w * tt;
+                                }
                             }
                         }
                     }
-                }
-                // Only fluid cells carry unknowns (a fluid child's empty parent got a
-                // share that the coarse problem has no place for).
-                for (b, m) in bs.iter_mut().zip(&cmask[base..base + cslab]) {
-                    *b *= m * scale;
-                }
-            });
+                    // Only fluid cells carry unknowns (a fluid child's empty parent got a
+                    // share that the coarse problem has no place for).
+                    for (b, m) in bs.iter_mut().zip(&cmask[base..base + cslab]) {
+                        *b *= m * scale;
+                    }
+                });
         }
         self.v_cycle(l + 1);
         {
@@ -738,19 +828,65 @@ impl GridPoisson {
             let fslab = fnx * fny;
             let (cx, fkind, cn, ckind, cint) = (&c.x, &f.kind, c.n, &c.kind, &c.interior);
             let sides = &c.sides;
-            f.x.par_chunks_mut(fslab).enumerate().for_each(|(k, xs)| {
-                for (local, xf) in xs.iter_mut().enumerate() {
-                    if fkind[k * fslab + local] == CellKind::Fluid {
-                        let (cells, w) =
-                            weights([local % fnx, local / fnx, k], cn, sides, ckind, cint);
-                        let mut v = 0.0;
-                        for (cc, wc) in cells.iter().zip(&w) {
-                            v += wc * cx[*cc];
+            let (cnx, cny) = (cn[0], cn[1]);
+            let flat = cn[2] == 1;
+            let frow = f.rows.len() / f.n[2];
+            f.x.par_chunks_mut(fslab)
+                .zip(f.rows.par_chunks_mut(frow))
+                .enumerate()
+                .for_each(|(k, (xs, r))| {
+                    let pk = k / 2;
+                    let kz = if k % 2 == 0 {
+                        pk.wrapping_sub(1)
+                    } else {
+                        pk + 1
+                    };
+                    for j in 0..fny {
+                        let pj = j / 2;
+                        let jy = if j % 2 == 0 {
+                            pj.wrapping_sub(1)
+                        } else {
+                            pj + 1
+                        };
+                        // The coarse rows blended over y and z (9/16, 3/16, 3/16, 1/16;
+                        // 3/4 and 1/4 in 2-D), when they exist: cells with an interior
+                        // parent then take 3/4 and 1/4 of two of its entries.
+                        let rows_ok = jy < cny && (flat || kz < cn[2]);
+                        if rows_ok {
+                            let row = |y: usize, z: usize| &cx[cnx * (y + cny * z)..][..cnx];
+                            if flat {
+                                let (a, b) = (row(pj, 0), row(jy, 0));
+                                for (ri, (aa, bb)) in r[..cnx].iter_mut().zip(a.iter().zip(b)) {
+                                    *ri = 0.75 * aa + 0.25 * bb;
+                                }
+                            } else {
+                                let (a, b) = (row(pj, pk), row(jy, pk));
+                                let (c2, d) = (row(pj, kz), row(jy, kz));
+                                for (t, ri) in r[..cnx].iter_mut().enumerate() {
+                                    *ri = 0.5625 * a[t] + 0.1875 * (b[t] + c2[t]) + 0.0625 * d[t];
+                                }
+                            }
                         }
-                        *xf += v;
+                        for i in 0..fnx {
+                            let local = j * fnx + i;
+                            if fkind[k * fslab + local] != CellKind::Fluid {
+                                continue;
+                            }
+                            let ci = i / 2;
+                            if rows_ok && cint[ci + cnx * (pj + cny * pk)] {
+                                let cs = if i % 2 == 0 { ci - 1 } else { ci + 1 };
+                                xs[local] += 0.75 * r[ci] + 0.25 * r[cs];
+                                continue;
+                            }
+                            let (cells, w) = weights([i, j, k], cn, sides, ckind, cint);
+                            let mut v = 0.0;
+                            for (cc, wc) in cells.iter().zip(&w) {
+                                v += wc * cx[*cc];
+                            }
+                            xs[local] += v;
+                        }
                     }
-                }
-            });
+                });
         }
         self.levels[l].smooth_band(BAND_SWEEPS);
         self.levels[l].smooth(SWEEPS);

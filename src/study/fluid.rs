@@ -5,8 +5,8 @@
 
 use super::{write_file, write_plot_and_numbers, Progress, StudyError};
 use crate::fluid::scene::FluidSim;
-use crate::fluid::validation::{centerlines, profile_error, GHIA_RE100_U, GHIA_RE100_V};
-use crate::fluid::{Boundary, Correction, FluidDesc, Initial, Interp};
+use crate::fluid::validation::{self, centerlines, profile_error, GHIA_RE100_U, GHIA_RE100_V};
+use crate::fluid::{Boundary, Correction, Interp};
 use crate::plot::{Curve, Panel, Scale};
 use crate::solve::{CellKind, GridPoisson, PoissonParams, PoissonPreconditioner};
 use serde::Serialize;
@@ -18,19 +18,8 @@ use std::time::Instant;
 /// The cavity of `n x n` cells run to a steady state (the largest change of u over 50
 /// steps below 1e-5 m/s, or 60 s of flow); returns the simulation and the wall time.
 fn cavity(n: usize) -> (FluidSim, f64) {
-    let d = FluidDesc {
-        cells: [n, n, 1],
-        h: 1.0 / n as f64,
-        boundaries: [
-            [Boundary::Wall; 2],
-            [Boundary::Wall, Boundary::Lid([1.0, 0.0, 0.0])],
-            [Boundary::Wall; 2],
-        ],
-        viscosity: 0.01,
-        ..FluidDesc::default()
-    };
     let t0 = Instant::now();
-    let mut sim = FluidSim::new(&d).expect("the cavity is valid");
+    let mut sim = FluidSim::new(&validation::cavity(n)).expect("the cavity is valid");
     // CFL about 1 at the lid speed.
     let dt = 1.0 / n as f64;
     let mut prev = sim.state().u[0].clone();
@@ -186,24 +175,10 @@ struct FluidPoint {
 /// the effective viscosity, and the wall time.
 fn taylor_green(n: usize, cfl: f64, interp: Interp, correction: Correction) -> FluidPoint {
     let nu = 0.05;
-    let h = 2.0 * PI / n as f64;
-    let d = FluidDesc {
-        cells: [n, n, 1],
-        h,
-        boundaries: [
-            [Boundary::Periodic; 2],
-            [Boundary::Periodic; 2],
-            [Boundary::Wall; 2],
-        ],
-        viscosity: nu,
-        initial: Initial::TaylorGreen { speed: 1.0 },
-        advection: crate::fluid::Advection {
-            interp,
-            correction,
-            ..Default::default()
-        },
-        ..FluidDesc::default()
-    };
+    let mut d = validation::taylor_green(n, nu, Boundary::Periodic);
+    d.advection.interp = interp;
+    d.advection.correction = correction;
+    let h = d.h;
     let t0 = Instant::now();
     let mut sim = FluidSim::new(&d).expect("the vortex is valid");
     let e0 = sim.fluid().kinetic_energy(sim.state());
