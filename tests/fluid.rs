@@ -429,3 +429,37 @@ fn the_command_line_writes_fluid_frames_slices_previews_and_the_cavity_json() {
     assert_eq!(u[0][1], 0.0);
     assert_eq!(u[n + 1][1], 1.0);
 }
+
+/// Scene errors name the file and line: an unknown boundary (listing the known ones), a
+/// grid beyond the memory budget (refused before allocating), a one-sided periodic axis,
+/// an unknown advection scheme.
+#[test]
+fn bad_fluid_tables_are_located() {
+    let limits = largestep::limits::Limits::with_memory(256 << 20);
+    let check = |table: &str, line: usize, words: &[&str]| {
+        let src = format!("[scene]\ndt = 0.01\nduration = 0.1\n[fluid]\n{table}");
+        let e = largestep::scene::Scene::parse_with(&src, "bad.toml", &limits)
+            .expect_err("refused")
+            .to_string();
+        assert!(e.contains(&format!("bad.toml:{line}")), "{e}");
+        for w in words {
+            assert!(e.contains(w), "{e} lacks {w}");
+        }
+    };
+    check(
+        "cells = [8, 8, 1]\nsize = 1.0\n[fluid.boundary]\nx = \"walls\"\n",
+        8,
+        &["unknown boundary `walls`", "periodic"],
+    );
+    check("cells = [4096, 4096, 4096]\nsize = 1.0\n", 5, &["memory"]);
+    check(
+        "cells = [8, 8, 8]\nsize = 1.0\n[fluid.boundary]\nz = [\"periodic\", \"wall\"]\n",
+        8,
+        &["periodic on both sides"],
+    );
+    check(
+        "cells = [8, 8, 1]\nsize = 1.0\nadvection = \"upwind\"\n",
+        7,
+        &["maccormack"],
+    );
+}

@@ -561,12 +561,13 @@ impl Runner {
                 .into_iter()
                 .map(|k| g.shrunk[k].clone())
                 .collect();
-        // The sheet from the frames written at full size, halved (the GIF's are smaller).
+        // The sheet from the frames written at full size (the GIF's are smaller); the
+        // sheet shrinks them by its column count, as the mesh previews' does.
         let mut sheet = Vec::new();
         for k in crate::render::preview::evenly(g.shrunk.len(), settings.sheet_frames) {
             let path = dir.join(format!("frame_{k:05}.png"));
             let im = crate::io::read_png(&path).map_err(RunError::Render)?;
-            sheet.push(im.downsample(2));
+            sheet.push(im);
         }
         crate::render::preview::write_animation(&dir, &gif, &sheet, g.shrunk.len(), settings)
             .map_err(|e| RunError::Render(e.to_string()))?;

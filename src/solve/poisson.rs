@@ -17,8 +17,9 @@
 //! [`GridPoisson::solve`] runs conjugate gradients preconditioned by Jacobi or by one
 //! multigrid V-cycle (McAdams et al.): cells coarsened two by two by two (a coarse cell
 //! is empty if any child is, else fluid if any child is, else solid), the operator
-//! rediscretised on each level, trilinear (cell-centred) prolongation P and restriction
-//! `P^T / 8`, damped Jacobi smoothing (omega = 6/7, three sweeps before and after) with
+//! rediscretised on each level, trilinear (cell-centred; bilinear in 2-D) prolongation P
+//! and restriction `P^T / 8` (`P^T / 4` in 2-D), applied row by row with the separable
+//! weights where the parent cell is interior, damped Jacobi smoothing (omega = 6/7, three sweeps before and after) with
 //! four more sweeps over a band of cells near walls and open boundaries (after the
 //! pre-smoothing, before the post-smoothing), and a fixed number of sweeps on the
 //! coarsest level, so the cycle is a fixed symmetric positive definite operator.
@@ -718,7 +719,7 @@ impl GridPoisson {
         {
             let (fine, coarse) = self.levels.split_at_mut(l + 1);
             let (f, c) = (&fine[l], &mut coarse[0]);
-            // Coarse right side: R r with R = P^T / 8 (module docs). Per coarse slab, the
+            // Coarse right side: R r with R = P^T / 8 (module docs; / 4 in 2-D). Per coarse slab, the
             // four fine slabs whose interpolation reaches it (its children's and one on
             // each side) add their shares in a fixed order: each fine cell is visited
             // twice, not once per coarse cell around it.
