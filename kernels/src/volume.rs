@@ -170,30 +170,60 @@ fn index(n: [usize; 3], i: usize, j: usize, k: usize) -> usize {
     i + n[0] * (j + n[1] * k)
 }
 
+/// Where a point falls among the cell centres: the lower corner cell, the strides to
+/// its neighbours (0 along an axis of one cell) and the fractions, clamped to the grid.
+/// One lookup serves every field sampled at the point.
+#[derive(Clone, Copy, Debug)]
+pub struct Corner {
+    base: usize,
+    d: [usize; 3],
+    t: [f32; 3],
+}
+
+impl Corner {
+    /// The corner of `p` (cell units; centres at `i + 1/2`) in a grid of `n` cells.
+    #[inline(always)]
+    pub fn new(n: [usize; 3], p: [f32; 3]) -> Corner {
+        let mut i = [0usize; 3];
+        let mut t = [0f32; 3];
+        for a in 0..3 {
+            let x = (p[a] - 0.5).clamp(0.0, (n[a] - 1) as f32);
+            let c = (x as usize).min(n[a].saturating_sub(2));
+            i[a] = c;
+            t[a] = if n[a] > 1 { x - c as f32 } else { 0.0 };
+        }
+        Corner {
+            base: index(n, i[0], i[1], i[2]),
+            d: [
+                usize::from(n[0] > 1),
+                if n[1] > 1 { n[0] } else { 0 },
+                if n[2] > 1 { n[0] * n[1] } else { 0 },
+            ],
+            t,
+        }
+    }
+
+    /// The trilinear sample of the cell-centred field `f` there.
+    #[inline(always)]
+    pub fn sample(&self, f: &[f32]) -> f32 {
+        let [dx, dy, dz] = self.d;
+        let t = self.t;
+        let l = |o: usize| f[self.base + o];
+        let x00 = l(0) + t[0] * (l(dx) - l(0));
+        let x10 = l(dy) + t[0] * (l(dy + dx) - l(dy));
+        let x01 = l(dz) + t[0] * (l(dz + dx) - l(dz));
+        let x11 = l(dz + dy) + t[0] * (l(dz + dy + dx) - l(dz + dy));
+        let y0 = x00 + t[1] * (x10 - x00);
+        let y1 = x01 + t[1] * (x11 - x01);
+        y0 + t[2] * (y1 - y0)
+    }
+}
+
 /// Trilinear sample of a cell-centred field at `p` (cell units; centres at `i + 1/2`),
 /// clamped to the grid.
 #[inline(always)]
 pub fn trilinear(f: &[f32], n: [usize; 3], p: [f32; 3]) -> f32 {
-    let mut i = [0usize; 3];
-    let mut t = [0f32; 3];
-    for a in 0..3 {
-        let x = (p[a] - 0.5).clamp(0.0, (n[a] - 1) as f32);
-        let c = (x as usize).min(n[a].saturating_sub(2));
-        i[a] = c;
-        t[a] = if n[a] > 1 { x - c as f32 } else { 0.0 };
-    }
-    let dx = usize::from(n[0] > 1);
-    let dy = if n[1] > 1 { n[0] } else { 0 };
-    let dz = if n[2] > 1 { n[0] * n[1] } else { 0 };
-    let b = index(n, i[0], i[1], i[2]);
-    let l = |o: usize| f[b + o];
-    let x00 = l(0) + t[0] * (l(dx) - l(0));
-    let x10 = l(dy) + t[0] * (l(dy + dx) - l(dy));
-    let x01 = l(dz) + t[0] * (l(dz + dx) - l(dz));
-    let x11 = l(dz + dy) + t[0] * (l(dz + dy + dx) - l(dz + dy));
-    let y0 = x00 + t[1] * (x10 - x00);
-    let y1 = x01 + t[1] * (x11 - x01);
-    y0 + t[2] * (y1 - y0)
+    Corner::new(n, p).sample(f)
 }
 
 /// `out[block] = ` the largest density of each `block`-cube of cells (and its one-cell
@@ -417,10 +447,11 @@ fn march(vol: &Volume<'_>, view: &View, o: [f32; 3], d: [f32; 3], bg: [f32; 3]) 
             }
             return col;
         }
-        let rho = trilinear(vol.density, vol.n, p);
+        let at = Corner::new(vol.n, p);
+        let rho = at.sample(vol.density);
         let [cr, cg, cb, a] = view.lookup(rho);
         if a > 0.0 {
-            let lit = view.ambient + trilinear(vol.light, vol.n, p);
+            let lit = view.ambient + at.sample(vol.light);
             let w = trans * lit;
             col[0] += w * cr;
             col[1] += w * cg;

@@ -243,39 +243,92 @@ impl Level {
         let s = nx * ny;
         let c = self.inv_h2;
         let base = k * s + j * nx;
-        let flat = nz == 1;
-        let inner = (flat || (k > 0 && k + 1 < nz)) && j > 0 && j + 1 < ny && nx > 2;
         let per = periodic(&self.sides);
-        let edge = |i: usize| {
-            let idx = base + i;
-            let mut o = 0.0;
-            for_neighbours(self.n, per, idx, |q| o += x[q]);
-            self.mask[idx] * (self.diag[idx] * x[idx] - c * o)
+        // The rows beside this one along y and z (start index), wrapped along periodic
+        // axes; a missing one (beyond a wall or an open side) adds nothing, as x is zero
+        // off the fluid cells and the diagonal holds the boundary.
+        let beside = |v: usize, n: usize, axis: usize, stride: usize| -> [Option<usize>; 2] {
+            if n < 2 {
+                return [None, None];
+            }
+            let lo = if v > 0 {
+                Some(base - stride)
+            } else {
+                per[axis].then(|| base + (n - 1) * stride)
+            };
+            let hi = if v + 1 < n {
+                Some(base + stride)
+            } else {
+                per[axis].then(|| base - (n - 1) * stride)
+            };
+            [lo, hi]
         };
-        if !inner {
+        let [ys, yn] = beside(j, ny, 1, nx);
+        let [zd, zu] = beside(k, nz, 2, s);
+        // A cell at either end of the row: its x neighbours (wrapped along a periodic x)
+        // and the rows beside.
+        let end = |i: usize| {
+            let idx = base + i;
+            let mut off = 0.0;
+            if i > 0 {
+                off += x[idx - 1];
+            } else if per[0] && nx > 1 {
+                off += x[base + nx - 1];
+            }
+            if i + 1 < nx {
+                off += x[idx + 1];
+            } else if per[0] && nx > 1 {
+                off += x[base];
+            }
+            for r in [ys, yn, zd, zu].into_iter().flatten() {
+                off += x[r + i];
+            }
+            self.mask[idx] * (self.diag[idx] * x[idx] - c * off)
+        };
+        if nx <= 2 {
             for (i, o) in out.iter_mut().enumerate() {
-                *o = edge(i);
+                *o = end(i);
             }
             return;
         }
-        out[0] = edge(0);
-        out[nx - 1] = edge(nx - 1);
+        out[0] = end(0);
+        out[nx - 1] = end(nx - 1);
         let (a, b) = (base + 1, base + nx - 1);
+        let len = b - a;
         let xc = &x[a..b];
         let (xw, xe) = (&x[a - 1..b - 1], &x[a + 1..b + 1]);
-        let (xs, xn) = (&x[a - nx..b - nx], &x[a + nx..b + nx]);
         let (d, m) = (&self.diag[a..b], &self.mask[a..b]);
-        if flat {
-            for (t, o) in out[1..nx - 1].iter_mut().enumerate() {
-                let off = (xw[t] + xe[t]) + (xs[t] + xn[t]);
-                *o = m[t] * (d[t] * xc[t] - c * off);
+        let row = |r: usize| &x[r + 1..r + 1 + len];
+        let o = &mut out[1..nx - 1];
+        match (ys, yn, zd, zu) {
+            (Some(p), Some(q), Some(u), Some(v)) => {
+                let (xs, xn, xd, xu) = (row(p), row(q), row(u), row(v));
+                for (t, ot) in o.iter_mut().enumerate() {
+                    let off = (xw[t] + xe[t]) + (xs[t] + xn[t]) + (xd[t] + xu[t]);
+                    *ot = m[t] * (d[t] * xc[t] - c * off);
+                }
             }
-            return;
-        }
-        let (xd, xu) = (&x[a - s..b - s], &x[a + s..b + s]);
-        for (t, o) in out[1..nx - 1].iter_mut().enumerate() {
-            let off = (xw[t] + xe[t]) + (xs[t] + xn[t]) + (xd[t] + xu[t]);
-            *o = m[t] * (d[t] * xc[t] - c * off);
+            (Some(p), Some(q), None, None) if nz == 1 => {
+                let (xs, xn) = (row(p), row(q));
+                for (t, ot) in o.iter_mut().enumerate() {
+                    let off = (xw[t] + xe[t]) + (xs[t] + xn[t]);
+                    *ot = m[t] * (d[t] * xc[t] - c * off);
+                }
+            }
+            rows => {
+                // A row on the grid's edge: the neighbours present, one pass each.
+                for (t, ot) in o.iter_mut().enumerate() {
+                    *ot = xw[t] + xe[t];
+                }
+                for r in [rows.0, rows.1, rows.2, rows.3].into_iter().flatten() {
+                    for (ot, xr) in o.iter_mut().zip(row(r)) {
+                        *ot += xr;
+                    }
+                }
+                for (t, ot) in o.iter_mut().enumerate() {
+                    *ot = m[t] * (d[t] * xc[t] - c * *ot);
+                }
+            }
         }
     }
 
