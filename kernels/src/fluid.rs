@@ -120,11 +120,52 @@ impl Velocity<'_> {
     /// The velocity at `p` (cell units), linearly interpolated.
     #[inline]
     pub fn at(&self, p: [f64; 3]) -> [f64; 3] {
+        if self.dims == 3 && !self.periodic.iter().any(|&x| x) {
+            return self.at_closed(p);
+        }
         let mut v = [0.0; 3];
         for (a, va) in v.iter_mut().enumerate().take(self.dims) {
             *va = sample(self.comp[a], &self.field(a), p, Interp::Linear);
         }
         v
+    }
+
+    /// [`Velocity::at`] in 3-D without periodic axes: the node and fraction along each
+    /// axis are found once on the faces (at `p`) and once on the centres (at `p - 1/2`),
+    /// and each component takes the face ones along its own axis and the centre ones along
+    /// the others (the same clamping as [`sample`]).
+    #[inline]
+    fn at_closed(&self, p: [f64; 3]) -> [f64; 3] {
+        let n = self.cells;
+        // (node, fraction) on faces (n + 1 nodes) and on centres (n nodes).
+        let axis = |t: f64, nodes: usize| {
+            let t = t.clamp(0.0, (nodes - 1) as f64);
+            let i = (t as usize).min(nodes.saturating_sub(2));
+            (i, if nodes > 1 { t - i as f64 } else { 0.0 })
+        };
+        let face: [(usize, f64); 3] = std::array::from_fn(|b| axis(p[b], n[b] + 1));
+        let centre: [(usize, f64); 3] = std::array::from_fn(|b| axis(p[b] - 0.5, n[b]));
+        std::array::from_fn(|a| {
+            let mut m = n;
+            m[a] += 1;
+            let c: [(usize, f64); 3] =
+                std::array::from_fn(|b| if b == a { face[b] } else { centre[b] });
+            let (sy, sz) = (m[0], m[0] * m[1]);
+            let dx = usize::from(m[0] > 1);
+            let dy = if m[1] > 1 { sy } else { 0 };
+            let dz = if m[2] > 1 { sz } else { 0 };
+            let f = self.comp[a];
+            let base = c[0].0 + sy * c[1].0 + sz * c[2].0;
+            let (tx, ty, tz) = (c[0].1, c[1].1, c[2].1);
+            let l = |o: usize| f[base + o];
+            let x00 = l(0) + tx * (l(dx) - l(0));
+            let x10 = l(dy) + tx * (l(dy + dx) - l(dy));
+            let x01 = l(dz) + tx * (l(dz + dx) - l(dz));
+            let x11 = l(dz + dy) + tx * (l(dz + dy + dx) - l(dz + dy));
+            let y0 = x00 + ty * (x10 - x00);
+            let y1 = x01 + ty * (x11 - x01);
+            y0 + tz * (y1 - y0)
+        })
     }
 
     /// Clamps `p` into the domain along the closed axes.
@@ -429,5 +470,43 @@ mod tests {
         let e = 2.0 * p[0] - p[1] + 0.5 * p[2];
         assert!((sample(&lin, &g, p, Interp::Linear) - e).abs() < 1e-13);
         assert!((sample(&lin, &g, p, Interp::MonotoneCubic) - e).abs() < 1e-13);
+    }
+
+    /// The closed 3-D fast path of `Velocity::at` gives the generic sampler's values
+    /// (to rounding), inside and outside the grid.
+    #[test]
+    fn closed_velocity_lookup_matches_the_generic_sampler() {
+        let cells = [5, 4, 3];
+        let comps: Vec<Vec<f64>> = (0..3)
+            .map(|a| {
+                let mut m = cells;
+                m[a] += 1;
+                (0..m[0] * m[1] * m[2])
+                    .map(|i| ((i * 37 + a * 11) % 17) as f64 - 8.0)
+                    .collect()
+            })
+            .collect();
+        let vel = Velocity {
+            cells,
+            periodic: [false; 3],
+            comp: [&comps[0], &comps[1], &comps[2]],
+            dims: 3,
+        };
+        for p in [
+            [0.3, 0.7, 0.2],
+            [4.9, 3.99, 2.5],
+            [-1.0, 2.0, 7.0],
+            [2.5, 0.5, 1.5],
+        ] {
+            let fast = vel.at(p);
+            for a in 0..3 {
+                let slow = sample(vel.comp[a], &vel.field(a), p, Interp::Linear);
+                assert!(
+                    (fast[a] - slow).abs() < 1e-12,
+                    "{p:?} {a}: {} vs {slow}",
+                    fast[a]
+                );
+            }
+        }
     }
 }
