@@ -158,13 +158,17 @@ impl Velocity<'_> {
             let base = c[0].0 + sy * c[1].0 + sz * c[2].0;
             let (tx, ty, tz) = (c[0].1, c[1].1, c[2].1);
             let l = |o: usize| f[base + o];
-            let x00 = l(0) + tx * (l(dx) - l(0));
-            let x10 = l(dy) + tx * (l(dy + dx) - l(dy));
-            let x01 = l(dz) + tx * (l(dz + dx) - l(dz));
-            let x11 = l(dz + dy) + tx * (l(dz + dy + dx) - l(dz + dy));
-            let y0 = x00 + ty * (x10 - x00);
-            let y1 = x01 + ty * (x11 - x01);
-            y0 + tz * (y1 - y0)
+            let corners = [
+                l(0),
+                l(dx),
+                l(dy),
+                l(dy + dx),
+                l(dz),
+                l(dz + dx),
+                l(dz + dy),
+                l(dz + dy + dx),
+            ];
+            crate::interp::trilinear(&corners, tx, ty, tz)
         })
     }
 
@@ -498,14 +502,9 @@ mod tests {
             [-1.0, 2.0, 7.0],
             [2.5, 0.5, 1.5],
         ] {
-            let fast = vel.at(p);
-            for a in 0..3 {
+            for (a, fast) in vel.at(p).into_iter().enumerate() {
                 let slow = sample(vel.comp[a], &vel.field(a), p, Interp::Linear);
-                assert!(
-                    (fast[a] - slow).abs() < 1e-12,
-                    "{p:?} {a}: {} vs {slow}",
-                    fast[a]
-                );
+                assert!((fast - slow).abs() < 1e-12, "{p:?} {a}: {fast} vs {slow}");
             }
         }
     }
