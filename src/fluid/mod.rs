@@ -293,6 +293,8 @@ struct Diffusion {
     nbr: Vec<[u32; 6]>,
     degree: Vec<f64>,
     lid: Vec<f64>,
+    /// The faces beside a lid (`lid` not zero).
+    lid_faces: Vec<u32>,
 }
 
 /// A built fluid: the grid, its flags and settings (immutable; see the module docs).
@@ -305,6 +307,10 @@ pub struct Fluid {
     /// Per component: faces whose velocity is prescribed (zero: walls, solids) or that
     /// repeat face 0 of a periodic axis.
     fixed: [Vec<bool>; 3],
+    /// Per component, listed once at build for `sync_faces`: the fixed faces held at
+    /// zero, and the (last, first) face pairs of a periodic axis.
+    zero_faces: [Vec<u32>; 3],
+    mirror_faces: [Vec<(u32, u32)>; 3],
     /// Per source: its cells.
     source_cells: Vec<Vec<u32>>,
     /// Whether smoke density and temperature are carried.
@@ -636,11 +642,30 @@ impl FluidDesc {
             || self.buoyancy.is_some_and(|b| b.smoke != 0.0);
         let has_temperature = self.sources.iter().any(|s| s.temperature.is_some())
             || self.buoyancy.is_some_and(|b| b.heat != 0.0);
+        let per = self.boundaries.map(|b| b[0] == Boundary::Periodic);
+        let mut zero_faces: [Vec<u32>; 3] = Default::default();
+        let mut mirror_faces: [Vec<(u32, u32)>; 3] = Default::default();
+        for a in 0..dims {
+            let mut fnn = n;
+            fnn[a] += 1;
+            for (f, &fx) in fixed[a].iter().enumerate() {
+                let c = coords(fnn, f);
+                if per[a] && c[a] == n[a] {
+                    let mut c0 = c;
+                    c0[a] = 0;
+                    mirror_faces[a].push((f as u32, idx(fnn, c0) as u32));
+                } else if fx {
+                    zero_faces[a].push(f as u32);
+                }
+            }
+        }
         let mut fluid = Fluid {
             desc: self.clone(),
             dims,
             solid,
             fixed,
+            zero_faces,
+            mirror_faces,
             source_cells,
             has_density,
             has_temperature,
@@ -834,25 +859,15 @@ impl Fluid {
 
     /// Zeroes the fixed faces and copies face 0 onto the last face of periodic axes.
     fn sync_faces(&self, u: &mut [Vec<f64>; 3]) {
-        let n = self.desc.cells;
-        let per = self.periodic();
-        for a in 0..self.dims {
-            let mut fnn = n;
-            fnn[a] += 1;
-            for (f, v) in u[a].iter_mut().enumerate() {
-                if self.fixed[a][f] && !(per[a] && coords(fnn, f)[a] == n[a]) {
-                    *v = 0.0;
-                }
+        for (ua, (zero, mirror)) in u
+            .iter_mut()
+            .zip(self.zero_faces.iter().zip(&self.mirror_faces))
+        {
+            for &f in zero {
+                ua[f as usize] = 0.0;
             }
-            if per[a] {
-                for f in 0..u[a].len() {
-                    let c = coords(fnn, f);
-                    if c[a] == n[a] {
-                        let mut c0 = c;
-                        c0[a] = 0;
-                        u[a][f] = u[a][idx(fnn, c0)];
-                    }
-                }
+            for &(last, first) in mirror {
+                ua[last as usize] = ua[first as usize];
             }
         }
     }
@@ -888,9 +903,7 @@ impl Fluid {
                 }
             }
         }
-        let mut u = std::mem::take(&mut s.u);
-        self.sync_faces(&mut u);
-        s.u = u;
+        self.sync_faces(&mut s.u);
     }
 
     /// The viscosity operator of component `a` (module docs, step 4).
@@ -900,6 +913,7 @@ impl Fluid {
                 nbr: Vec::new(),
                 degree: Vec::new(),
                 lid: Vec::new(),
+                lid_faces: Vec::new(),
             };
         }
         let n = self.desc.cells;
@@ -957,7 +971,15 @@ impl Fluid {
                 }
             }
         }
-        Diffusion { nbr, degree, lid }
+        let lid_faces = (0..faces as u32)
+            .filter(|&f| lid[f as usize] != 0.0)
+            .collect();
+        Diffusion {
+            nbr,
+            degree,
+            lid,
+            lid_faces,
+        }
     }
 
     /// The largest speed on any face (m/s).
@@ -1027,9 +1049,7 @@ impl Fluid {
                         })?;
                     info.viscosity_iterations += it;
                 }
-                let mut u = std::mem::take(&mut s.u);
-                self.sync_faces(&mut u);
-                s.u = u;
+                self.sync_faces(&mut s.u);
                 s.external_work += h * self.lid_power(s);
                 info.solve_seconds += t.elapsed().as_secs_f64();
             }
@@ -1112,9 +1132,7 @@ impl Fluid {
         for a in 0..self.dims {
             std::mem::swap(&mut s.u[a], &mut w.next[a]);
         }
-        let mut u = std::mem::take(&mut s.u);
-        self.sync_faces(&mut u);
-        s.u = u;
+        self.sync_faces(&mut s.u);
     }
 
     /// The cell-centred velocity at cell `q` (the average of its two faces per axis).
@@ -1146,9 +1164,7 @@ impl Fluid {
             }
         }
         if d.buoyancy.is_none() && d.vorticity == 0.0 {
-            let mut u = std::mem::take(&mut s.u);
-            self.sync_faces(&mut u);
-            s.u = u;
+            self.sync_faces(&mut s.u);
             return;
         }
         for f in w.force.iter_mut().take(self.dims) {
@@ -1175,66 +1191,23 @@ impl Fluid {
             }
         }
         if d.vorticity > 0.0 {
-            // Vorticity at cell centres from central differences of the centred velocity
-            // (one-sided at the domain's edge; wrapped along periodic axes).
-            let per = self.periodic();
-            let at = |q: [usize; 3], a: usize, dir: isize| -> Option<[usize; 3]> {
-                let v = q[a] as isize + dir;
-                let mut r = q;
-                if v >= 0 && (v as usize) < n[a] {
-                    r[a] = v as usize;
-                    Some(r)
-                } else if per[a] {
-                    r[a] = v.rem_euclid(n[a] as isize) as usize;
-                    Some(r)
-                } else {
-                    None
-                }
-            };
-            let deriv = |g: &dyn Fn([usize; 3]) -> [f64; 3], q: [usize; 3], a: usize| {
-                let lo = at(q, a, -1);
-                let hi = at(q, a, 1);
-                let (l, hq, span) = match (lo, hi) {
-                    (Some(l), Some(hq)) => (l, hq, 2.0),
-                    (None, Some(hq)) => (q, hq, 1.0),
-                    (Some(l), None) => (l, q, 1.0),
-                    (None, None) => return [0.0; 3],
-                };
-                let (vl, vh) = (g(l), g(hq));
-                std::array::from_fn(|k| (vh[k] - vl[k]) / (span * d.h))
-            };
-            let cv = |q: [usize; 3]| self.center_velocity(&s.u, q);
-            // w = curl u per cell, stored in scalar_tmp (3 components).
+            // The centred velocity, once, into `next` (free after advection; as long as
+            // the cells or longer), then w = curl u per cell in scalar_tmp.
+            let [n0, n1, n2] = &mut w.next;
+            let cv2 = &mut n2[..cv2_len(self.dims, cells)];
+            self.center_velocities(&s.u, [&mut n0[..cells], &mut n1[..cells], cv2]);
             let [wx, wy, wz] = &mut w.scalar_tmp;
-            for c in 0..cells {
-                let q = coords(n, c);
-                let dx = deriv(&cv, q, 0);
-                let dy = deriv(&cv, q, 1);
-                let dz = if self.dims == 3 {
-                    deriv(&cv, q, 2)
-                } else {
-                    [0.0; 3]
-                };
-                wx[c] = dy[2] - dz[1];
-                wy[c] = dz[0] - dx[2];
-                wz[c] = dx[1] - dy[0];
-            }
+            self.curl(
+                [&n0[..cells], &n1[..cells], &n2[..cv2_len(self.dims, cells)]],
+                [wx, wy, wz],
+            );
             let mag = |q: [usize; 3]| {
                 let c = idx(n, q);
-                let m = (wx[c] * wx[c] + wy[c] * wy[c] + wz[c] * wz[c]).sqrt();
-                [m, 0.0, 0.0]
+                (wx[c] * wx[c] + wy[c] * wy[c] + wz[c] * wz[c]).sqrt()
             };
             for c in 0..cells {
                 let q = coords(n, c);
-                let g = [
-                    deriv(&mag, q, 0)[0],
-                    deriv(&mag, q, 1)[0],
-                    if self.dims == 3 {
-                        deriv(&mag, q, 2)[0]
-                    } else {
-                        0.0
-                    },
-                ];
+                let g: [f64; 3] = std::array::from_fn(|a| self.diff(q, a, &mag));
                 let len = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
                 if len < 1e-12 {
                     continue;
@@ -1291,9 +1264,7 @@ impl Fluid {
                 *v += dt * force;
             }
         }
-        let mut u = std::mem::take(&mut s.u);
-        self.sync_faces(&mut u);
-        s.u = u;
+        self.sync_faces(&mut s.u);
     }
 
     /// Step 4 for component `a`: `(I - nu dt lap) u = u*` by Jacobi-preconditioned CG
@@ -1491,24 +1462,16 @@ impl Fluid {
     /// solve.
     fn lid_power(&self, s: &FluidState) -> f64 {
         let d = &self.desc;
-        let n = d.cells;
+        let Some(diff) = &self.diffusion else {
+            return 0.0;
+        };
         let mut p = 0.0;
-        for (b, sides) in d.boundaries.iter().enumerate().take(self.dims) {
-            for (side, bd) in sides.iter().enumerate() {
-                let Boundary::Lid(v) = bd else { continue };
-                for a in (0..self.dims).filter(|&a| a != b) {
-                    let mut fnn = n;
-                    fnn[a] += 1;
-                    for f in 0..s.u[a].len() {
-                        let c = coords(fnn, f);
-                        let edge = if side == 0 { 0 } else { n[b] - 1 };
-                        if c[b] != edge || self.fixed[a][f] {
-                            continue;
-                        }
-                        let shear = d.density * d.viscosity * (v[a] - s.u[a][f]) * 2.0 / d.h;
-                        p += shear * d.h * d.h * v[a];
-                    }
-                }
+        for (df, u) in diff.iter().zip(&s.u).take(self.dims) {
+            // `lid[f]` is 2 U summed over the face's lid ghosts: the shear force of one
+            // lid is rho nu (2 U - 2 u) / h on the face's area h^2, its power that times U.
+            for &f in &df.lid_faces {
+                let (two_u, uf) = (df.lid[f as usize], u[f as usize]);
+                p += d.density * d.viscosity * (two_u - 2.0 * uf) * d.h * 0.5 * two_u;
             }
         }
         p
@@ -1518,67 +1481,100 @@ impl Fluid {
     pub fn cell_velocity(&self, s: &FluidState) -> Vec<f64> {
         let cells = self.desc.cell_count();
         let mut out = vec![0.0; 3 * cells];
-        for c in 0..cells {
-            let v = self.center_velocity(&s.u, coords(self.desc.cells, c));
-            for a in 0..3 {
-                out[a * cells + c] = v[a];
+        let (x, rest) = out.split_at_mut(cells);
+        let (y, z) = rest.split_at_mut(cells);
+        self.center_velocities(&s.u, [x, y, z]);
+        out
+    }
+
+    /// The velocity at every cell centre into `out` (one slice per component; the z one
+    /// may be empty in 2-D).
+    fn center_velocities(&self, u: &[Vec<f64>; 3], out: [&mut [f64]; 3]) {
+        let n = self.desc.cells;
+        let [x, y, z] = out;
+        for c in 0..x.len() {
+            let v = self.center_velocity(u, coords(n, c));
+            x[c] = v[0];
+            y[c] = v[1];
+            if let Some(zc) = z.get_mut(c) {
+                *zc = v[2];
             }
         }
-        out
+    }
+
+    /// The derivative along axis `a` at cell `q` of the cell field `get` (1/m times its
+    /// unit): central differences, one-sided at the domain's edge, wrapped along periodic
+    /// axes; zero along an axis of one cell.
+    fn diff(&self, q: [usize; 3], a: usize, get: &dyn Fn([usize; 3]) -> f64) -> f64 {
+        let n = self.desc.cells;
+        if n[a] < 2 {
+            return 0.0;
+        }
+        let per = self.periodic()[a];
+        let (mut lo, mut hi) = (q, q);
+        let mut span = 0.0;
+        if q[a] > 0 {
+            lo[a] -= 1;
+            span += 1.0;
+        } else if per {
+            lo[a] = n[a] - 1;
+            span += 1.0;
+        }
+        if q[a] + 1 < n[a] {
+            hi[a] += 1;
+            span += 1.0;
+        } else if per {
+            hi[a] = 0;
+            span += 1.0;
+        }
+        (get(hi) - get(lo)) / (span * self.desc.h)
+    }
+
+    /// `w = curl u` at cell centres (1/s), from [`Fluid::diff`] of the centred velocity
+    /// `cv` (the z component unread in 2-D, where only w's z component is non-zero).
+    fn curl(&self, cv: [&[f64]; 3], w: [&mut [f64]; 3]) {
+        let n = self.desc.cells;
+        let [wx, wy, wz] = w;
+        let comp = |k: usize| move |q: [usize; 3]| cv[k][idx(n, q)];
+        let d = |q: [usize; 3], k: usize, a: usize| self.diff(q, a, &comp(k));
+        for c in 0..wx.len() {
+            let q = coords(n, c);
+            wz[c] = d(q, 1, 0) - d(q, 0, 1);
+            if self.dims == 3 {
+                wx[c] = d(q, 2, 1) - d(q, 1, 2);
+                wy[c] = d(q, 0, 2) - d(q, 2, 0);
+            } else {
+                wx[c] = 0.0;
+                wy[c] = 0.0;
+            }
+        }
     }
 
     /// The vorticity at cell centres (1/s): the z component in 2-D, the magnitude in
     /// 3-D.
     pub fn vorticity(&self, s: &FluidState) -> Vec<f64> {
-        let n = self.desc.cells;
         let cells = self.desc.cell_count();
         let cv = self.cell_velocity(s);
-        let per = self.periodic();
-        let h = self.desc.h;
-        let d = |c: usize, comp: usize, a: usize| -> f64 {
-            let q = coords(n, c);
-            let get = |q: [usize; 3]| cv[comp * cells + idx(n, q)];
-            let (lo, hi, span) = {
-                let mut l = q;
-                let mut r = q;
-                let lo_ok = if q[a] > 0 {
-                    l[a] -= 1;
-                    true
-                } else if per[a] {
-                    l[a] = n[a] - 1;
-                    true
-                } else {
-                    false
-                };
-                let hi_ok = if q[a] + 1 < n[a] {
-                    r[a] += 1;
-                    true
-                } else if per[a] {
-                    r[a] = 0;
-                    true
-                } else {
-                    false
-                };
-                let span = usize::from(lo_ok) + usize::from(hi_ok);
-                (l, r, span.max(1) as f64)
-            };
-            if n[a] == 1 {
-                return 0.0;
-            }
-            (get(hi) - get(lo)) / (span * h)
-        };
+        let mut w: [Vec<f64>; 3] = std::array::from_fn(|_| vec![0.0; cells]);
+        let [wx, wy, wz] = &mut w;
+        let (x, rest) = cv.split_at(cells);
+        let (y, z) = rest.split_at(cells);
+        self.curl([x, y, z], [wx, wy, wz]);
+        if self.dims == 2 {
+            return std::mem::take(wz);
+        }
         (0..cells)
-            .map(|c| {
-                let wz = d(c, 1, 0) - d(c, 0, 1);
-                if self.dims == 2 {
-                    wz
-                } else {
-                    let wx = d(c, 2, 1) - d(c, 1, 2);
-                    let wy = d(c, 0, 2) - d(c, 2, 0);
-                    (wx * wx + wy * wy + wz * wz).sqrt()
-                }
-            })
+            .map(|c| (wx[c] * wx[c] + wy[c] * wy[c] + wz[c] * wz[c]).sqrt())
             .collect()
+    }
+}
+
+/// Cells of the centred velocity's z component: none in 2-D.
+fn cv2_len(dims: usize, cells: usize) -> usize {
+    if dims == 3 {
+        cells
+    } else {
+        0
     }
 }
 
