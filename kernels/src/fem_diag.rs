@@ -164,7 +164,7 @@ const SWEEPS: usize = 4;
 /// `[s00, s01, s02, s11, s12, s22]` by `SWEEPS` cyclic Jacobi sweeps (Golub and Van Loan,
 /// algorithm 8.4.3); q is a rotation.
 #[inline(always)]
-fn sym_eig3<R: Lane>(s: [R; 6]) -> ([R; 3], [R; 9]) {
+pub fn sym_eig3<R: Lane>(s: [R; 6]) -> ([R; 3], [R; 9]) {
     let (zero, one) = (R::splat(0.0), R::splat(1.0));
     // a[i][j] symmetric, kept as a full 3x3 for index clarity; q = I.
     let mut a = [s[0], s[1], s[2], s[1], s[3], s[4], s[2], s[4], s[5]];

@@ -17,6 +17,7 @@
 //!   never by the number of threads, so their results are bitwise independent of it.
 
 pub mod cloth;
+pub mod collide;
 pub mod fem;
 pub mod fem_diag;
 pub mod fluid;
