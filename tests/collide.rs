@@ -4,6 +4,7 @@
 
 use largestep::kernels::collide::bv::{Aabb, Obb, Sphere};
 use largestep::kernels::collide::bvh::{Bvh, PairWork, Updated};
+use largestep::kernels::collide::grid::{CellGrid, Cells, SweepAndPrune};
 use proptest::prelude::*;
 
 /// Boxes on a coarse integer lattice (scaled), so touching faces, zero-size boxes and
@@ -282,6 +283,108 @@ proptest! {
             let near = unit.distance_squared(o.center).sqrt() <= o.half.iter().map(|h| h * h).sum::<f64>().sqrt() + 1e-9;
             prop_assert!(corner_in || near);
         }
+    }
+}
+
+/// The cell maps under test: a dense grid over the unit box (points outside clamp to
+/// its border cells), a hash table large enough, and one so small that most cells collide.
+fn maps() -> [Cells; 3] {
+    [
+        Cells::Dense { origin: [0.0; 3], dims: [5, 4, 6] },
+        Cells::Hashed { buckets: 1009 },
+        Cells::Hashed { buckets: 3 },
+    ]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+
+    #[test]
+    fn grids_find_exactly_the_close_points(
+        pts in prop::collection::vec((-0.3f64..1.3, -0.3f64..1.3, -0.3f64..1.3), 0..200),
+        r in 0f64..0.3,
+        q in (-0.5f64..1.5, -0.5f64..1.5, -0.5f64..1.5, 0f64..2.0),
+    ) {
+        let n = pts.len();
+        let mut x = vec![0.0; 3 * n];
+        for (i, p) in pts.iter().enumerate() {
+            x[i] = p.0;
+            x[n + i] = p.1;
+            x[2 * n + i] = p.2;
+        }
+        let d2 = |i: usize, j: usize| {
+            let d = [pts[i].0 - pts[j].0, pts[i].1 - pts[j].1, pts[i].2 - pts[j].2];
+            d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+        };
+        let mut want = Vec::new();
+        for i in 0..n {
+            for j in i + 1..n {
+                if d2(i, j) <= r * r {
+                    want.push([i as u32, j as u32]);
+                }
+            }
+        }
+        for cells in maps() {
+            let mut g = CellGrid::new(0.3, cells);
+            g.build_points(&x);
+            let mut got = Vec::new();
+            g.point_pairs(r, &mut got);
+            prop_assert_eq!(sorted(got), want.clone(), "{:?}", cells);
+            // A ball query of any radius (larger than a cell included).
+            let p = [q.0, q.1, q.2];
+            let (mut scratch, mut got) = (Vec::new(), Vec::new());
+            g.points_within(p, q.3, &mut scratch, &mut got);
+            got.sort_unstable();
+            let wantq: Vec<u32> = (0..n as u32)
+                .filter(|&i| {
+                    let d = [pts[i as usize].0 - p[0], pts[i as usize].1 - p[1], pts[i as usize].2 - p[2]];
+                    d[0] * d[0] + d[1] * d[1] + d[2] * d[2] <= q.3 * q.3
+                })
+                .collect();
+            prop_assert_eq!(got, wantq, "{:?}", cells);
+        }
+    }
+
+    #[test]
+    fn grids_and_sweep_find_exactly_the_overlapping_boxes(
+        boxes in lattice_boxes(150),
+        big in prop::collection::vec((0f64..3.0, 0f64..3.0, 0f64..3.0, 0f64..60.0), 0..3),
+        moves in prop::collection::vec(-0.5f64..0.5, 3),
+    ) {
+        // Lattice boxes (touching, zero-size, duplicates) plus a few huge ones that cover
+        // more cells than the small tables have buckets.
+        let mut boxes = boxes;
+        for b in big {
+            boxes.push(Aabb { min: [b.0, b.1, b.2], max: [b.0 + b.3, b.1 + 0.5 * b.3, b.2 + 0.25 * b.3] });
+        }
+        // One empty box: overlaps nothing.
+        boxes.push(Aabb::EMPTY);
+        let want = brute_self(&boxes);
+        for cells in maps() {
+            let mut g = CellGrid::new(0.5, cells);
+            g.build_boxes(&boxes);
+            let mut got = Vec::new();
+            g.box_pairs(&mut got);
+            let n = got.len();
+            let got = sorted(got);
+            prop_assert_eq!(&got, &want, "{:?}", cells);
+            prop_assert_eq!(n, want.len(), "each pair once");
+        }
+        let mut sap = SweepAndPrune::new();
+        let mut got = Vec::new();
+        sap.pairs(&boxes, &mut got);
+        prop_assert_eq!(sorted(got), want);
+        // Move every third box and sweep again from the kept order.
+        let moved: Vec<Aabb> = boxes
+            .iter()
+            .enumerate()
+            .map(|(i, b)| if i % 3 != 0 || b.is_empty() { *b } else {
+                Aabb { min: [0, 1, 2].map(|a| b.min[a] + moves[a]), max: [0, 1, 2].map(|a| b.max[a] + moves[a]) }
+            })
+            .collect();
+        let mut got = Vec::new();
+        sap.pairs(&moved, &mut got);
+        prop_assert_eq!(sorted(got), brute_self(&moved));
     }
 }
 

@@ -8,3 +8,4 @@
 
 pub mod bv;
 pub mod bvh;
+pub mod grid;

@@ -1,0 +1,424 @@
+//! Uniform grids and spatial hashing (Teschner et al. 2003, "Optimized spatial hashing
+//! for collision detection of deformable objects"), and sweep-and-prune.
+//!
+//! [`CellGrid`] files items (points or boxes) under the cells of a regular grid of cell
+//! size `h`. The cells map to buckets either densely (a uniform grid over given bounds,
+//! one bucket per cell) or by Teschner's hash `(73856093 i ^ 19349663 j ^ 83492791 k) mod
+//! T` over unbounded space. Buckets are filled by a counting sort (two passes over the
+//! items), so a rebuild allocates nothing once the arrays have grown. A bucket may hold
+//! items of other cells (hash collisions); every answer is decided on the geometry, and
+//! pair answers are reported once (see [`CellGrid::box_pairs`]).
+//!
+//! [`SweepAndPrune`] sorts boxes along one axis and sweeps, keeping the order between
+//! calls: bodies move little per step, so the insertion sort that restores the order is
+//! close to linear (Baraff 1992; Cohen et al. 1995, I-COLLIDE).
+
+use super::bv::Aabb;
+
+/// How cells map to buckets.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Cells {
+    /// A dense uniform grid: `dims` cells from `origin`; points outside clamp to the
+    /// border cells.
+    Dense {
+        /// Lower corner (m).
+        origin: [f64; 3],
+        /// Cells per axis (each >= 1).
+        dims: [u32; 3],
+    },
+    /// Spatial hashing into `buckets` buckets (>= 1; Teschner et al. take a prime about
+    /// the item count).
+    Hashed {
+        /// Table size.
+        buckets: u32,
+    },
+}
+
+/// Items filed under grid cells (see the module docs).
+#[derive(Clone, Debug)]
+pub struct CellGrid {
+    /// Cell size (m), > 0.
+    pub h: f64,
+    /// The cell-to-bucket map.
+    pub cells: Cells,
+    /// `start[b]..start[b + 1]` indexes `items` for bucket b.
+    start: Vec<u32>,
+    /// Item ids by bucket.
+    items: Vec<u32>,
+    /// Boxes filed (for box queries), by item id.
+    boxes: Vec<Aabb>,
+    /// Boxes covering more cells than there are buckets (hashing only): not filed, tested
+    /// against every box instead, so no box costs more than the table.
+    large: Vec<u32>,
+    /// Item positions (for point queries), by item id, `[x, y, z]`.
+    points: Vec<[f64; 3]>,
+}
+
+impl CellGrid {
+    /// An empty grid with cell size `h` (> 0) and the given cell map.
+    pub fn new(h: f64, cells: Cells) -> CellGrid {
+        CellGrid {
+            h,
+            cells,
+            start: Vec::new(),
+            items: Vec::new(),
+            boxes: Vec::new(),
+            large: Vec::new(),
+            points: Vec::new(),
+        }
+    }
+
+    fn bucket_count(&self) -> usize {
+        match self.cells {
+            Cells::Dense { dims, .. } => dims.iter().map(|&d| d as usize).product(),
+            Cells::Hashed { buckets } => buckets as usize,
+        }
+    }
+
+    /// The integer cell of `p` (unclamped; saturating at the `i32` range).
+    #[inline(always)]
+    pub fn cell(&self, p: [f64; 3]) -> [i32; 3] {
+        let o = match self.cells {
+            Cells::Dense { origin, .. } => origin,
+            Cells::Hashed { .. } => [0.0; 3],
+        };
+        [0, 1, 2].map(|a| ((p[a] - o[a]) / self.h).floor() as i32)
+    }
+
+    /// The bucket of cell `c`.
+    #[inline(always)]
+    pub fn bucket(&self, c: [i32; 3]) -> usize {
+        bucket_in(self.cells, c)
+    }
+
+    /// The cell range `[lo, hi]` a box covers, clamped for a dense grid (so a box far
+    /// outside still visits a bounded number of cells).
+    fn cell_range(&self, b: &Aabb) -> ([i32; 3], [i32; 3]) {
+        let (mut lo, mut hi) = (self.cell(b.min), self.cell(b.max));
+        if let Cells::Dense { dims, .. } = self.cells {
+            for a in 0..3 {
+                lo[a] = lo[a].clamp(0, dims[a] as i32 - 1);
+                hi[a] = hi[a].clamp(0, dims[a] as i32 - 1);
+            }
+        }
+        (lo, hi)
+    }
+
+    /// Files points (component-major `x`, `3n` values): item i is point i.
+    pub fn build_points(&mut self, x: &[f64]) {
+        let n = x.len() / 3;
+        assert_eq!(x.len(), 3 * n, "component-major points have length 3n");
+        self.points.clear();
+        self.points.extend((0..n).map(|i| [x[i], x[n + i], x[2 * n + i]]));
+        self.boxes.clear();
+        let buckets = self.bucket_count();
+        self.start.clear();
+        self.start.resize(buckets + 1, 0);
+        for p in &self.points {
+            let b = self.bucket(self.cell(*p));
+            self.start[b + 1] += 1;
+        }
+        for b in 0..buckets {
+            self.start[b + 1] += self.start[b];
+        }
+        self.items.clear();
+        self.items.resize(n, 0);
+        // Fill from the back of each bucket so item ids stay ascending within it.
+        for i in (0..n).rev() {
+            let b = self.bucket(self.cell(self.points[i]));
+            self.start[b + 1] -= 1;
+            self.items[self.start[b + 1] as usize] = i as u32;
+        }
+        // `start[b + 1]` now holds bucket b's start: shift back.
+        self.start.rotate_left(1);
+        self.start[buckets] = n as u32;
+    }
+
+    /// Appends to `out` every point within `r` (m) of `p` (closed ball), each once, in
+    /// bucket order. Scans the cells within `r` (`r` up to a cell size is the usual case);
+    /// `buckets` is scratch, where the buckets of those cells are sorted so that a bucket
+    /// reached from two cells (a hash collision, or clamping) is scanned once.
+    pub fn points_within(&self, p: [f64; 3], r: f64, buckets: &mut Vec<u32>, out: &mut Vec<u32>) {
+        if self.points.is_empty() || !(r >= 0.0) {
+            return;
+        }
+        let (lo, hi) = self.cell_range(&Aabb { min: p.map(|c| c - r), max: p.map(|c| c + r) });
+        buckets.clear();
+        if cell_count(lo, hi) > self.bucket_count() as f64 {
+            // More cells than buckets: every bucket, once.
+            buckets.extend(0..self.bucket_count() as u32);
+        } else {
+            for_cells(lo, hi, |c| buckets.push(self.bucket(c) as u32));
+            buckets.sort_unstable();
+            buckets.dedup();
+        }
+        let r2 = r * r;
+        for &b in buckets.iter() {
+            let b = b as usize;
+            for &id in &self.items[self.start[b] as usize..self.start[b + 1] as usize] {
+                let q = self.points[id as usize];
+                let d = [q[0] - p[0], q[1] - p[1], q[2] - p[2]];
+                if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] <= r2 {
+                    out.push(id);
+                }
+            }
+        }
+    }
+
+    /// Every pair of filed points within `r` (m) of each other, `[i, j]` with `i < j`,
+    /// into `out` (cleared first). `r` must not exceed the cell size `h` (the scan covers
+    /// the 27 cells around each point); panics otherwise.
+    pub fn point_pairs(&self, r: f64, out: &mut Vec<[u32; 2]>) {
+        assert!(r <= self.h, "point_pairs scans neighbouring cells only: r <= h");
+        out.clear();
+        let r2 = r * r;
+        let mut buckets = [0usize; 27];
+        for (i, p) in self.points.iter().enumerate() {
+            let c = self.cell(*p);
+            let mut nb = 0;
+            for dk in -1..=1 {
+                for dj in -1..=1 {
+                    for di in -1..=1 {
+                        buckets[nb] = self.bucket([c[0] + di, c[1] + dj, c[2] + dk]);
+                        nb += 1;
+                    }
+                }
+            }
+            let bs = &mut buckets[..nb];
+            bs.sort_unstable();
+            let mut prev = usize::MAX;
+            for &b in bs.iter() {
+                if b == prev {
+                    continue;
+                }
+                prev = b;
+                for &j in &self.items[self.start[b] as usize..self.start[b + 1] as usize] {
+                    if (j as usize) <= i {
+                        continue;
+                    }
+                    let q = self.points[j as usize];
+                    let d = [q[0] - p[0], q[1] - p[1], q[2] - p[2]];
+                    if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] <= r2 {
+                        out.push([i as u32, j]);
+                    }
+                }
+            }
+        }
+    }
+
+    /// Files boxes: item i is `boxes[i]`, filed under every cell it overlaps. Empty boxes
+    /// are not filed.
+    pub fn build_boxes(&mut self, boxes: &[Aabb]) {
+        self.boxes.clear();
+        self.boxes.extend_from_slice(boxes);
+        self.points.clear();
+        self.large.clear();
+        let buckets = self.bucket_count();
+        for (i, b) in boxes.iter().enumerate() {
+            if !b.is_empty() && self.is_large(b) {
+                self.large.push(i as u32);
+            }
+        }
+        self.start.clear();
+        self.start.resize(buckets + 1, 0);
+        let mut total = 0usize;
+        let cells = self.cells;
+        let filed = |i: usize, b: &Aabb, large: &[u32]| {
+            !b.is_empty() && large.binary_search(&(i as u32)).is_err()
+        };
+        for (i, b) in boxes.iter().enumerate() {
+            if !filed(i, b, &self.large) {
+                continue;
+            }
+            let (lo, hi) = self.cell_range(b);
+            for_cells(lo, hi, |c| {
+                self.start[bucket_in(cells, c) + 1] += 1;
+                total += 1;
+            });
+        }
+        for b in 0..buckets {
+            self.start[b + 1] += self.start[b];
+        }
+        self.items.clear();
+        self.items.resize(total, 0);
+        for (i, b) in boxes.iter().enumerate().rev() {
+            if !filed(i, b, &self.large) {
+                continue;
+            }
+            let (lo, hi) = self.cell_range(b);
+            for_cells(lo, hi, |c| {
+                let bk = bucket_in(cells, c);
+                self.start[bk + 1] -= 1;
+                self.items[self.start[bk + 1] as usize] = i as u32;
+            });
+        }
+        self.start.rotate_left(1);
+        self.start[buckets] = total as u32;
+    }
+
+    /// Whether a box covers more cells than there are buckets (never, on a dense grid,
+    /// whose ranges are clamped).
+    fn is_large(&self, b: &Aabb) -> bool {
+        let (lo, hi) = self.cell_range(b);
+        matches!(self.cells, Cells::Hashed { .. }) && cell_count(lo, hi) > self.bucket_count() as f64
+    }
+
+    /// Every pair of filed boxes that overlap (touching counts), `[i, j]` with `i < j`,
+    /// into `out` (cleared first). A pair sharing several cells is reported in one: the
+    /// cell holding the lower corner of the two boxes' intersection (clamped into the
+    /// grid when dense). Large boxes (see `build_boxes`) are tested against every box.
+    pub fn box_pairs(&self, out: &mut Vec<[u32; 2]>) {
+        out.clear();
+        for (i, bi) in self.boxes.iter().enumerate() {
+            if bi.is_empty() || self.large.binary_search(&(i as u32)).is_ok() {
+                continue;
+            }
+            let (lo, hi) = self.cell_range(bi);
+            for_cells(lo, hi, |c| {
+                let b = self.bucket(c);
+                // A box filed under several cells of one bucket appears that many times,
+                // adjacently (ids ascend within a bucket): once is enough.
+                let mut prev = u32::MAX;
+                for &j in &self.items[self.start[b] as usize..self.start[b + 1] as usize] {
+                    if (j as usize) <= i || j == prev {
+                        continue;
+                    }
+                    prev = j;
+                    let bj = &self.boxes[j as usize];
+                    if !bi.overlaps(bj) {
+                        continue;
+                    }
+                    let corner = [0, 1, 2].map(|a| bi.min[a].max(bj.min[a]));
+                    let (home, _) = self.cell_range(&Aabb::point(corner));
+                    if home == c {
+                        out.push([i as u32, j]);
+                    }
+                }
+            });
+        }
+        for &l in &self.large {
+            let bl = &self.boxes[l as usize];
+            for (j, bj) in self.boxes.iter().enumerate() {
+                let j = j as u32;
+                // A pair of two large boxes once, from the smaller id.
+                let both_large = self.large.binary_search(&j).is_ok();
+                if j != l && !(both_large && j < l) && bl.overlaps(bj) {
+                    out.push([l.min(j), l.max(j)]);
+                }
+            }
+        }
+    }
+}
+
+/// Number of cells in the inclusive range `[lo, hi]` (as `f64`: it may exceed `u64`).
+fn cell_count(lo: [i32; 3], hi: [i32; 3]) -> f64 {
+    (0..3).map(|a| (hi[a] as f64 - lo[a] as f64 + 1.0).max(0.0)).product()
+}
+
+/// The bucket of cell `c` under the map `cells`: clamped dense index, or Teschner's hash.
+#[inline(always)]
+fn bucket_in(cells: Cells, c: [i32; 3]) -> usize {
+    match cells {
+        Cells::Dense { dims, .. } => {
+            let k = |a: usize| c[a].clamp(0, dims[a] as i32 - 1) as usize;
+            k(0) + dims[0] as usize * (k(1) + dims[1] as usize * k(2))
+        }
+        Cells::Hashed { buckets } => {
+            let h = (c[0] as u32).wrapping_mul(73_856_093)
+                ^ (c[1] as u32).wrapping_mul(19_349_663)
+                ^ (c[2] as u32).wrapping_mul(83_492_791);
+            (h % buckets) as usize
+        }
+    }
+}
+
+/// Calls `f` on every cell of the inclusive range `[lo, hi]`.
+#[inline(always)]
+fn for_cells(lo: [i32; 3], hi: [i32; 3], mut f: impl FnMut([i32; 3])) {
+    for k in lo[2]..=hi[2] {
+        for j in lo[1]..=hi[1] {
+            for i in lo[0]..=hi[0] {
+                f([i, j, k]);
+            }
+        }
+    }
+}
+
+/// Sweep-and-prune over boxes, keeping the sorted order between calls (see the module
+/// docs).
+#[derive(Clone, Debug, Default)]
+pub struct SweepAndPrune {
+    /// Box ids sorted by their lower bound on `axis`.
+    order: Vec<u32>,
+    /// The sweep axis of the last call.
+    axis: usize,
+    active: Vec<u32>,
+}
+
+impl SweepAndPrune {
+    /// An empty sweep.
+    pub fn new() -> SweepAndPrune {
+        SweepAndPrune::default()
+    }
+
+    /// Every pair of overlapping boxes (touching counts), `[i, j]` with `i < j`, into
+    /// `out` (cleared first). Sweeps the axis along which the box centres spread most;
+    /// the order from the last call is restored by insertion sort (a new count or axis
+    /// starts from the identity order). Empty boxes overlap nothing.
+    pub fn pairs(&mut self, boxes: &[Aabb], out: &mut Vec<[u32; 2]>) {
+        out.clear();
+        let n = boxes.len();
+        let axis = spread_axis(boxes);
+        if self.order.len() != n || axis != self.axis {
+            self.order.clear();
+            self.order.extend(0..n as u32);
+            self.axis = axis;
+        }
+        let key = |i: u32| boxes[i as usize].min[axis];
+        // Insertion sort: linear when nearly sorted. `total_cmp` orders NaN last.
+        for s in 1..n {
+            let v = self.order[s];
+            let kv = key(v);
+            let mut t = s;
+            while t > 0 && key(self.order[t - 1]).total_cmp(&kv).is_gt() {
+                self.order[t] = self.order[t - 1];
+                t -= 1;
+            }
+            self.order[t] = v;
+        }
+        // Sweep: the active list holds boxes whose upper bound is not yet passed.
+        self.active.clear();
+        for &i in &self.order {
+            let bi = &boxes[i as usize];
+            if bi.is_empty() {
+                continue;
+            }
+            let lo = bi.min[axis];
+            self.active.retain(|&j| boxes[j as usize].max[axis] >= lo);
+            for &j in &self.active {
+                if bi.overlaps(&boxes[j as usize]) {
+                    out.push([i.min(j), i.max(j)]);
+                }
+            }
+            self.active.push(i);
+        }
+    }
+}
+
+/// The axis with the largest variance of box centres (0 for fewer than two boxes).
+fn spread_axis(boxes: &[Aabb]) -> usize {
+    let n = boxes.len() as f64;
+    if boxes.len() < 2 {
+        return 0;
+    }
+    let (mut s, mut s2) = ([0.0; 3], [0.0; 3]);
+    for b in boxes.iter().filter(|b| !b.is_empty()) {
+        let c = b.center();
+        for a in 0..3 {
+            s[a] += c[a];
+            s2[a] += c[a] * c[a];
+        }
+    }
+    let var = [0, 1, 2].map(|a| s2[a] / n - (s[a] / n) * (s[a] / n));
+    (0..3).fold(0, |best, a| if var[a] > var[best] { a } else { best })
+}
