@@ -290,7 +290,10 @@ proptest! {
 /// its border cells), a hash table large enough, and one so small that most cells collide.
 fn maps() -> [Cells; 3] {
     [
-        Cells::Dense { origin: [0.0; 3], dims: [5, 4, 6] },
+        Cells::Dense {
+            origin: [0.0; 3],
+            dims: [5, 4, 6],
+        },
         Cells::Hashed { buckets: 1009 },
         Cells::Hashed { buckets: 3 },
     ]
@@ -490,4 +493,460 @@ fn empty_and_single_trees() {
     assert_eq!(pairs, vec![[0, 0]]);
     empty.pairs_with(&one, &mut work, &mut pairs);
     assert!(pairs.is_empty());
+}
+
+mod distance_fields {
+    use super::*;
+    use largestep::collide::{check_closed, winding_numbers, SdfGrid, EXACT_BAND};
+    use largestep::io::Mesh;
+    use largestep::kernels::collide::prox::{closest_on_triangle, norm2};
+    use largestep::kernels::collide::sdf::{union_distance_grad, Shape};
+    use largestep::kernels::interp::sample3_grad;
+
+    fn shapes() -> Vec<Shape> {
+        let n = {
+            let v = [0.3f64, -0.5, 0.8];
+            let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            v.map(|c| c / l)
+        };
+        vec![
+            Shape::Plane {
+                normal: n,
+                offset: 0.2,
+            },
+            Shape::Sphere {
+                center: [0.1, 0.2, -0.3],
+                radius: 0.7,
+            },
+            Shape::Box {
+                center: [0.2, -0.1, 0.0],
+                half: [0.5, 0.3, 0.8],
+            },
+            Shape::Capsule {
+                a: [-0.5, 0.0, 0.1],
+                b: [0.4, 0.3, -0.2],
+                radius: 0.25,
+            },
+            Shape::Torus {
+                center: [0.0, 0.1, 0.0],
+                axis: n,
+                major: 0.6,
+                minor: 0.2,
+            },
+        ]
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(256))]
+
+        /// Exact distance functions: unit gradient off the medial axis (by central
+        /// differences), and the foot `p - phi grad` lies on the surface (phi = 0 there)
+        /// at distance |phi|: together with 1-Lipschitz, phi is the distance.
+        #[test]
+        fn analytic_distances_are_exact(p in (-1.5f64..1.5, -1.5f64..1.5, -1.5f64..1.5), q in (-1.5f64..1.5, -1.5f64..1.5, -1.5f64..1.5)) {
+            let (p, q) = ([p.0, p.1, p.2], [q.0, q.1, q.2]);
+            for s in shapes() {
+                let (d, g) = s.distance_grad(p);
+                let e = 1e-6;
+                let fd: [f64; 3] = std::array::from_fn(|a| {
+                    let (mut hi, mut lo) = (p, p);
+                    hi[a] += e;
+                    lo[a] -= e;
+                    (s.distance(hi) - s.distance(lo)) / (2.0 * e)
+                });
+                let gn = norm2(g).sqrt();
+                let fdn = norm2(fd).sqrt();
+                // Off the medial axis the difference quotient is the gradient, a unit
+                // vector; on it (a kink) the quotient's length drops below 1.
+                if (fdn - 1.0).abs() < 1e-4 {
+                    prop_assert!((gn - 1.0).abs() < 1e-9, "{:?}: |grad| = {}", s, gn);
+                    prop_assert!(norm2([g[0] - fd[0], g[1] - fd[1], g[2] - fd[2]]).sqrt() < 1e-4, "{:?}", s);
+                }
+                if gn > 0.5 {
+                    let foot = [p[0] - d * g[0], p[1] - d * g[1], p[2] - d * g[2]];
+                    prop_assert!(s.distance(foot).abs() < 1e-9, "{:?}: phi(foot) = {}", s, s.distance(foot));
+                }
+                // 1-Lipschitz.
+                let pq = norm2([p[0] - q[0], p[1] - q[1], p[2] - q[2]]).sqrt();
+                prop_assert!((s.distance(p) - s.distance(q)).abs() <= pq * (1.0 + 1e-12) + 1e-12, "{:?}", s);
+            }
+            // A union is exact outside all parts: the least distance.
+            let all = shapes();
+            let (du, _) = union_distance_grad(&all[1..], p);
+            let least = all[1..].iter().map(|s| s.distance(p)).fold(f64::INFINITY, f64::min);
+            prop_assert_eq!(du, least);
+        }
+    }
+
+    #[test]
+    fn analytic_values_at_known_points() {
+        let b = Shape::Box {
+            center: [0.0; 3],
+            half: [1.0, 2.0, 3.0],
+        };
+        assert_eq!(b.distance([2.0, 0.0, 0.0]), 1.0);
+        assert_eq!(b.distance([2.0, 3.0, 0.0]), 2f64.sqrt());
+        assert_eq!(b.distance([0.0, 0.0, 0.0]), -1.0);
+        assert_eq!(b.distance([0.5, 1.9, 0.0]), 1.9 - 2.0);
+        let t = Shape::Torus {
+            center: [0.0; 3],
+            axis: [0.0, 0.0, 1.0],
+            major: 2.0,
+            minor: 0.5,
+        };
+        assert_eq!(t.distance([2.0, 0.0, 0.0]), -0.5);
+        assert_eq!(t.distance([0.0, 0.0, 0.0]), 1.5);
+        assert_eq!(t.distance([0.0, 3.0, 0.0]), 0.5);
+        // On the axis every point of the core circle is nearest.
+        assert_eq!(t.distance([0.0, 0.0, 1.5]), (4.0f64 + 2.25).sqrt() - 0.5);
+        let c = Shape::Capsule {
+            a: [0.0; 3],
+            b: [0.0, 0.0, 2.0],
+            radius: 1.0,
+        };
+        assert_eq!(c.distance([0.0, 3.0, 1.0]), 2.0);
+        assert_eq!(c.distance([0.0, 0.0, -2.0]), 1.0);
+    }
+
+    /// Exact distance from `p` to the surface, by brute force.
+    fn brute_distance(m: &Mesh, p: [f64; 3]) -> f64 {
+        let r = m.as_ref();
+        m.triangles
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|v| r.vertex(v as usize));
+                let (q, _) = closest_on_triangle(p, a, b, c);
+                norm2([p[0] - q[0], p[1] - q[1], p[2] - q[2]]).sqrt()
+            })
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    /// Checks a sampled field against brute force: band nodes exact, others within
+    /// `far_tol` h above the true distance (never below), signs from `inside`.
+    fn check_field(
+        m: &Mesh,
+        h: f64,
+        far_tol: f64,
+        inside: impl Fn([f64; 3]) -> Option<bool>,
+    ) -> (f64, f64) {
+        let sdf = SdfGrid::from_mesh(m, h, 3, 1 << 22).unwrap();
+        let g = sdf.grid;
+        let (mut worst_band, mut worst_far) = (0.0f64, 0.0f64);
+        for k in 0..g.n[2] {
+            for j in 0..g.n[1] {
+                for i in 0..g.n[0] {
+                    let p = [
+                        g.origin[0] + i as f64 * h,
+                        g.origin[1] + j as f64 * h,
+                        g.origin[2] + k as f64 * h,
+                    ];
+                    let phi = sdf.phi[i + g.n[0] * (j + g.n[1] * k)];
+                    let d = brute_distance(m, p);
+                    let err = phi.abs() - d;
+                    assert!(
+                        err >= -1e-12,
+                        "below the true distance at {p:?}: {phi} vs {d}"
+                    );
+                    if d <= EXACT_BAND as f64 * h * 0.999 {
+                        worst_band = worst_band.max(err.abs());
+                    } else {
+                        worst_far = worst_far.max(err);
+                    }
+                    if d > 1e-9 {
+                        if let Some(want) = inside(p) {
+                            assert_eq!(phi < 0.0, want, "sign at {p:?}: phi {phi}");
+                        }
+                    }
+                }
+            }
+        }
+        assert!(worst_band < 1e-12, "band error {worst_band}");
+        assert!(worst_far <= far_tol * h, "far error {worst_far} (h = {h})");
+        (worst_band, worst_far / h)
+    }
+
+    #[test]
+    fn mesh_fields_match_brute_force() {
+        // A box whose faces, edges and corners lie on grid nodes and rows: the winding
+        // rule's ties.
+        let cube = largestep::shapes::cuboid([0.0; 3], [0.5, 0.25, 0.75]);
+        let (b1, f1) = check_field(&cube, 0.05, 0.1, |p| {
+            Some(
+                p.iter()
+                    .zip([0.5, 0.25, 0.75])
+                    .all(|(&c, hi)| c > 0.0 && c < hi),
+            )
+        });
+        // A UV sphere, off the grid.
+        let sphere = largestep::shapes::uv_sphere([0.013, -0.021, 0.007], 0.4, 12, 16);
+        let (b2, f2) = check_field(&sphere, 0.06, 0.1, |p| {
+            let r = norm2([p[0] - 0.013, p[1] + 0.021, p[2] - 0.007]).sqrt();
+            // Between the polygon and the sphere the answer is the polygon's: skip.
+            (r < 0.35 || r > 0.41).then_some(r < 0.35)
+        });
+        eprintln!("band errors {b1:.1e} {b2:.1e}; far errors {f1:.3} h, {f2:.3} h");
+    }
+
+    #[test]
+    fn real_mesh_field_signs_and_trilinear_error() {
+        // The nut surface from the shared data (TetGen example, 1046 triangles).
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../shared/data/tetmesh/nut-surface.off");
+        let m = largestep::io::read_surface(&path, 1 << 24).unwrap();
+        check_closed(&m).unwrap();
+        let bounds = Aabb::of_points((0..m.positions.len() / 3).map(|i| m.as_ref().vertex(i)));
+        let size = (0..3)
+            .map(|a| bounds.max[a] - bounds.min[a])
+            .fold(0.0, f64::max);
+        let h = size / 24.0;
+        let sdf = SdfGrid::from_mesh(&m, h, 2, 1 << 22).unwrap();
+        // Node signs against the winding number at the nodes themselves, and the
+        // trilinear interpolant's error at random points against brute force: within
+        // the grid's stated error, h (trilinear reproduces planes; near edges and
+        // corners the distance has kinks of size up to h / 2 per cell).
+        let w = winding_numbers(&m, sdf.grid.origin, h, sdf.grid.n);
+        assert!(
+            w.iter().all(|&w| w == 0 || w == 1),
+            "a closed outward surface winds 0 or 1"
+        );
+        assert!(w.contains(&1));
+        let mut s = 7u64;
+        let mut rnd = || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut worst = 0.0f64;
+        for _ in 0..300 {
+            let p: [f64; 3] =
+                std::array::from_fn(|a| bounds.min[a] + rnd() * (bounds.max[a] - bounds.min[a]));
+            let (phi, grad) = sample3_grad(&sdf.phi, sdf.grid, p);
+            let d = brute_distance(&m, p);
+            worst = worst.max((phi.abs() - d).abs());
+            assert!(grad.iter().all(|c| c.is_finite()));
+        }
+        eprintln!(
+            "nut: {} nodes, worst trilinear error {:.3} h",
+            sdf.phi.len(),
+            worst / h
+        );
+        assert!(worst < h, "trilinear error {worst} vs h {h}");
+    }
+
+    #[test]
+    fn bad_surfaces_are_named() {
+        let cube = largestep::shapes::cuboid([0.0; 3], [1.0; 3]);
+        let msg = |m: &Mesh| {
+            SdfGrid::from_mesh(m, 0.1, 1, 1 << 20)
+                .unwrap_err()
+                .to_string()
+        };
+        // Open: one triangle removed.
+        let mut open = cube.clone();
+        open.triangles = cube.triangles[1..].to_vec().into();
+        let e = msg(&open);
+        assert!(e.contains("open") && e.contains("edge"), "{e}");
+        // A flipped triangle.
+        let mut flipped = cube.clone();
+        let mut t = cube.triangles.to_vec();
+        t[3] = [t[3][0], t[3][2], t[3][1]];
+        flipped.triangles = t.into();
+        let e = msg(&flipped);
+        assert!(e.contains("not consistently oriented"), "{e}");
+        // NaN coordinates.
+        let mut nan = cube.clone();
+        nan.positions[5] = f64::NAN;
+        let e = msg(&nan);
+        assert!(e.contains("vertex 5") && e.contains("finite"), "{e}");
+        // A degenerate triangle.
+        let degenerate = largestep::shapes::from_triangles(
+            &[[0.0; 3], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]],
+            &[[0, 1, 2]],
+        );
+        let e = msg(&degenerate);
+        assert!(e.contains("triangle 0") && e.contains("degenerate"), "{e}");
+        // Empty, a bad index, a bad spacing, too many nodes.
+        let empty = largestep::shapes::from_triangles(&[], &[]);
+        assert!(msg(&empty).contains("no triangles"));
+        let bad = largestep::shapes::from_triangles(&[[0.0; 3]], &[[0, 0, 3]]);
+        assert!(msg(&bad).contains("names vertex 3"), "{}", msg(&bad));
+        assert!(SdfGrid::from_mesh(&cube, 0.0, 1, 1 << 20)
+            .unwrap_err()
+            .to_string()
+            .contains("spacing"));
+        let e = SdfGrid::from_mesh(&cube, 1e-4, 1, 1 << 20)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("more than the limit"), "{e}");
+    }
+}
+
+mod narrow_phase {
+    use super::*;
+    use largestep::kernels::collide::narrow::{
+        box_box, capsule_capsule, gjk_epa, sphere_sphere, Convex,
+    };
+    use largestep::kernels::collide::prox::{closest_on_triangle, closest_segments, norm2};
+
+    fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+        [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+    }
+
+    fn tri_strategy() -> impl Strategy<Value = [[f64; 3]; 3]> {
+        prop::array::uniform3(prop::array::uniform3(-1f64..1.0))
+    }
+
+    /// Brute-force distance between two triangles that do not cross: the least of the
+    /// six vertex-triangle and nine edge-edge distances.
+    fn brute_triangles(a: [[f64; 3]; 3], b: [[f64; 3]; 3]) -> f64 {
+        let mut d = f64::INFINITY;
+        for (p, t) in a.iter().map(|p| (p, b)).chain(b.iter().map(|p| (p, a))) {
+            let (q, _) = closest_on_triangle(*p, t[0], t[1], t[2]);
+            d = d.min(norm2(sub(*p, q)).sqrt());
+        }
+        for i in 0..3 {
+            for j in 0..3 {
+                let (_, _, p, q) = closest_segments(a[i], a[(i + 1) % 3], b[j], b[(j + 1) % 3]);
+                d = d.min(norm2(sub(p, q)).sqrt());
+            }
+        }
+        d
+    }
+
+    /// The faces of the convex hull of a few points, by brute force (every triple with
+    /// all points on one side).
+    fn hull_faces(p: &[[f64; 3]]) -> Vec<[usize; 3]> {
+        let mut f = Vec::new();
+        for i in 0..p.len() {
+            for j in i + 1..p.len() {
+                for k in j + 1..p.len() {
+                    let n = {
+                        let (u, v) = (sub(p[j], p[i]), sub(p[k], p[i]));
+                        [
+                            u[1] * v[2] - u[2] * v[1],
+                            u[2] * v[0] - u[0] * v[2],
+                            u[0] * v[1] - u[1] * v[0],
+                        ]
+                    };
+                    if norm2(n) < 1e-12 {
+                        continue;
+                    }
+                    let side = |q: [f64; 3]| {
+                        let d = sub(q, p[i]);
+                        n[0] * d[0] + n[1] * d[1] + n[2] * d[2]
+                    };
+                    let (mut pos, mut neg) = (false, false);
+                    for q in p {
+                        let s = side(*q);
+                        pos |= s > 1e-12;
+                        neg |= s < -1e-12;
+                    }
+                    if !(pos && neg) {
+                        f.push([i, j, k]);
+                    }
+                }
+            }
+        }
+        f
+    }
+
+    fn brute_hulls(a: &[[f64; 3]], b: &[[f64; 3]]) -> f64 {
+        let (fa, fb) = (hull_faces(a), hull_faces(b));
+        let mut d = f64::INFINITY;
+        for f in &fa {
+            for g in &fb {
+                d = d.min(brute_triangles(
+                    [a[f[0]], a[f[1]], a[f[2]]],
+                    [b[g[0]], b[g[1]], b[g[2]]],
+                ));
+            }
+        }
+        d
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(200))]
+
+        #[test]
+        fn gjk_distance_of_triangles_equals_brute_force(a in tri_strategy(), b in tri_strategy(), gap in 0.05f64..2.0) {
+            // Shift b along x beyond a so they cannot cross.
+            let shift = a.iter().map(|p| p[0]).fold(f64::MIN, f64::max) - b.iter().map(|p| p[0]).fold(f64::MAX, f64::min) + gap;
+            let b = b.map(|p| [p[0] + shift, p[1], p[2]]);
+            let c = gjk_epa(&Convex::Triangle(a), &Convex::Triangle(b)).unwrap();
+            let want = brute_triangles(a, b);
+            prop_assert!((-c.depth - want).abs() < 1e-9 * (1.0 + want), "gjk {} brute {}", -c.depth, want);
+            // The witnesses realise the distance.
+            prop_assert!((norm2(sub(c.point_a, c.point_b)).sqrt() - want).abs() < 1e-9);
+        }
+
+        #[test]
+        fn gjk_distance_of_hulls_equals_brute_force(
+            a in prop::collection::vec(prop::array::uniform3(-1f64..1.0), 4..9),
+            b in prop::collection::vec(prop::array::uniform3(-1f64..1.0), 4..9),
+            dir in prop::array::uniform3(-1f64..1.0),
+            gap in 0.0f64..1.5,
+        ) {
+            let Some(l) = Some(norm2(dir).sqrt()).filter(|l| *l > 0.1) else { return Ok(()) };
+            let u = dir.map(|c| c / l);
+            // Separate b from a along u by the projections' gap.
+            let reach_a = a.iter().map(|p| p[0] * u[0] + p[1] * u[1] + p[2] * u[2]).fold(f64::MIN, f64::max);
+            let low_b = b.iter().map(|p| p[0] * u[0] + p[1] * u[1] + p[2] * u[2]).fold(f64::MAX, f64::min);
+            let s = reach_a - low_b + gap + 1e-3;
+            let b: Vec<[f64; 3]> = b.iter().map(|p| [p[0] + s * u[0], p[1] + s * u[1], p[2] + s * u[2]]).collect();
+            let c = gjk_epa(&Convex::Hull(&a), &Convex::Hull(&b)).unwrap();
+            let want = brute_hulls(&a, &b);
+            prop_assert!((-c.depth - want).abs() < 1e-8 * (1.0 + want), "gjk {} brute {}", -c.depth, want);
+        }
+
+        #[test]
+        fn epa_depth_of_boxes_equals_sat(
+            ha in prop::array::uniform3(0.1f64..1.0),
+            hb in prop::array::uniform3(0.1f64..1.0),
+            ang in prop::array::uniform3(0f64..6.3),
+            off in prop::array::uniform3(-0.8f64..0.8),
+        ) {
+            let rot = |a: [f64; 3]| {
+                let (s1, c1, s2, c2, s3, c3) = (a[0].sin(), a[0].cos(), a[1].sin(), a[1].cos(), a[2].sin(), a[2].cos());
+                // Z-Y-X Euler rotation; its columns are the axes.
+                let m = [
+                    [c1 * c2, c1 * s2 * s3 - s1 * c3, c1 * s2 * c3 + s1 * s3],
+                    [s1 * c2, s1 * s2 * s3 + c1 * c3, s1 * s2 * c3 - c1 * s3],
+                    [-s2, c2 * s3, c2 * c3],
+                ];
+                [[m[0][0], m[1][0], m[2][0]], [m[0][1], m[1][1], m[2][1]], [m[0][2], m[1][2], m[2][2]]]
+            };
+            let ax = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+            let bx = rot(ang);
+            let sat = box_box([0.0; 3], ax, ha, off, bx, hb);
+            let a = Convex::Box { center: [0.0; 3], axes: ax, half: ha };
+            let b = Convex::Box { center: off, axes: bx, half: hb };
+            let c = gjk_epa(&a, &b).unwrap();
+            if sat.depth > 1e-6 {
+                // Overlapping: the least translation is the same number.
+                prop_assert!((c.depth - sat.depth).abs() < 1e-6 * (1.0 + sat.depth), "epa {} sat {}", c.depth, sat.depth);
+                // Moving B by the normal times the depth (plus a hair) separates them.
+                let moved = Convex::Box { center: [off[0] + c.normal[0] * (c.depth + 1e-6), off[1] + c.normal[1] * (c.depth + 1e-6), off[2] + c.normal[2] * (c.depth + 1e-6)], axes: bx, half: hb };
+                prop_assert!(gjk_epa(&a, &moved).unwrap().depth < 0.0);
+            } else if sat.depth < -1e-6 {
+                // Apart: SAT's gap is a lower bound on GJK's distance.
+                prop_assert!(c.depth < 0.0 && -c.depth >= -sat.depth - 1e-9);
+            }
+        }
+
+        #[test]
+        fn closed_forms_agree_with_gjk(
+            c1 in prop::array::uniform3(-1f64..1.0), c2 in prop::array::uniform3(-1f64..1.0),
+            e1 in prop::array::uniform3(-1f64..1.0), e2 in prop::array::uniform3(-1f64..1.0),
+            r1 in 0.05f64..0.6, r2 in 0.05f64..0.6,
+        ) {
+            let s = sphere_sphere(c1, r1, c2, r2);
+            let g = gjk_epa(&Convex::Sphere { center: c1, radius: r1 }, &Convex::Sphere { center: c2, radius: r2 }).unwrap();
+            // Smooth shapes converge linearly: a looser tolerance.
+            prop_assert!((s.depth - g.depth).abs() < 1e-5, "sphere {} gjk {}", s.depth, g.depth);
+            let k = capsule_capsule(c1, e1, r1, c2, e2, r2);
+            let g = gjk_epa(&Convex::Capsule { a: c1, b: e1, radius: r1 }, &Convex::Capsule { a: c2, b: e2, radius: r2 }).unwrap();
+            prop_assert!((k.depth - g.depth).abs() < 1e-5, "capsule {} gjk {}", k.depth, g.depth);
+        }
+    }
 }

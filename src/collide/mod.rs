@@ -26,12 +26,13 @@ mod sdf;
 
 pub use contacts::{VertexContacts, CONTACT_THICKNESS};
 pub use edges::edge_through_triangle;
-pub use inside::cells_inside;
+pub use inside::{cells_inside, row_crossings, winding_numbers};
 pub use penalty::Penalty;
-pub use sdf::SdfGrid;
+pub use sdf::{check_closed, SdfGrid, EXACT_BAND};
 
 use crate::io::Mesh;
 use crate::validate::{check, require, ModelError, Rule};
+use largestep_kernels::collide::sdf::{box_distance, Shape};
 use largestep_kernels::interp::sample3_grad;
 use largestep_kernels::v3::{dot, length_and_unit as unit, sub};
 use std::sync::Arc;
@@ -238,41 +239,28 @@ impl Obstacle {
                 let d = dot(*normal, p) + offset;
                 d.is_finite().then_some((d, *normal))
             }
-            Obstacle::Sphere { center, radius } => {
-                let (l, n) = unit(sub(p, *center))?;
-                Some((l - radius, n))
-            }
+            // The analytic solids are the kernels' exact distance functions; a zero
+            // gradient (a sphere's centre, a capsule's axis) has no normal.
+            Obstacle::Sphere { center, radius } => nonzero(
+                Shape::Sphere {
+                    center: *center,
+                    radius: *radius,
+                }
+                .distance_grad(p),
+            ),
             Obstacle::Box { min, max } => {
-                let q: [f64; 3] = std::array::from_fn(|a| p[a].clamp(min[a], max[a]));
-                if q != p {
-                    // Outside: distance to the closest point of the box.
-                    return unit(sub(p, q));
-                }
-                // Inside: the nearest face.
-                let mut best = (f64::INFINITY, [0.0; 3]);
-                for a in 0..3 {
-                    for (depth, s) in [(p[a] - min[a], -1.0), (max[a] - p[a], 1.0)] {
-                        if depth < best.0 {
-                            let mut n = [0.0; 3];
-                            n[a] = s;
-                            best = (depth, n);
-                        }
-                    }
-                }
-                best.0.is_finite().then_some((-best.0, best.1))
+                let center = [0, 1, 2].map(|a| 0.5 * (min[a] + max[a]));
+                let half = [0, 1, 2].map(|a| 0.5 * (max[a] - min[a]));
+                nonzero(box_distance(sub(p, center), half))
             }
-            Obstacle::Capsule { a, b, radius } => {
-                let ab = sub(*b, *a);
-                let len2 = dot(ab, ab);
-                let t = if len2 > 0.0 {
-                    (dot(sub(p, *a), ab) / len2).clamp(0.0, 1.0)
-                } else {
-                    0.0
-                };
-                let q: [f64; 3] = std::array::from_fn(|k| a[k] + t * ab[k]);
-                let (l, n) = unit(sub(p, q))?;
-                Some((l - radius, n))
-            }
+            Obstacle::Capsule { a, b, radius } => nonzero(
+                Shape::Capsule {
+                    a: *a,
+                    b: *b,
+                    radius: *radius,
+                }
+                .distance_grad(p),
+            ),
             Obstacle::Sdf(s) => {
                 if !s.grid.contains(p) {
                     return None;
@@ -313,6 +301,13 @@ impl Obstacle {
         let depth = dot(sub(end, q), nrm) + dq;
         depth.is_finite().then_some((depth.min(0.0), nrm))
     }
+}
+
+/// A distance and gradient as an obstacle's answer: `None` without a unit gradient or a
+/// finite distance.
+#[inline]
+fn nonzero((d, g): (f64, [f64; 3])) -> Option<(f64, [f64; 3])> {
+    (d.is_finite() && dot(g, g) > 0.5).then_some((d, g))
 }
 
 /// `(m, |a / m|, a / |a|)` with m the largest magnitude of a component: the direction of

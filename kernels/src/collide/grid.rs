@@ -109,7 +109,8 @@ impl CellGrid {
         let n = x.len() / 3;
         assert_eq!(x.len(), 3 * n, "component-major points have length 3n");
         self.points.clear();
-        self.points.extend((0..n).map(|i| [x[i], x[n + i], x[2 * n + i]]));
+        self.points
+            .extend((0..n).map(|i| [x[i], x[n + i], x[2 * n + i]]));
         self.boxes.clear();
         let buckets = self.bucket_count();
         self.start.clear();
@@ -139,10 +140,14 @@ impl CellGrid {
     /// `buckets` is scratch, where the buckets of those cells are sorted so that a bucket
     /// reached from two cells (a hash collision, or clamping) is scanned once.
     pub fn points_within(&self, p: [f64; 3], r: f64, buckets: &mut Vec<u32>, out: &mut Vec<u32>) {
-        if self.points.is_empty() || !(r >= 0.0) {
+        // Also refuses a NaN radius.
+        if self.points.is_empty() || r.partial_cmp(&0.0).is_none_or(|o| o.is_lt()) {
             return;
         }
-        let (lo, hi) = self.cell_range(&Aabb { min: p.map(|c| c - r), max: p.map(|c| c + r) });
+        let (lo, hi) = self.cell_range(&Aabb {
+            min: p.map(|c| c - r),
+            max: p.map(|c| c + r),
+        });
         buckets.clear();
         if cell_count(lo, hi) > self.bucket_count() as f64 {
             // More cells than buckets: every bucket, once.
@@ -169,7 +174,10 @@ impl CellGrid {
     /// into `out` (cleared first). `r` must not exceed the cell size `h` (the scan covers
     /// the 27 cells around each point); panics otherwise.
     pub fn point_pairs(&self, r: f64, out: &mut Vec<[u32; 2]>) {
-        assert!(r <= self.h, "point_pairs scans neighbouring cells only: r <= h");
+        assert!(
+            r <= self.h,
+            "point_pairs scans neighbouring cells only: r <= h"
+        );
         out.clear();
         let r2 = r * r;
         let mut buckets = [0usize; 27];
@@ -260,7 +268,8 @@ impl CellGrid {
     /// whose ranges are clamped).
     fn is_large(&self, b: &Aabb) -> bool {
         let (lo, hi) = self.cell_range(b);
-        matches!(self.cells, Cells::Hashed { .. }) && cell_count(lo, hi) > self.bucket_count() as f64
+        matches!(self.cells, Cells::Hashed { .. })
+            && cell_count(lo, hi) > self.bucket_count() as f64
     }
 
     /// Every pair of filed boxes that overlap (touching counts), `[i, j]` with `i < j`,
@@ -312,7 +321,9 @@ impl CellGrid {
 
 /// Number of cells in the inclusive range `[lo, hi]` (as `f64`: it may exceed `u64`).
 fn cell_count(lo: [i32; 3], hi: [i32; 3]) -> f64 {
-    (0..3).map(|a| (hi[a] as f64 - lo[a] as f64 + 1.0).max(0.0)).product()
+    (0..3)
+        .map(|a| (hi[a] as f64 - lo[a] as f64 + 1.0).max(0.0))
+        .product()
 }
 
 /// The bucket of cell `c` under the map `cells`: clamped dense index, or Teschner's hash.

@@ -9,3 +9,6 @@
 pub mod bv;
 pub mod bvh;
 pub mod grid;
+pub mod narrow;
+pub mod prox;
+pub mod sdf;

@@ -1,0 +1,484 @@
+//! Narrow phase: contacts between convex shapes by GJK (Gilbert, Johnson and Keerthi
+//! 1988, with the closest-point-of-simplex steps of Ericson 2005, section 9.5) and EPA
+//! (van den Bergen 2001) where they overlap, boxes by the separating-axis test
+//! (Gottschalk et al. 1996), and the closed forms for spheres and capsules.
+//!
+//! A [`Contact`] is written from shape A to shape B: `normal` points from A into B,
+//! `depth` is the penetration (m, > 0 overlapping, < 0 the separation) and `point` lies
+//! midway between the two witness points, on A's surface `point_a` and B's `point_b`.
+
+use super::prox::{closest_on_segment, closest_on_triangle, closest_segments, norm2};
+use crate::v3::{cross, dot, length_and_unit, sub};
+
+#[inline(always)]
+fn add(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+}
+
+#[inline(always)]
+fn scale(a: [f64; 3], s: f64) -> [f64; 3] {
+    [a[0] * s, a[1] * s, a[2] * s]
+}
+
+#[inline(always)]
+fn lerp3(w: [f64; 3], p: [[f64; 3]; 3]) -> [f64; 3] {
+    add(add(scale(p[0], w[0]), scale(p[1], w[1])), scale(p[2], w[2]))
+}
+
+/// A contact between two shapes (see the module docs).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Contact {
+    /// Unit normal from A into B.
+    pub normal: [f64; 3],
+    /// Penetration depth (m): positive overlapping, negative separated.
+    pub depth: f64,
+    /// The witness point on A.
+    pub point_a: [f64; 3],
+    /// The witness point on B.
+    pub point_b: [f64; 3],
+}
+
+impl Contact {
+    /// The contact point: midway between the witnesses.
+    pub fn point(&self) -> [f64; 3] {
+        scale(add(self.point_a, self.point_b), 0.5)
+    }
+}
+
+/// A convex shape for GJK: its support point in a direction, and a point inside it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Convex<'a> {
+    /// A ball.
+    Sphere {
+        /// Centre (m).
+        center: [f64; 3],
+        /// Radius (m).
+        radius: f64,
+    },
+    /// Points within `radius` of the segment `a b`.
+    Capsule {
+        /// Segment start.
+        a: [f64; 3],
+        /// Segment end.
+        b: [f64; 3],
+        /// Radius (m).
+        radius: f64,
+    },
+    /// An oriented box: `center + sum s_a axes[a]`, `|s_a| <= half[a]`.
+    Box {
+        /// Centre (m).
+        center: [f64; 3],
+        /// Orthonormal axes.
+        axes: [[f64; 3]; 3],
+        /// Half extents (m).
+        half: [f64; 3],
+    },
+    /// The convex hull of points (`[x, y, z]` each), at least one.
+    Hull(&'a [[f64; 3]]),
+    /// A triangle.
+    Triangle([[f64; 3]; 3]),
+}
+
+impl Convex<'_> {
+    /// The point of the shape farthest along `d` (any length, not zero).
+    pub fn support(&self, d: [f64; 3]) -> [f64; 3] {
+        match *self {
+            Convex::Sphere { center, radius } => match length_and_unit(d) {
+                Some((_, u)) => add(center, scale(u, radius)),
+                None => center,
+            },
+            Convex::Capsule { a, b, radius } => {
+                let end = if dot(sub(b, a), d) > 0.0 { b } else { a };
+                match length_and_unit(d) {
+                    Some((_, u)) => add(end, scale(u, radius)),
+                    None => end,
+                }
+            }
+            Convex::Box { center, axes, half } => {
+                let mut p = center;
+                for k in 0..3 {
+                    let s = if dot(axes[k], d) >= 0.0 {
+                        half[k]
+                    } else {
+                        -half[k]
+                    };
+                    p = add(p, scale(axes[k], s));
+                }
+                p
+            }
+            Convex::Hull(points) => *points
+                .iter()
+                .max_by(|p, q| dot(**p, d).total_cmp(&dot(**q, d)))
+                .expect("a hull has at least one point"),
+            Convex::Triangle(t) => *t
+                .iter()
+                .max_by(|p, q| dot(**p, d).total_cmp(&dot(**q, d)))
+                .expect("three points"),
+        }
+    }
+
+    /// A point inside the shape (its centre, or the mean of its points).
+    pub fn center(&self) -> [f64; 3] {
+        match *self {
+            Convex::Sphere { center, .. } | Convex::Box { center, .. } => center,
+            Convex::Capsule { a, b, .. } => scale(add(a, b), 0.5),
+            Convex::Hull(points) => {
+                let s = points.iter().fold([0.0; 3], |s, p| add(s, *p));
+                scale(s, 1.0 / points.len().max(1) as f64)
+            }
+            Convex::Triangle(t) => scale(add(add(t[0], t[1]), t[2]), 1.0 / 3.0),
+        }
+    }
+}
+
+/// A vertex of the Minkowski difference `A - B` with its witnesses.
+#[derive(Clone, Copy, Debug)]
+struct Vert {
+    w: [f64; 3],
+    a: [f64; 3],
+    b: [f64; 3],
+}
+
+fn support(a: &Convex, b: &Convex, d: [f64; 3]) -> Vert {
+    let pa = a.support(d);
+    let pb = b.support(scale(d, -1.0));
+    Vert {
+        w: sub(pa, pb),
+        a: pa,
+        b: pb,
+    }
+}
+
+/// Relative tolerance of GJK's termination and EPA's expansion.
+const REL_TOL: f64 = 1e-10;
+/// Iteration cap of both (each iteration adds a support point; convergence on smooth
+/// shapes is linear, so the cap bounds work on spheres and capsules).
+const MAX_ITERS: usize = 128;
+
+/// The closest point of the simplex to the origin, its barycentric weights, and the
+/// reduced simplex (the vertices with non-zero weight). `None` when the origin is inside
+/// a tetrahedron.
+fn closest_simplex(s: &mut Vec<Vert>) -> Option<([f64; 3], Vec<f64>)> {
+    let o = [0.0; 3];
+    match s.len() {
+        1 => Some((s[0].w, vec![1.0])),
+        2 => {
+            let (t, q) = closest_on_segment(o, s[0].w, s[1].w);
+            let w = vec![1.0 - t, t];
+            Some(reduce(s, q, w))
+        }
+        3 => {
+            let (q, bary) = closest_on_triangle(o, s[0].w, s[1].w, s[2].w);
+            Some(reduce(s, q, bary.to_vec()))
+        }
+        _ => {
+            // A tetrahedron: inside when the origin is behind no face (each face seen
+            // from the opposite vertex's side); otherwise the nearest outward face.
+            let faces = [[0, 1, 2, 3], [0, 1, 3, 2], [0, 2, 3, 1], [1, 2, 3, 0]];
+            // (squared distance, face) of the nearest face the origin is outside of.
+            let mut best: Option<(f64, [usize; 4])> = None;
+            let mut inside = true;
+            for f in faces {
+                let (p0, p1, p2, opp) = (s[f[0]].w, s[f[1]].w, s[f[2]].w, s[f[3]].w);
+                let n = cross(sub(p1, p0), sub(p2, p0));
+                let so = dot(n, sub(o, p0));
+                let sd = dot(n, sub(opp, p0));
+                // The origin on the far side of this face from the opposite vertex.
+                if so * sd < 0.0 || (sd == 0.0) {
+                    inside = false;
+                    let (q, _) = closest_on_triangle(o, p0, p1, p2);
+                    let d = norm2(q);
+                    if best.is_none_or(|b| d < b.0) {
+                        best = Some((d, f));
+                    }
+                }
+            }
+            if inside {
+                return None;
+            }
+            let (_, f) = best.expect("outside some face");
+            let (q, bary) = closest_on_triangle(o, s[f[0]].w, s[f[1]].w, s[f[2]].w);
+            *s = vec![s[f[0]], s[f[1]], s[f[2]]];
+            Some(reduce(s, q, bary.to_vec()))
+        }
+    }
+}
+
+/// Drops the simplex vertices of zero weight.
+fn reduce(s: &mut Vec<Vert>, q: [f64; 3], w: Vec<f64>) -> ([f64; 3], Vec<f64>) {
+    let mut keep_s = Vec::with_capacity(4);
+    let mut keep_w = Vec::with_capacity(4);
+    for (v, &wi) in s.iter().zip(&w) {
+        if wi > 0.0 {
+            keep_s.push(*v);
+            keep_w.push(wi);
+        }
+    }
+    if keep_s.is_empty() {
+        keep_s.push(s[0]);
+        keep_w.push(1.0);
+    }
+    *s = keep_s;
+    (q, keep_w)
+}
+
+/// The contact between two convex shapes: GJK's distance and witness points when they
+/// are apart, EPA's penetration depth and normal when they overlap. `None` only for
+/// non-finite input.
+pub fn gjk_epa(a: &Convex, b: &Convex) -> Option<Contact> {
+    let mut d = sub(b.center(), a.center());
+    if norm2(d) == 0.0 {
+        d = [1.0, 0.0, 0.0];
+    }
+    let mut simplex: Vec<Vert> = vec![support(a, b, scale(d, -1.0))];
+    let mut v = simplex[0].w;
+    let mut weights = vec![1.0];
+    for _ in 0..MAX_ITERS {
+        if !v.iter().all(|c| c.is_finite()) {
+            return None;
+        }
+        let vv = norm2(v);
+        if vv <= 1e-30 {
+            break; // touching or overlapping: origin on the simplex
+        }
+        let w = support(a, b, scale(v, -1.0));
+        // No progress towards the origin: v is the closest point of A - B.
+        if vv - dot(v, w.w) <= REL_TOL * vv || simplex.iter().any(|s| s.w == w.w) {
+            return Some(separated(&simplex, &weights, v));
+        }
+        simplex.push(w);
+        match closest_simplex(&mut simplex) {
+            Some((q, wts)) => {
+                v = q;
+                weights = wts;
+            }
+            None => return epa(a, b, simplex),
+        }
+    }
+    if norm2(v) > 1e-30 {
+        return Some(separated(&simplex, &weights, v));
+    }
+    // The origin is on the boundary or inside: grow the simplex to a tetrahedron and
+    // measure the penetration with EPA.
+    epa(a, b, simplex)
+}
+
+fn separated(s: &[Vert], w: &[f64], v: [f64; 3]) -> Contact {
+    let pa = s
+        .iter()
+        .zip(w)
+        .fold([0.0; 3], |acc, (p, &wi)| add(acc, scale(p.a, wi)));
+    let pb = s
+        .iter()
+        .zip(w)
+        .fold([0.0; 3], |acc, (p, &wi)| add(acc, scale(p.b, wi)));
+    let dist = norm2(v).sqrt();
+    // v = pa - pb points from B to A: the normal from A into B is -v.
+    Contact {
+        normal: scale(v, -1.0 / dist),
+        depth: -dist,
+        point_a: pa,
+        point_b: pb,
+    }
+}
+
+/// EPA from a simplex holding the origin: grows it into a polytope of `A - B` until the
+/// face nearest the origin is on the boundary; that face's normal and distance are the
+/// penetration.
+fn epa(a: &Convex, b: &Convex, mut s: Vec<Vert>) -> Option<Contact> {
+    // Grow a degenerate simplex into a tetrahedron holding the origin.
+    let dirs = [
+        [1.0, 0.0, 0.0],
+        [-1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [0.0, -1.0, 0.0],
+        [0.0, 0.0, 1.0],
+        [0.0, 0.0, -1.0],
+    ];
+    let mut k = 0;
+    while s.len() < 4 && k < dirs.len() {
+        let cand = support(a, b, dirs[k]);
+        k += 1;
+        let independent = match s.len() {
+            1 => norm2(sub(cand.w, s[0].w)) > 1e-24,
+            2 => norm2(cross(sub(s[1].w, s[0].w), sub(cand.w, s[0].w))) > 1e-24,
+            _ => {
+                let n = cross(sub(s[1].w, s[0].w), sub(s[2].w, s[0].w));
+                dot(n, sub(cand.w, s[0].w)).abs() > 1e-12 * norm2(n).sqrt().max(1e-300)
+            }
+        };
+        if independent {
+            s.push(cand);
+        }
+    }
+    if s.len() < 4 {
+        // A flat Minkowski difference (a degenerate shape): touching, depth 0.
+        let pa = s[0].a;
+        let pb = s[0].b;
+        return Some(Contact {
+            normal: [0.0, 0.0, 1.0],
+            depth: 0.0,
+            point_a: pa,
+            point_b: pb,
+        });
+    }
+    // Faces as vertex index triples, wound outward.
+    let mut verts = s;
+    let mut faces: Vec<[usize; 3]> = Vec::with_capacity(64);
+    let center = scale(verts.iter().fold([0.0; 3], |c, v| add(c, v.w)), 0.25);
+    for f in [[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]] {
+        faces.push(outward(&verts, f, center));
+    }
+    let mut best: Option<(f64, [f64; 3], [usize; 3])> = None;
+    for _ in 0..MAX_ITERS {
+        // The face nearest the origin.
+        best = None;
+        for f in &faces {
+            let (p0, p1, p2) = (verts[f[0]].w, verts[f[1]].w, verts[f[2]].w);
+            let Some((_, n)) = length_and_unit(cross(sub(p1, p0), sub(p2, p0))) else {
+                continue;
+            };
+            let dist = dot(n, p0);
+            if best.as_ref().is_none_or(|b| dist < b.0) {
+                best = Some((dist, n, *f));
+            }
+        }
+        let (dist, n, _) = best?;
+        let w = support(a, b, n);
+        let reach = dot(w.w, n);
+        if reach - dist <= REL_TOL * reach.abs().max(1e-12) || verts.iter().any(|v| v.w == w.w) {
+            break;
+        }
+        // Remove the faces the new point sees; stitch the horizon to it.
+        let wi = verts.len();
+        verts.push(w);
+        let mut horizon: Vec<[usize; 2]> = Vec::new();
+        faces.retain(|f| {
+            let (p0, p1, p2) = (verts[f[0]].w, verts[f[1]].w, verts[f[2]].w);
+            let nf = cross(sub(p1, p0), sub(p2, p0));
+            if dot(nf, sub(w.w, p0)) > 0.0 {
+                for e in [[f[0], f[1]], [f[1], f[2]], [f[2], f[0]]] {
+                    // An edge of two removed faces appears both ways: drop it.
+                    if let Some(i) = horizon.iter().position(|h| *h == [e[1], e[0]]) {
+                        horizon.swap_remove(i);
+                    } else {
+                        horizon.push(e);
+                    }
+                }
+                false
+            } else {
+                true
+            }
+        });
+        for e in horizon {
+            faces.push([e[0], e[1], wi]);
+        }
+    }
+    let (dist, n, f) = best?;
+    // Witnesses: the barycentric weights of the origin's projection on the face.
+    let tri = [verts[f[0]].w, verts[f[1]].w, verts[f[2]].w];
+    let (_, bary) = closest_on_triangle(scale(n, dist), tri[0], tri[1], tri[2]);
+    let pa = lerp3(bary, [verts[f[0]].a, verts[f[1]].a, verts[f[2]].a]);
+    let pb = lerp3(bary, [verts[f[0]].b, verts[f[1]].b, verts[f[2]].b]);
+    // n is the outward normal of A - B's face nearest the origin: translating A by
+    // -n dist separates the shapes, so A presses into B along n.
+    Some(Contact {
+        normal: n,
+        depth: dist,
+        point_a: pa,
+        point_b: pb,
+    })
+}
+
+/// The face `f` wound so its normal points away from `center`.
+fn outward(v: &[Vert], f: [usize; 3], center: [f64; 3]) -> [usize; 3] {
+    let n = cross(sub(v[f[1]].w, v[f[0]].w), sub(v[f[2]].w, v[f[0]].w));
+    if dot(n, sub(v[f[0]].w, center)) < 0.0 {
+        [f[0], f[2], f[1]]
+    } else {
+        f
+    }
+}
+
+/// Sphere against sphere, closed form.
+pub fn sphere_sphere(ca: [f64; 3], ra: f64, cb: [f64; 3], rb: f64) -> Contact {
+    let d = sub(cb, ca);
+    let (l, n) = length_and_unit(d).unwrap_or((0.0, [0.0, 0.0, 1.0]));
+    Contact {
+        normal: n,
+        depth: ra + rb - l,
+        point_a: add(ca, scale(n, ra)),
+        point_b: sub(cb, scale(n, rb)),
+    }
+}
+
+/// Capsule against capsule (and, with zero-length segments, spheres): the closest points
+/// of the two segments.
+pub fn capsule_capsule(
+    a0: [f64; 3],
+    a1: [f64; 3],
+    ra: f64,
+    b0: [f64; 3],
+    b1: [f64; 3],
+    rb: f64,
+) -> Contact {
+    let (_, _, pa, pb) = closest_segments(a0, a1, b0, b1);
+    sphere_sphere(pa, ra, pb, rb)
+}
+
+/// Oriented box against oriented box by the separating-axis test over the 15 axes
+/// (Gottschalk et al. 1996): the axis of least overlap gives the normal and depth, and
+/// the deepest point of each box along it the witnesses (a single point: a face-face
+/// contact reports one of its corners). Separated boxes get the largest gap over the
+/// axes as a negative depth (a lower bound on the distance; GJK gives the distance).
+pub fn box_box(
+    ca: [f64; 3],
+    ax: [[f64; 3]; 3],
+    ha: [f64; 3],
+    cb: [f64; 3],
+    bx: [[f64; 3]; 3],
+    hb: [f64; 3],
+) -> Contact {
+    let t = sub(cb, ca);
+    let mut axes: Vec<[f64; 3]> = Vec::with_capacity(15);
+    axes.extend_from_slice(&ax);
+    axes.extend_from_slice(&bx);
+    for u in ax {
+        for v in bx {
+            if let Some((_, n)) = length_and_unit(cross(u, v)) {
+                // Parallel edges give no axis.
+                if norm2(cross(u, v)) > 1e-12 {
+                    axes.push(n);
+                }
+            }
+        }
+    }
+    let radius = |axes3: &[[f64; 3]; 3], h: [f64; 3], n: [f64; 3]| {
+        (0..3).map(|k| h[k] * dot(axes3[k], n).abs()).sum::<f64>()
+    };
+    let mut best = (f64::INFINITY, [0.0, 0.0, 1.0]);
+    for n in axes {
+        let overlap = radius(&ax, ha, n) + radius(&bx, hb, n) - dot(t, n).abs();
+        if overlap < best.0 {
+            let n = if dot(t, n) < 0.0 { scale(n, -1.0) } else { n };
+            best = (overlap, n);
+        }
+    }
+    let (depth, n) = best;
+    let a = Convex::Box {
+        center: ca,
+        axes: ax,
+        half: ha,
+    };
+    let b = Convex::Box {
+        center: cb,
+        axes: bx,
+        half: hb,
+    };
+    Contact {
+        normal: n,
+        depth,
+        point_a: a.support(n),
+        point_b: b.support(scale(n, -1.0)),
+    }
+}
