@@ -682,7 +682,7 @@ mod distance_fields {
         let (b2, f2) = check_field(&sphere, 0.06, 0.1, |p| {
             let r = norm2([p[0] - 0.013, p[1] + 0.021, p[2] - 0.007]).sqrt();
             // Between the polygon and the sphere the answer is the polygon's: skip.
-            (r < 0.35 || r > 0.41).then_some(r < 0.35)
+            (!(0.35..=0.41).contains(&r)).then_some(r < 0.35)
         });
         eprintln!("band errors {b1:.1e} {b2:.1e}; far errors {f1:.3} h, {f2:.3} h");
     }
