@@ -950,3 +950,115 @@ mod narrow_phase {
         }
     }
 }
+
+mod continuous {
+    use super::*;
+    use largestep::kernels::collide::ccd::{
+        edge_edge, edge_edge_ccd, vertex_triangle, vertex_triangle_ccd,
+    };
+
+    const ETA: f64 = 1e-6;
+
+    fn at(x: [[f64; 3]; 2], t: f64) -> [f64; 3] {
+        std::array::from_fn(|k| x[0][k] + t * (x[1][k] - x[0][k]))
+    }
+
+    /// A trajectory through `x` at time `ts` with velocity `v`.
+    fn through(x: [f64; 3], ts: f64, v: [f64; 3]) -> [[f64; 3]; 2] {
+        let x0 = std::array::from_fn(|k| x[k] - ts * v[k]);
+        [x0, std::array::from_fn(|k| x0[k] + v[k])]
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(512))]
+
+        /// A vertex crossing a moving triangle's interior at `ts` is found at or before.
+        #[test]
+        fn vertex_crossings_are_never_missed(
+            tri in prop::array::uniform3(prop::array::uniform3(-1f64..1.0)),
+            w in (0.05f64..1.0, 0.05f64..1.0, 0.05f64..1.0),
+            ts in 0f64..1.0,
+            vel in prop::array::uniform4(prop::array::uniform3(-2f64..2.0)),
+        ) {
+            let s = w.0 + w.1 + w.2;
+            let w = [w.0 / s, w.1 / s, w.2 / s];
+            let n = {
+                let (u, v) = ([tri[1][0] - tri[0][0], tri[1][1] - tri[0][1], tri[1][2] - tri[0][2]], [tri[2][0] - tri[0][0], tri[2][1] - tri[0][1], tri[2][2] - tri[0][2]]);
+                [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]
+            };
+            prop_assume!(n[0] * n[0] + n[1] * n[1] + n[2] * n[2] > 1e-4);
+            let x: [f64; 3] = std::array::from_fn(|k| w[0] * tri[0][k] + w[1] * tri[1][k] + w[2] * tri[2][k]);
+            let (a, b, c) = (through(tri[0], ts, vel[0]), through(tri[1], ts, vel[1]), through(tri[2], ts, vel[2]));
+            let p = through(x, ts, vel[3]);
+            let hit = vertex_triangle_ccd(p, a, b, c, ETA);
+            prop_assert!(hit.is_some(), "missed a crossing at t = {ts}");
+            let (t, pr) = hit.unwrap();
+            prop_assert!(t <= ts + 1e-9, "found {t} after the crossing at {ts}");
+            prop_assert!(pr.distance <= ETA);
+        }
+
+        /// Two edges crossing at interior points at `ts` are found at or before.
+        #[test]
+        fn edge_crossings_are_never_missed(
+            x in prop::array::uniform3(-1f64..1.0),
+            e in prop::array::uniform2(prop::array::uniform3(-1f64..1.0)),
+            uv in (0.02f64..0.98, 0.02f64..0.98),
+            ts in 0f64..1.0,
+            vel in prop::array::uniform4(prop::array::uniform3(-2f64..2.0)),
+        ) {
+            let cr = [e[0][1] * e[1][2] - e[0][2] * e[1][1], e[0][2] * e[1][0] - e[0][0] * e[1][2], e[0][0] * e[1][1] - e[0][1] * e[1][0]];
+            prop_assume!(cr[0] * cr[0] + cr[1] * cr[1] + cr[2] * cr[2] > 1e-4);
+            let p = std::array::from_fn(|k| x[k] - uv.0 * e[0][k]);
+            let q = std::array::from_fn(|k| x[k] + (1.0 - uv.0) * e[0][k]);
+            let r = std::array::from_fn(|k| x[k] - uv.1 * e[1][k]);
+            let s = std::array::from_fn(|k| x[k] + (1.0 - uv.1) * e[1][k]);
+            let hit = edge_edge_ccd(through(p, ts, vel[0]), through(q, ts, vel[1]), through(r, ts, vel[2]), through(s, ts, vel[3]), ETA);
+            prop_assert!(hit.is_some(), "missed an edge crossing at t = {ts}");
+            let (t, pr) = hit.unwrap();
+            prop_assert!(t <= ts + 1e-9, "found {t} after the crossing at {ts}");
+            prop_assert!(pr.distance <= ETA);
+        }
+
+        /// Random motion: a reported hit is a real contact, and when none is reported no
+        /// sampled time brings the features within eta.
+        #[test]
+        fn reported_contacts_are_real_and_none_means_none(
+            pts in prop::array::uniform4(prop::array::uniform2(prop::array::uniform3(-1f64..1.0))),
+        ) {
+            let [p, a, b, c] = pts;
+            match vertex_triangle_ccd(p, a, b, c, ETA) {
+                Some((t, pr)) => {
+                    let again = vertex_triangle(at(p, t), at(a, t), at(b, t), at(c, t));
+                    prop_assert!(again.distance <= ETA && pr.distance <= ETA);
+                }
+                None => {
+                    // No crossing between samples: where the vertex projects into the
+                    // triangle at two consecutive samples, its side of the plane holds.
+                    let side = |t: f64| {
+                        let (pa, pb, pc, pp) = (at(a, t), at(b, t), at(c, t), at(p, t));
+                        let u = [pb[0] - pa[0], pb[1] - pa[1], pb[2] - pa[2]];
+                        let v = [pc[0] - pa[0], pc[1] - pa[1], pc[2] - pa[2]];
+                        let n = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+                        let ln = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+                        let sd = (n[0] * (pp[0] - pa[0]) + n[1] * (pp[1] - pa[1]) + n[2] * (pp[2] - pa[2])) / ln;
+                        let d = vertex_triangle(pp, pa, pb, pc).distance;
+                        // Projects inside when the nearest point is the plane's foot.
+                        ((d - sd.abs()).abs() < 1e-9 * (1.0 + d), sd)
+                    };
+                    let mut prev = side(0.0);
+                    for k in 1..=2000 {
+                        let now = side(k as f64 / 2000.0);
+                        if prev.0 && now.0 {
+                            prop_assert!((prev.1 < 0.0) == (now.1 < 0.0) || prev.1 == 0.0 || now.1 == 0.0, "a crossing near t = {} was missed", k as f64 / 2000.0);
+                        }
+                        prev = now;
+                    }
+                }
+            }
+            let [p, q, r, s] = pts;
+            if let Some((t, _)) = edge_edge_ccd(p, q, r, s, ETA) {
+                prop_assert!(edge_edge(at(p, t), at(q, t), at(r, t), at(s, t)).distance <= ETA);
+            }
+        }
+    }
+}

@@ -8,6 +8,7 @@
 
 pub mod bv;
 pub mod bvh;
+pub mod ccd;
 pub mod grid;
 pub mod narrow;
 pub mod prox;
