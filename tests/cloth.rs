@@ -2020,3 +2020,52 @@ fn the_quick_accuracy_study_labels_what_it_ran() {
     }
     assert!(svg.contains("T = 0.2 s") && !svg.contains("T = 1 s"));
 }
+
+/// The two self-collision scenes, smaller: no pair of triangles sharing no vertex crosses
+/// after any step; without `[cloth.self_collision]` the same runs end up crossed (the
+/// check can fail).
+#[test]
+fn folding_sheets_never_cross_themselves() {
+    use largestep::collide::crossed_triangle_pairs;
+    use largestep::scene::Scene;
+    use largestep::simulation::FrameData;
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes");
+    for (file, steps) in [("cloth-fold.toml", 110), ("cloth-pinned-bottom.toml", 130)] {
+        let text = std::fs::read_to_string(dir.join(file)).unwrap();
+        let small = text
+            .replace("nu = 30", "nu = 16")
+            .replace("nv = 30", "nv = 16")
+            .replace("[870, 899]", "[240, 255]");
+        for with in [true, false] {
+            let text = if with {
+                small.clone()
+            } else {
+                small.replace("[cloth.self_collision]\nthickness = 0.004\n", "")
+            };
+            let mut scene = Scene::parse(&text, file).unwrap();
+            let dt = scene.dt;
+            let sim = &mut scene.systems[0].sim;
+            let mut first_crossing = None;
+            for step in 0..steps {
+                sim.step(dt).unwrap();
+                let FrameData::Mesh(m) = sim.frame() else {
+                    panic!("a cloth frame is a mesh")
+                };
+                let crossed = crossed_triangle_pairs(m.triangles, m.positions);
+                if !crossed.is_empty() {
+                    first_crossing = Some((step, crossed.len()));
+                    break;
+                }
+            }
+            if with {
+                assert_eq!(first_crossing, None, "{file}: crossed with self-collision");
+            } else {
+                assert!(
+                    first_crossing.is_some(),
+                    "{file}: without self-collision the sheet should pass through itself"
+                );
+                eprintln!("{file} without self-collision: first crossing {first_crossing:?}");
+            }
+        }
+    }
+}

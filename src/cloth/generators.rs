@@ -71,5 +71,6 @@ pub fn cloth_grid(o: &ClothGridOptions) -> ClothDesc {
         step_control: StepControl::CLOTH,
         friction: 0.0,
         definiteness_fix: true,
+        self_collision: None,
     }
 }

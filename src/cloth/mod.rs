@@ -110,6 +110,10 @@ pub struct ClothDesc {
     /// buckles; the Jacobian is then exact only in stretched tension. Default on in
     /// [`cloth_grid`] and scenes.
     pub definiteness_fix: bool,
+    /// `Some(thickness)` (m, > 0): the sheet does not pass through itself
+    /// ([`crate::collide::SelfCollision`] after each step, with this gap kept between
+    /// its layers); `None`: no self-collision structures are built.
+    pub self_collision: Option<f64>,
 }
 
 /// Positions and velocities of the cloth's vertices.
@@ -160,6 +164,7 @@ pub struct Cloth {
     definiteness_fix: bool,
     obstacles: Vec<Obstacle>,
     friction: f64,
+    self_collision: Option<f64>,
     paths: Vec<VertexPath>,
     /// Initial positions of path vertices, per path.
     path_rest: Vec<Vec<[f64; 3]>>,
@@ -255,6 +260,9 @@ impl ClothDesc {
         }
         for (c, &b) in m.rest_stretch.iter().enumerate() {
             check("material", c, "rest_stretch", b, Positive)?;
+        }
+        if let Some(t) = self.self_collision {
+            check("self_collision", 0, "thickness", t, Positive)?;
         }
         let loads = Loads {
             gravity: Gravity(self.gravity),
@@ -363,6 +371,7 @@ impl ClothDesc {
                 .map(|p| p.vertices.iter().map(|&v| self.positions[v]).collect())
                 .collect(),
             friction: self.friction,
+            self_collision: self.self_collision,
         };
         let mut v = if self.velocities.is_empty() {
             Vec3s::zeros(n)
@@ -834,6 +843,10 @@ impl MechModel for Cloth {
         &self.pinned
     }
 
+    fn self_collision(&self) -> Option<f64> {
+        self.self_collision
+    }
+
     /// Path vertices at their initial positions plus the path's offset at `t`, with the
     /// path's velocity.
     fn prescribe(&self, t: f64, x: &mut [f64], v: &mut [f64]) {
@@ -894,6 +907,13 @@ impl MechModel for Cloth {
         }
         stages.push(Stage::pinned(self.pinned.len()));
         stages.push(Stage::obstacle_contacts(&self.obstacles));
+        stages.push(match self.self_collision {
+            Some(t) => Stage::built(
+                "self-collision",
+                format!("repulsion within {t} m, continuous collision impulses, impact zones (BVH broad phase)"),
+            ),
+            None => Stage::left_out("self-collision", "no [cloth.self_collision]"),
+        });
         stages.push(if self.paths.is_empty() {
             Stage::left_out("prescribed paths", "no [[cloth.path]]")
         } else {

@@ -6,6 +6,8 @@
 //! [cloth]
 //! pinned = [0, 9]             # grid vertex (i, j) is i + nu j
 //! friction = 0.3              # of contacts
+//! [cloth.self_collision]      # the sheet does not pass through itself
+//! thickness = 0.004           # gap kept between its layers (m)
 //! [[cloth.sphere]]            # obstacles, wind, step control: see `scene::shared`
 //! center = [0.0, 0.0, 0.0]
 //! radius = 0.5
@@ -60,6 +62,9 @@ pub struct ClothTable {
     /// `[[cloth.path]]` vertices moved along prescribed paths.
     #[serde(default)]
     pub path: Vec<PathTable>,
+    /// `[cloth.self_collision]`: the sheet does not pass through itself.
+    #[serde(default)]
+    pub self_collision: Option<SelfCollisionTable>,
     /// `[cloth.step_control]` (defaults apply when absent).
     #[serde(default)]
     pub step_control: Option<shared::StepControlTable>,
@@ -71,6 +76,15 @@ pub struct ClothTable {
     pub mesh: Option<ClothMeshTable>,
     /// `[cloth.material]`
     pub material: ClothMaterialTable,
+}
+
+/// `[cloth.self_collision]`
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SelfCollisionTable {
+    /// The gap kept between the sheet's layers (m, > 0; default 0.004).
+    #[serde(default)]
+    pub thickness: Option<f64>,
 }
 
 /// `[cloth.grid]`
@@ -340,6 +354,10 @@ pub fn desc(ctx: &Context<'_>, t: &ClothTable) -> Result<ClothDesc, SceneError> 
         desc.step_control = shared::step_control(ctx, sc, StepControl::CLOTH)?;
     }
     desc.friction = ctx.non_negative(t.friction, &at(&[&"friction"]), "friction")?;
+    desc.self_collision = t
+        .self_collision
+        .as_ref()
+        .map(|s| s.thickness.unwrap_or(0.004));
     desc.gravity = ctx.gravity;
     desc.definiteness_fix = t.definiteness_fix.unwrap_or(true);
     Ok(desc)
@@ -359,6 +377,7 @@ fn error_key(e: &ModelError) -> Vec<Key> {
     match *item {
         "path" => path(&[&"path", index, &key]),
         "material" if key == "friction" => path(&[&"friction"]),
+        "self_collision" => path(&[&"self_collision", &key]),
         "material" if key != "rest_stretch" => path(&[&"material", &key]),
         "pinned" => path(&[&"pinned", index]),
         _ => Vec::new(),

@@ -18,12 +18,14 @@
 //! Both are vertex-against-surface tests over every vertex and obstacle (no broad phase
 //! yet: scenes hold a handful of obstacles).
 
+mod cloth_self;
 mod contacts;
 mod edges;
 mod inside;
 mod penalty;
 mod sdf;
 
+pub use cloth_self::{crossed_triangle_pairs, SelfCollision, SelfStats};
 pub use contacts::{VertexContacts, CONTACT_THICKNESS};
 pub use edges::edge_through_triangle;
 pub use inside::{cells_inside, row_crossings, winding_numbers};

@@ -21,7 +21,7 @@
 //!    the model's contact obstacles ([`VertexContacts::resolve`]).
 
 use super::{Energy, FrameData, Simulation, Stage};
-use crate::collide::{max_penetration, Obstacle, VertexContacts};
+use crate::collide::{max_penetration, Obstacle, SelfCollision, SelfStats, VertexContacts};
 use crate::integrate::{
     kinetic_energy, kinetic_energy_matrix, IntegrateError, MechSettings, MechState, MechStepper,
     Mechanical, Method, StepInfo,
@@ -179,6 +179,11 @@ pub trait MechModel: Send + Sync + 'static {
     fn fixed_vertices(&self) -> &[u32] {
         &[]
     }
+    /// `Some(thickness)` (m) when the model's surface ([`MechModel::triangles`]) must not
+    /// pass through itself: the simulation then runs [`SelfCollision`] after each step.
+    fn self_collision(&self) -> Option<f64> {
+        None
+    }
     /// Places prescribed vertices (position and velocity) at time `t`, after each step.
     fn prescribe(&self, t: f64, x: &mut [f64], v: &mut [f64]) {
         let _ = (t, x, v);
@@ -314,6 +319,10 @@ pub struct MechSimulation<M: MechModel> {
     size: f64,
     /// Contact impulses, while a listener wants them.
     impulses: Option<Box<ImpulseRecorder>>,
+    /// Self-collision and the inverse masses it weighs impulses by (0 at fixed
+    /// vertices), when the model asks for it; with what it did over the last step.
+    self_collision: Option<(Box<SelfCollision>, Vec<f64>)>,
+    self_stats: SelfStats,
 }
 
 /// What recording contact impulses needs (see [`MechSimulation::record_contact_impulses`]).
@@ -409,6 +418,18 @@ impl<M: MechModel> MechSimulation<M> {
             0.0
         };
         let size = size_of(state.x.as_slice());
+        let self_collision = model.self_collision().map(|thickness| {
+            let mut inv: Vec<f64> = model
+                .mass()
+                .iter()
+                .map(|m| if *m > 0.0 { 1.0 / m } else { 0.0 })
+                .collect();
+            for &f in model.fixed_vertices() {
+                inv[f as usize] = 0.0;
+            }
+            let tris: Arc<[[u32; 3]]> = model.triangles().into();
+            (Box::new(SelfCollision::new(tris, thickness)), inv)
+        });
         Ok(Self {
             model,
             state,
@@ -425,7 +446,14 @@ impl<M: MechModel> MechSimulation<M> {
             power,
             size,
             impulses: None,
+            self_collision,
+            self_stats: SelfStats::default(),
         })
+    }
+
+    /// What self-collision did over the last step (all zero without it).
+    pub fn self_stats(&self) -> SelfStats {
+        self.self_stats
     }
 
     /// A second simulation of the same (shared) model from this one's state, contacts and
@@ -509,6 +537,9 @@ impl<M: MechModel> MechSimulation<M> {
     /// One integrator step of size h from the current time, then prescribed motion and
     /// contacts.
     fn integrate(&mut self, h: f64) -> Result<StepInfo, IntegrateError> {
+        if let Some((sc, _)) = &mut self.self_collision {
+            sc.begin(self.state.x.as_slice());
+        }
         let (x, v) = (self.state.x.as_mut_slice(), self.state.v.as_mut_slice());
         let info = self.stepper.step(
             &mut Bound {
@@ -558,6 +589,15 @@ impl<M: MechModel> MechSimulation<M> {
                 v,
                 h,
             );
+        }
+        // Self-collision last: the obstacles' corrections are part of the motion it
+        // keeps free of crossings.
+        if let Some((sc, inv_mass)) = &mut self.self_collision {
+            let s = sc.resolve(x, v, inv_mass, h);
+            self.self_stats.repulsions += s.repulsions;
+            self.self_stats.impulses += s.impulses;
+            self.self_stats.zone_rounds += s.zone_rounds;
+            self.self_stats.unresolved = s.unresolved;
         }
         if self.model.does_external_work() {
             let p = self.model.external_power(self.t, x, v);
@@ -620,6 +660,7 @@ impl<M: MechModel> MechSimulation<M> {
     /// Advances by `dt` (s); see the module docs.
     pub fn step(&mut self, dt: f64) -> Result<StepInfo, IntegrateError> {
         let t0 = self.t;
+        self.self_stats = SelfStats::default();
         if let Some(r) = &mut self.impulses {
             r.v0.copy_from_slice(self.state.v.as_slice());
             r.force_impulse.fill(0.0);
