@@ -14,8 +14,17 @@
 //! against four (a visit's at most eight 32-byte loads at two a cycle), at the clock
 //! `peak_fma` implies.
 //!
-//! Run with `cargo bench --bench collide` (`-- bvh` for a part); the summary is printed
-//! and written to `target/criterion/collide-summary.md`.
+//! - `collide/hash/neighbours/100k`: a spatial hash (Teschner, 131,071 buckets, cells of
+//!   0.02) over 100,000 random points in the unit cube, a ball query of radius 0.02
+//!   around every point (about 3.3 neighbours each); and the build.
+//! - `collide/sdf/mesh-samples`: trilinear samples with gradient of the nut's distance
+//!   field (the shared TetGen nut surface, 1,046 triangles, 40 cells across), and
+//!   `collide/sdf/torus-samples`, the exact torus distance with gradient, per second.
+//! - `collide/cloth-fold/step`: one step of `scenes/cloth-fold.toml` (30 x 30 vertices)
+//!   once the sheet lies folded (60 steps in), with and without `[cloth.self_collision]`.
+//!
+//! Run with `cargo bench --bench collide` (`-- collide/bvh` for a part); the summary is
+//! printed and written to `target/criterion/collide-summary.md`.
 
 use criterion::Criterion;
 use largestep::kernels::collide::bv::Aabb;
@@ -57,6 +66,16 @@ fn main() {
     let mut md = String::from("# Collision benchmarks\n\n");
     if wanted("collide/bvh") {
         md += &bvh(&mut c);
+    }
+    if wanted("collide/hash") {
+        md += &hash(&mut c);
+    }
+    if wanted("collide/sdf") {
+        md += &sdf(&mut c);
+    }
+    #[cfg(feature = "cloth")]
+    if wanted("collide/cloth-fold") {
+        md += &cloth_fold(&mut c);
     }
     println!("\n{md}");
     let dir = std::path::Path::new("target/criterion");
@@ -162,4 +181,117 @@ fn leaf_depth_sum(tree: &Bvh) -> f64 {
         }
     }
     sum
+}
+
+/// `n` xorshift points in the unit cube, component-major.
+fn random_points(n: usize, seed: u64) -> Vec<f64> {
+    let mut s = seed;
+    let mut x = vec![0.0; 3 * n];
+    for v in x.iter_mut() {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        *v = (s >> 11) as f64 / (1u64 << 53) as f64;
+    }
+    x
+}
+
+fn hash(c: &mut Criterion) -> String {
+    use largestep::kernels::collide::grid::{CellGrid, Cells};
+    let n = 100_000;
+    let x = random_points(n, 77);
+    let r = 0.02;
+    let mut g = CellGrid::new(r, Cells::Hashed { buckets: 131_071 });
+    c.bench_function("collide/hash/build/100k", |b| b.iter(|| g.build_points(&x)));
+    let build = best_of(10, || g.build_points(&x));
+    let (mut scratch, mut out) = (Vec::new(), Vec::new());
+    let mut query_all = || {
+        out.clear();
+        for i in 0..n {
+            g.points_within([x[i], x[n + i], x[2 * n + i]], r, &mut scratch, &mut out);
+        }
+        out.len()
+    };
+    c.bench_function("collide/hash/neighbours/100k", |b| b.iter(&mut query_all));
+    let mut found = 0;
+    let queries = best_of(10, || found = query_all());
+    format!(
+        "## Spatial hash, 100,000 points in the unit cube, radius 0.02 (1 thread)\n\n| | best of 10 |\n|---|---|\n| build | {:.2} ms |\n| 100,000 ball queries | {:.2} ms: {:.1} M queries/s, {:.2} neighbours each (self included) |\n\n",
+        build * 1e3,
+        queries * 1e3,
+        n as f64 / queries / 1e6,
+        found as f64 / n as f64
+    )
+}
+
+fn sdf(c: &mut Criterion) -> String {
+    use largestep::collide::SdfGrid;
+    use largestep::kernels::collide::sdf::Shape;
+    use largestep::kernels::interp::sample3_grad;
+    let path = std::path::Path::new("../shared/data/tetmesh/nut-surface.off");
+    let Ok(mesh) = largestep::io::read_surface(path, 1 << 24) else {
+        return format!("## Distance fields\n\n(skipped: {} not found)\n\n", path.display());
+    };
+    let m = mesh.as_ref();
+    let nv = mesh.positions.len() / 3;
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for i in 0..nv {
+        let p = m.vertex(i);
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    let size = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
+    let h = size / 40.0;
+    let t0 = Instant::now();
+    let field = SdfGrid::from_mesh(&mesh, h, 2, 1 << 24).expect("the nut is closed");
+    let build = t0.elapsed().as_secs_f64();
+    let k = 1_000_000;
+    let u = random_points(k, 5);
+    let pts: Vec<[f64; 3]> = (0..k).map(|i| [0, 1, 2].map(|a| lo[a] + u[a * k + i] * (hi[a] - lo[a]))).collect();
+    let sample_all = || pts.iter().map(|&p| sample3_grad(&field.phi, field.grid, p).0).sum::<f64>();
+    c.bench_function("collide/sdf/mesh-samples/1M", |b| b.iter(sample_all));
+    let torus = Shape::Torus { center: [0.5; 3], axis: [0.0, 0.6, 0.8], major: 0.3, minor: 0.1 };
+    let unit: Vec<[f64; 3]> = (0..k).map(|i| [u[i], u[k + i], u[2 * k + i]]).collect();
+    let torus_all = || unit.iter().map(|&p| torus.distance_grad(p).0).sum::<f64>();
+    c.bench_function("collide/sdf/torus-samples/1M", |b| b.iter(torus_all));
+    let mesh_t = best_of(10, || {
+        std::hint::black_box(sample_all());
+    });
+    let torus_t = best_of(10, || {
+        std::hint::black_box(torus_all());
+    });
+    format!(
+        "## Distance fields (1 thread)\n\n| | value |\n|---|---|\n| nut field build ({} x {} x {} nodes, 1,046 triangles) | {:.0} ms |\n| trilinear sample with gradient | {:.1} M samples/s |\n| exact torus distance with gradient | {:.1} M samples/s |\n\n",
+        field.grid.n[0],
+        field.grid.n[1],
+        field.grid.n[2],
+        build * 1e3,
+        k as f64 / mesh_t / 1e6,
+        k as f64 / torus_t / 1e6
+    )
+}
+
+#[cfg(feature = "cloth")]
+fn cloth_fold(c: &mut Criterion) -> String {
+    use largestep::scene::Scene;
+    let text = std::fs::read_to_string("scenes/cloth-fold.toml").expect("scenes/cloth-fold.toml");
+    let mut rows = String::new();
+    for with in [true, false] {
+        let t = if with { text.clone() } else { text.replace("[cloth.self_collision]\nthickness = 0.004\n", "") };
+        let mut scene = Scene::parse(&t, "cloth-fold.toml").expect("the scene parses");
+        let dt = scene.dt;
+        let sim = &mut scene.systems[0].sim;
+        for _ in 0..60 {
+            sim.step(dt).expect("the fold runs");
+        }
+        let name = if with { "collide/cloth-fold/step/self-collision" } else { "collide/cloth-fold/step/none" };
+        c.bench_function(name, |b| b.iter(|| sim.step(dt).expect("the fold runs")));
+        let per = best_of(20, || {
+            sim.step(dt).expect("the fold runs");
+        });
+        rows += &format!("| {} | {:.2} ms |\n", if with { "with self-collision (4 mm)" } else { "without" }, per * 1e3);
+    }
+    format!("## Cloth fold, 30 x 30 vertices, folded (60 steps in)\n\n| step | best of 20 |\n|---|---|\n{rows}\n")
 }

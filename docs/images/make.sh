@@ -21,6 +21,8 @@ spring-grid scenes/spring-grid.toml 640x360 contact-sheet.png
 cloth-drape scenes/cloth-drape.toml 1280x720 contact-sheet.png
 flag scenes/flag.toml 1280x720 contact-sheet.png
 tablecloth scenes/tablecloth.toml 1280x720 contact-sheet.png
+cloth-fold scenes/cloth-fold.toml 1280x720 contact-sheet.png
+cloth-pinned-bottom scenes/cloth-pinned-bottom.toml 1280x720 contact-sheet.png
 hanging-chain scenes/hanging-chain.toml 640x360 animation.gif
 fem-nut scenes/fem-nut.toml 1280x720 contact-sheet.png
 fem-ball scenes/fem-ball.toml 640x360 animation.gif
