@@ -230,18 +230,14 @@ fn sdf(c: &mut Criterion) -> String {
     use largestep::kernels::interp::sample3_grad;
     let path = std::path::Path::new("../shared/data/tetmesh/nut-surface.off");
     let Ok(mesh) = largestep::io::read_surface(path, 1 << 24) else {
-        return format!("## Distance fields\n\n(skipped: {} not found)\n\n", path.display());
+        return format!(
+            "## Distance fields\n\n(skipped: {} not found)\n\n",
+            path.display()
+        );
     };
     let m = mesh.as_ref();
-    let nv = mesh.positions.len() / 3;
-    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-    for i in 0..nv {
-        let p = m.vertex(i);
-        for a in 0..3 {
-            lo[a] = lo[a].min(p[a]);
-            hi[a] = hi[a].max(p[a]);
-        }
-    }
+    let Aabb { min: lo, max: hi } =
+        Aabb::of_points((0..mesh.positions.len() / 3).map(|i| m.vertex(i)));
     let size = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
     let h = size / 40.0;
     let t0 = Instant::now();
@@ -249,10 +245,21 @@ fn sdf(c: &mut Criterion) -> String {
     let build = t0.elapsed().as_secs_f64();
     let k = 1_000_000;
     let u = random_points(k, 5);
-    let pts: Vec<[f64; 3]> = (0..k).map(|i| [0, 1, 2].map(|a| lo[a] + u[a * k + i] * (hi[a] - lo[a]))).collect();
-    let sample_all = || pts.iter().map(|&p| sample3_grad(&field.phi, field.grid, p).0).sum::<f64>();
+    let pts: Vec<[f64; 3]> = (0..k)
+        .map(|i| [0, 1, 2].map(|a| lo[a] + u[a * k + i] * (hi[a] - lo[a])))
+        .collect();
+    let sample_all = || {
+        pts.iter()
+            .map(|&p| sample3_grad(&field.phi, field.grid, p).0)
+            .sum::<f64>()
+    };
     c.bench_function("collide/sdf/mesh-samples/1M", |b| b.iter(sample_all));
-    let torus = Shape::Torus { center: [0.5; 3], axis: [0.0, 0.6, 0.8], major: 0.3, minor: 0.1 };
+    let torus = Shape::Torus {
+        center: [0.5; 3],
+        axis: [0.0, 0.6, 0.8],
+        major: 0.3,
+        minor: 0.1,
+    };
     let unit: Vec<[f64; 3]> = (0..k).map(|i| [u[i], u[k + i], u[2 * k + i]]).collect();
     let torus_all = || unit.iter().map(|&p| torus.distance_grad(p).0).sum::<f64>();
     c.bench_function("collide/sdf/torus-samples/1M", |b| b.iter(torus_all));
@@ -279,19 +286,35 @@ fn cloth_fold(c: &mut Criterion) -> String {
     let text = std::fs::read_to_string("scenes/cloth-fold.toml").expect("scenes/cloth-fold.toml");
     let mut rows = String::new();
     for with in [true, false] {
-        let t = if with { text.clone() } else { text.replace("[cloth.self_collision]\nthickness = 0.004\n", "") };
+        let t = if with {
+            text.clone()
+        } else {
+            text.replace("[cloth.self_collision]\nthickness = 0.004\n", "")
+        };
         let mut scene = Scene::parse(&t, "cloth-fold.toml").expect("the scene parses");
         let dt = scene.dt;
         let sim = &mut scene.systems[0].sim;
         for _ in 0..60 {
             sim.step(dt).expect("the fold runs");
         }
-        let name = if with { "collide/cloth-fold/step/self-collision" } else { "collide/cloth-fold/step/none" };
+        let name = if with {
+            "collide/cloth-fold/step/self-collision"
+        } else {
+            "collide/cloth-fold/step/none"
+        };
         c.bench_function(name, |b| b.iter(|| sim.step(dt).expect("the fold runs")));
         let per = best_of(20, || {
             sim.step(dt).expect("the fold runs");
         });
-        rows += &format!("| {} | {:.2} ms |\n", if with { "with self-collision (4 mm)" } else { "without" }, per * 1e3);
+        rows += &format!(
+            "| {} | {:.2} ms |\n",
+            if with {
+                "with self-collision (4 mm)"
+            } else {
+                "without"
+            },
+            per * 1e3
+        );
     }
     format!("## Cloth fold, 30 x 30 vertices, folded (60 steps in)\n\n| step | best of 20 |\n|---|---|\n{rows}\n")
 }

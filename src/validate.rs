@@ -118,6 +118,27 @@ pub fn check(
     require(item, index, field, value, ok, why)
 }
 
+/// `Ok` when every vertex element `index` (an `item`: `triangle`, `tetrahedron`) names
+/// is below `n`, else the error naming the first one that is not.
+pub fn vertices_exist(
+    item: &'static str,
+    index: usize,
+    vertices: &[u32],
+    n: usize,
+) -> Result<(), ModelError> {
+    match vertices.iter().find(|&&v| v as usize >= n) {
+        None => Ok(()),
+        Some(&v) => Err(ModelError::Missing {
+            item,
+            index,
+            target: "vertex",
+            targets: "vertices",
+            named: v as usize,
+            n,
+        }),
+    }
+}
+
 /// `Ok` if `ok`, else the error naming item, index, field and `why`.
 pub fn require(
     item: &'static str,

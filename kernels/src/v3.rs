@@ -1,6 +1,18 @@
 //! 3-vector arithmetic on `[f64; 3]` (positions, normals, directions): the one copy the
 //! element kernels, obstacles, contacts and the renderer's camera share.
 
+/// `a + b`.
+#[inline(always)]
+pub fn add(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+}
+
+/// `s a`.
+#[inline(always)]
+pub fn scale(a: [f64; 3], s: f64) -> [f64; 3] {
+    [a[0] * s, a[1] * s, a[2] * s]
+}
+
 /// `a - b`.
 #[inline(always)]
 pub fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {

@@ -282,16 +282,7 @@ impl ClothDesc {
         let mut stiffness = TriangleStiffness::default();
         let mut mass = vec![0.0; n];
         for (t, tri) in self.triangles.iter().enumerate() {
-            if let Some(&v) = tri.iter().find(|&&v| v as usize >= n) {
-                return Err(ModelError::Missing {
-                    item: "triangle",
-                    index: t,
-                    target: "vertex",
-                    targets: "vertices",
-                    named: v as usize,
-                    n,
-                });
-            }
+            crate::validate::vertices_exist("triangle", t, tri, n)?;
             let r = TriangleRest::new(tri.map(|v| self.uv[v as usize])).ok_or_else(|| {
                 ModelError::Element {
                     item: "triangle",

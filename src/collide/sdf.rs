@@ -5,6 +5,7 @@
 
 use crate::io::Mesh;
 use crate::validate::ModelError;
+use largestep_kernels::collide::bv::Aabb;
 use largestep_kernels::collide::prox::{closest_on_triangle, norm2};
 use largestep_kernels::interp::Grid3;
 use largestep_kernels::v3::sub;
@@ -177,14 +178,7 @@ impl SdfGrid {
         }
         let m = surface.as_ref();
         let nv = surface.positions.len() / 3;
-        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-        for i in 0..nv {
-            let p = m.vertex(i);
-            for a in 0..3 {
-                lo[a] = lo[a].min(p[a]);
-                hi[a] = hi[a].max(p[a]);
-            }
-        }
+        let Aabb { min: lo, max: hi } = Aabb::of_points((0..nv).map(|i| m.vertex(i)));
         let origin = lo.map(|c| c - pad as f64 * h);
         let cells = [0, 1, 2].map(|a| ((hi[a] - lo[a]) / h).ceil() + 2.0 * pad as f64);
         let total: f64 = cells.iter().map(|c| c + 1.0).product();
@@ -319,18 +313,7 @@ pub fn check_closed(surface: &Mesh) -> Result<(), ModelError> {
     }
     let mut edges: Vec<(u32, u32, usize)> = Vec::with_capacity(3 * surface.triangles.len());
     for (t, tri) in surface.triangles.iter().enumerate() {
-        for &v in tri {
-            if v as usize >= nv {
-                return Err(ModelError::Missing {
-                    item: "triangle",
-                    index: t,
-                    target: "vertex",
-                    targets: "vertices",
-                    named: v as usize,
-                    n: nv,
-                });
-            }
-        }
+        crate::validate::vertices_exist("triangle", t, tri, nv)?;
         let [a, b, c] = tri.map(|v| m.vertex(v as usize));
         if crate::kernels::collide::prox::triangle_normal(a, b, c).is_none() {
             return Err(ModelError::Element {

@@ -428,18 +428,7 @@ impl FemDesc {
         let mut lame: [Vec<f64>; 2] = std::array::from_fn(|_| Vec::with_capacity(self.tets.len()));
         let region = |e: usize| self.element_material.get(e).map_or(0, |&r| r as usize);
         for (e, t) in self.tets.iter().enumerate() {
-            for &i in t {
-                if i as usize >= n {
-                    return Err(ModelError::Missing {
-                        item: "tetrahedron",
-                        index: e,
-                        target: "vertex",
-                        targets: "vertices",
-                        named: i as usize,
-                        n,
-                    });
-                }
-            }
+            crate::validate::vertices_exist("tetrahedron", e, t, n)?;
             let x = t.map(|i| self.positions[i as usize]);
             let v = signed_volume(&x);
             // A volume below 1e-12 of the element's bounding cube is flat for the

@@ -39,24 +39,30 @@ pub struct Proximity {
     pub weights: [f64; 3],
 }
 
+/// The unit vector along `d`, or, when `d` is zero (the features touch), along `fallback`
+/// (a normal of the features: the triangle's, or the two edges' cross product), or +z.
+fn direction(d: [f64; 3], fallback: [f64; 3]) -> (f64, [f64; 3]) {
+    let l = norm2(d).sqrt();
+    if l > 0.0 {
+        return (l, d.map(|x| x / l));
+    }
+    let ln = norm2(fallback).sqrt();
+    (
+        0.0,
+        if ln > 0.0 {
+            fallback.map(|x| x / ln)
+        } else {
+            [0.0, 0.0, 1.0]
+        },
+    )
+}
+
 /// The proximity of vertex `p` to triangle `abc`.
 pub fn vertex_triangle(p: [f64; 3], a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> Proximity {
     let (q, w) = closest_on_triangle(p, a, b, c);
-    let d = sub(p, q);
-    let l = norm2(d).sqrt();
-    let normal = if l > 0.0 {
-        d.map(|x| x / l)
-    } else {
-        let n = cross(sub(b, a), sub(c, a));
-        let ln = norm2(n).sqrt();
-        if ln > 0.0 {
-            n.map(|x| x / ln)
-        } else {
-            [0.0, 0.0, 1.0]
-        }
-    };
+    let (distance, normal) = direction(sub(p, q), cross(sub(b, a), sub(c, a)));
     Proximity {
-        distance: l,
+        distance,
         normal,
         weights: w,
     }
@@ -65,21 +71,9 @@ pub fn vertex_triangle(p: [f64; 3], a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> Pr
 /// The proximity of edge `p q` to edge `r s`, direction from the first to the second.
 pub fn edge_edge(p: [f64; 3], q: [f64; 3], r: [f64; 3], s: [f64; 3]) -> Proximity {
     let (u, v, c1, c2) = closest_segments(p, q, r, s);
-    let d = sub(c2, c1);
-    let l = norm2(d).sqrt();
-    let normal = if l > 0.0 {
-        d.map(|x| x / l)
-    } else {
-        let n = cross(sub(q, p), sub(s, r));
-        let ln = norm2(n).sqrt();
-        if ln > 0.0 {
-            n.map(|x| x / ln)
-        } else {
-            [0.0, 0.0, 1.0]
-        }
-    };
+    let (distance, normal) = direction(sub(c2, c1), cross(sub(q, p), sub(s, r)));
     Proximity {
-        distance: l,
+        distance,
         normal,
         weights: [u, v, 0.0],
     }
@@ -173,6 +167,39 @@ fn candidates(c: &[f64; 4], tol: f64, out: &mut [f64; 12]) -> usize {
     n
 }
 
+/// The first candidate time in `[0, 1]` at which `check` finds the features within eta:
+/// `t = 0` first, then the roots of the coplanarity cubic of the three moving edge
+/// vectors `x`, `y`, `z` (each `[start, change over the step]`).
+fn first_contact(
+    x: [[f64; 3]; 2],
+    y: [[f64; 3]; 2],
+    z: [[f64; 3]; 2],
+    eta: f64,
+    check: impl Fn(f64) -> Option<(f64, Proximity)>,
+) -> Option<(f64, Proximity)> {
+    if let Some(hit) = check(0.0) {
+        return Some(hit);
+    }
+    let coef = triple_cubic(x, y, z);
+    // The cubic's scale: |x| |y| |z| bounds it; eta relative to that.
+    let size = |u: [[f64; 3]; 2]| norm2(u[0]).sqrt() + norm2(u[1]).sqrt();
+    let tol = eta * size(x) * size(y);
+    let mut ts = [0.0; 12];
+    let n = candidates(&coef, tol, &mut ts);
+    ts[..n].iter().find_map(|&t| check(t))
+}
+
+/// `u - v` over the step: its start and its change.
+fn relative(u: [[f64; 3]; 2], v: [[f64; 3]; 2]) -> [[f64; 3]; 2] {
+    let d0 = sub(u[0], v[0]);
+    [d0, sub(sub(u[1], v[1]), d0)]
+}
+
+#[inline(always)]
+fn at(x: [[f64; 3]; 2], t: f64) -> [f64; 3] {
+    lerp(x[0], x[1], t)
+}
+
 /// The first time in `[0, 1]` at which the moving vertex `p` comes within `eta` (m) of
 /// the moving triangle `abc` (positions at the start `*0` and end `*1` of the step), with
 /// the proximity then; `None` when it never does.
@@ -183,26 +210,10 @@ pub fn vertex_triangle_ccd(
     c: [[f64; 3]; 2],
     eta: f64,
 ) -> Option<(f64, Proximity)> {
-    let at = |x: [[f64; 3]; 2], t: f64| lerp(x[0], x[1], t);
-    let check = |t: f64| {
+    first_contact(relative(b, a), relative(c, a), relative(p, a), eta, |t| {
         let pr = vertex_triangle(at(p, t), at(a, t), at(b, t), at(c, t));
         (pr.distance <= eta).then_some((t, pr))
-    };
-    if let Some(hit) = check(0.0) {
-        return Some(hit);
-    }
-    let lin = |u: [[f64; 3]; 2], v: [[f64; 3]; 2]| {
-        let d0 = sub(u[0], v[0]);
-        [d0, sub(sub(u[1], v[1]), d0)]
-    };
-    let (x, y, z) = (lin(b, a), lin(c, a), lin(p, a));
-    let coef = triple_cubic(x, y, z);
-    // The cubic's scale: |x| |y| |z| bounds it; eta relative to that.
-    let size = |u: [[f64; 3]; 2]| norm2(u[0]).sqrt() + norm2(u[1]).sqrt();
-    let tol = eta * size(x) * size(y);
-    let mut ts = [0.0; 12];
-    let n = candidates(&coef, tol, &mut ts);
-    ts[..n].iter().find_map(|&t| check(t))
+    })
 }
 
 /// The first time in `[0, 1]` at which moving edge `p q` comes within `eta` (m) of
@@ -214,23 +225,8 @@ pub fn edge_edge_ccd(
     s: [[f64; 3]; 2],
     eta: f64,
 ) -> Option<(f64, Proximity)> {
-    let at = |x: [[f64; 3]; 2], t: f64| lerp(x[0], x[1], t);
-    let check = |t: f64| {
+    first_contact(relative(q, p), relative(s, r), relative(r, p), eta, |t| {
         let pr = edge_edge(at(p, t), at(q, t), at(r, t), at(s, t));
         (pr.distance <= eta).then_some((t, pr))
-    };
-    if let Some(hit) = check(0.0) {
-        return Some(hit);
-    }
-    let lin = |u: [[f64; 3]; 2], v: [[f64; 3]; 2]| {
-        let d0 = sub(u[0], v[0]);
-        [d0, sub(sub(u[1], v[1]), d0)]
-    };
-    let (x, y, z) = (lin(q, p), lin(s, r), lin(r, p));
-    let coef = triple_cubic(x, y, z);
-    let size = |u: [[f64; 3]; 2]| norm2(u[0]).sqrt() + norm2(u[1]).sqrt();
-    let tol = eta * size(x) * size(y);
-    let mut ts = [0.0; 12];
-    let n = candidates(&coef, tol, &mut ts);
-    ts[..n].iter().find_map(|&t| check(t))
+    })
 }

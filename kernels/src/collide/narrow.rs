@@ -8,17 +8,7 @@
 //! midway between the two witness points, on A's surface `point_a` and B's `point_b`.
 
 use super::prox::{closest_on_segment, closest_on_triangle, closest_segments, norm2};
-use crate::v3::{cross, dot, length_and_unit, sub};
-
-#[inline(always)]
-fn add(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
-}
-
-#[inline(always)]
-fn scale(a: [f64; 3], s: f64) -> [f64; 3] {
-    [a[0] * s, a[1] * s, a[2] * s]
-}
+use crate::v3::{add, cross, dot, length_and_unit, scale, sub};
 
 #[inline(always)]
 fn lerp3(w: [f64; 3], p: [[f64; 3]; 3]) -> [f64; 3] {

@@ -2,17 +2,7 @@
 //! Collision Detection", sections 5.1.5 and 5.1.9): the proximity queries of the narrow
 //! phase, the sampled distance fields and the haptic proxy.
 
-use crate::v3::{cross, dot, sub};
-
-#[inline(always)]
-fn add(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
-}
-
-#[inline(always)]
-fn scale(a: [f64; 3], s: f64) -> [f64; 3] {
-    [a[0] * s, a[1] * s, a[2] * s]
-}
+use crate::v3::{add, cross, dot, scale, sub};
 
 /// `|a|²`.
 #[inline(always)]
