@@ -23,6 +23,11 @@
 //! - `collide/cloth-fold/step`: one step of `scenes/cloth-fold.toml` (30 x 30 vertices)
 //!   once the sheet lies folded (60 steps in), with and without `[cloth.self_collision]`.
 //!
+//! - `collide/haptics/god-object/10k`: one tick of the god object against a sphere of
+//!   10,000 triangles with the device pressed 0.2 below its top, and the replay of the
+//!   3 s scripted stroke at 1 kHz with the 50th and 99th percentiles of a tick's work
+//!   (target: 99th below 1 ms).
+//!
 //! Run with `cargo bench --bench collide` (`-- collide/bvh` for a part); the summary is
 //! printed and written to `target/criterion/collide-summary.md`.
 
@@ -72,6 +77,9 @@ fn main() {
     }
     if wanted("collide/sdf") {
         md += &sdf(&mut c);
+    }
+    if wanted("collide/haptics") {
+        md += &haptics(&mut c);
     }
     #[cfg(feature = "cloth")]
     if wanted("collide/cloth-fold") {
@@ -317,4 +325,34 @@ fn cloth_fold(c: &mut Criterion) -> String {
         );
     }
     format!("## Cloth fold, 30 x 30 vertices, folded (60 steps in)\n\n| step | best of 20 |\n|---|---|\n{rows}\n")
+}
+
+fn haptics(c: &mut Criterion) -> String {
+    use largestep::haptics::{latency, replay, DevicePath, GodObject};
+    let m = largestep::shapes::uv_sphere([0.0; 3], 1.0, 51, 100);
+    let mut god = GodObject::new(&m, 500.0).expect("a closed sphere");
+    let b = god.bounds();
+    let top = god.top();
+    let path = DevicePath::stroke(&b, [top[0] + 0.013, top[2] + 0.007], 0.2);
+    god.reset([0.013, 1.5, 0.007]).expect("outside");
+    c.bench_function("collide/haptics/god-object/10k", |bch| {
+        bch.iter(|| god.tick([0.013, 0.8, 0.007]))
+    });
+    let mut best = [f64::INFINITY; 4];
+    for _ in 0..5 {
+        let ticks = replay(&mut god, &path).expect("the stroke starts outside");
+        let l = latency(&ticks);
+        if l[2] < best[2] {
+            best = l;
+        }
+    }
+    format!(
+        "## Haptics: god object against a sphere of {} triangles (1 thread)\n\n| 3 s stroke at 1 kHz, best of 5 replays | work per tick |\n|---|---|\n| 50th percentile | {:.2} us |\n| 90th percentile | {:.2} us |\n| 99th percentile | {:.2} us ({:.3}% of the 1 ms tick) |\n| largest | {:.2} us |\n\n",
+        m.triangles.len(),
+        best[0] * 1e6,
+        best[1] * 1e6,
+        best[2] * 1e6,
+        100.0 * best[2] / 1e-3,
+        best[3] * 1e6
+    )
 }

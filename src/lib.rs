@@ -20,6 +20,7 @@ pub mod collide;
 pub mod fem;
 #[cfg(feature = "fluid")]
 pub mod fluid;
+pub mod haptics;
 pub mod integrate;
 pub mod io;
 pub mod limits;

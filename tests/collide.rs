@@ -1062,3 +1062,157 @@ mod continuous {
         }
     }
 }
+
+mod haptics {
+    use largestep::haptics::{latency, replay, DevicePath, GodObject};
+
+    fn nut() -> largestep::io::Mesh {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../shared/data/tetmesh/nut-surface.off");
+        largestep::io::read_surface(&path, 1 << 24).unwrap()
+    }
+
+    #[test]
+    fn god_object_never_enters_the_surface_and_pushes_back() {
+        let m = nut();
+        let mut god = GodObject::new(&m, 500.0).unwrap();
+        let b = god.bounds();
+        let height = b.max[1] - b.min[1];
+        let top = god.top();
+        let path = DevicePath::stroke(&b, [top[0], top[2]], 0.1 * height);
+        let ticks = replay(&mut god, &path).unwrap();
+        assert_eq!(ticks.len(), 3001);
+        let mut pressed = 0;
+        for t in &ticks {
+            // The proxy is never inside (every tick, by parity over all triangles).
+            assert!(!god.inside(t.proxy), "proxy inside at t = {}", t.time);
+            let depth = t
+                .proxy
+                .iter()
+                .zip(&t.device)
+                .map(|(p, d)| (p - d) * (p - d))
+                .sum::<f64>()
+                .sqrt();
+            let f = t.force.iter().map(|c| c * c).sum::<f64>().sqrt();
+            // The coupling spring: |F| = k |proxy - device|.
+            assert!((f - 500.0 * depth).abs() <= 1e-9 * (1.0 + f));
+            if god.inside(t.device) {
+                pressed += 1;
+                assert!(f > 0.0, "no force with the device inside at t = {}", t.time);
+            } else {
+                // Outside, the proxy reaches the device unless a face is in the way.
+                assert!(depth < 0.2 * height);
+            }
+        }
+        assert!(
+            pressed > 300,
+            "the stroke presses into the nut ({pressed} ticks)"
+        );
+        // Free space at the start: no force.
+        assert_eq!(ticks[0].force, [0.0; 3]);
+        // Deterministic replay.
+        let again = replay(&mut god, &path).unwrap();
+        assert!(ticks
+            .iter()
+            .zip(&again)
+            .all(|(a, b)| a.force == b.force && a.proxy == b.proxy));
+        let [p50, _, p99, _] = latency(&ticks);
+        assert!(p50 <= p99);
+    }
+
+    /// On a convex body the god object rests at the surface point nearest the device (it
+    /// minimises its distance to the device over the surface): on a fine sphere the force
+    /// is k times the depth below the sphere, along the radius, also while sliding.
+    #[test]
+    fn god_object_on_a_sphere_is_the_nearest_surface_point() {
+        let m = largestep::shapes::uv_sphere([0.0; 3], 1.0, 48, 96);
+        let k = 500.0;
+        let mut god = GodObject::new(&m, k).unwrap();
+        let b = god.bounds();
+        let top = god.top();
+        let path = DevicePath::stroke(&b, [top[0] + 0.013, top[2] + 0.007], 0.2);
+        let ticks = replay(&mut god, &path).unwrap();
+        let mut checked = 0;
+        for t in &ticks {
+            let r = t.device.iter().map(|c| c * c).sum::<f64>().sqrt();
+            if r > 0.97 || t.time < 0.2 {
+                continue;
+            }
+            // The mesh lies within the sphere by at most its sagitta (1 - cos(pi / 48)).
+            let sag = 1.0 - (std::f64::consts::PI / 48.0).cos();
+            let f = t.force.iter().map(|c| c * c).sum::<f64>().sqrt();
+            assert!(
+                (f / k - (1.0 - r)).abs() <= sag + 1e-6,
+                "t {}: |F|/k {} vs depth {}",
+                t.time,
+                f / k,
+                1.0 - r
+            );
+            let along: f64 = (0..3).map(|a| t.force[a] * t.device[a]).sum::<f64>() / (f * r);
+            assert!(along > 0.99, "t {}: force not radial ({along})", t.time);
+            checked += 1;
+        }
+        assert!(checked > 1000, "{checked} ticks checked");
+    }
+
+    #[test]
+    fn bad_paths_and_starts_are_named() {
+        let e = DevicePath::parse("t,x,y,z\n0,0,0,0\n0.001,1,2\n", "p.csv")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("p.csv") && e.contains("3") && e.contains("4 fields"),
+            "{e}"
+        );
+        let e = DevicePath::parse("0,0,0,0\n0,1,1,1\n", "p.csv")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("line 2") || e.contains(":2"), "{e}");
+        assert!(e.contains("increase"), "{e}");
+        let e = DevicePath::parse("0,0,nan,0\n", "p.csv")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("finite"), "{e}");
+        let e = DevicePath::parse("# nothing\n", "p.csv")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("no positions"), "{e}");
+        let e = DevicePath::parse("time,x,y,z\n", "p.csv")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("header"), "{e}");
+        let m = nut();
+        let mut god = GodObject::new(&m, 500.0).unwrap();
+        let c = god.bounds().center();
+        // The nut's centre is its hole: find a point inside the solid by its vertices.
+        let inside = (0..m.positions.len() / 3)
+            .map(|i| {
+                let v = m.as_ref().vertex(i);
+                [
+                    0.999 * v[0] + 0.001 * c[0],
+                    0.999 * v[1] + 0.001 * c[1],
+                    0.999 * v[2] + 0.001 * c[2],
+                ]
+            })
+            .find(|p| god.inside(*p))
+            .expect("a point just inside a vertex");
+        let e = god.reset(inside).unwrap_err();
+        assert!(e.contains("inside the surface"), "{e}");
+        // A non-finite device position: no force, the proxy stays.
+        god.reset([c[0], god.bounds().max[1] + 1.0, c[2]]).unwrap();
+        let before = god.proxy();
+        assert_eq!(god.tick([f64::NAN, 0.0, 0.0]), [0.0; 3]);
+        assert_eq!(god.proxy(), before);
+        // An open surface is refused.
+        let mut open = m.clone();
+        open.triangles = m.triangles[1..].to_vec().into();
+        assert!(GodObject::new(&open, 500.0)
+            .unwrap_err()
+            .to_string()
+            .contains("open"));
+        assert!(GodObject::new(&m, -1.0)
+            .unwrap_err()
+            .to_string()
+            .contains("stiffness"));
+    }
+}

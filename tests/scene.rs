@@ -655,3 +655,87 @@ fn mistyped_commands_and_studies_get_the_nearest_name() {
     assert!(e.contains("did you mean `jello-stability`"), "{e}");
     assert!(!stderr_of(&["study", "qqq"]).contains("did you mean"));
 }
+
+#[test]
+fn haptics_command_writes_the_force_trace_and_names_bad_paths() {
+    let exe = env!("CARGO_BIN_EXE_largestep");
+    let nut =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/tetmesh/nut-surface.off");
+    let out = tmp("haptics");
+    let run = std::process::Command::new(exe)
+        .args([
+            "haptics",
+            nut.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        stdout.contains("3001 ticks") && stdout.contains("p99"),
+        "{stdout}"
+    );
+    let csv = std::fs::read_to_string(out.join("haptics.csv")).unwrap();
+    assert!(csv.starts_with("time_s,device_x,device_y,device_z,proxy_x,proxy_y,proxy_z,force_x,force_y,force_z,work_us\n"));
+    assert_eq!(csv.lines().count(), 3002);
+    for f in [
+        "haptics.png",
+        "haptics.svg",
+        "summary.json",
+        "device-path.csv",
+    ] {
+        assert!(out.join(f).exists(), "{f}");
+    }
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert!(summary["max_force_n"].as_f64().unwrap() > 0.0);
+    // The written path replays to the same trace.
+    let again = std::process::Command::new(exe)
+        .args([
+            "haptics",
+            nut.to_str().unwrap(),
+            "--path",
+            out.join("device-path.csv").to_str().unwrap(),
+            "--out",
+            out.join("again").to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(again.status.success());
+    let strip = |s: &str| {
+        s.lines()
+            .map(|l| l.rsplit_once(',').unwrap().0.to_string())
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(
+        strip(&csv),
+        strip(&std::fs::read_to_string(out.join("again/haptics.csv")).unwrap())
+    );
+    // A bad path file: the file and line are named.
+    let bad = out.join("bad.csv");
+    std::fs::write(&bad, "t,x,y,z\n0,0,0,0\n0.5,1,oops,0\n").unwrap();
+    let run = std::process::Command::new(exe)
+        .args([
+            "haptics",
+            nut.to_str().unwrap(),
+            "--path",
+            bad.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(run.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        err.contains("bad.csv") && err.contains("3") && err.contains("oops"),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&out);
+}

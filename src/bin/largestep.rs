@@ -110,6 +110,25 @@ enum Command {
         #[command(flatten)]
         view: ViewArgs,
     },
+    /// Haptic rendering: a point probe against a closed triangle mesh (god object with a
+    /// virtual-coupling spring), replayed at 1 kHz along a device path. Writes
+    /// haptics.csv (time_s, device, proxy, force and work_us per tick), haptics.png (the
+    /// force trace) and summary.json, and prints the loop's latency percentiles.
+    Haptics {
+        /// The closed surface (.obj, .off).
+        mesh: PathBuf,
+        /// The device path: a CSV of t,x,y,z rows (s, m). Default: a scripted 3 s stroke
+        /// down onto the mesh's highest vertex, a tenth of its height into it and along +x,
+        /// written to device-path.csv.
+        #[arg(long)]
+        path: Option<PathBuf>,
+        /// Coupling spring stiffness (N/m).
+        #[arg(long, default_value_t = 500.0)]
+        stiffness: f64,
+        /// Output folder.
+        #[arg(long, default_value = "out/haptics")]
+        out: PathBuf,
+    },
     /// Run a study: error against run time, orders, stability.
     Study {
         /// Which study (integrators, jello-stability, jello-accuracy, cloth-accuracy, cloth-stability,
@@ -356,6 +375,12 @@ fn main() -> ExitCode {
             view,
         } => render(&frames, out, scene, &view, &limits),
         Command::Study { name, out, quick } => study(&name, &out, quick),
+        Command::Haptics {
+            mesh,
+            path,
+            stiffness,
+            out,
+        } => haptics(&mesh, path.as_deref(), stiffness, &out, &limits),
         #[cfg(feature = "modal")]
         Command::Modes {
             mesh,
@@ -587,6 +612,125 @@ fn render(
             }
         }
     }
+}
+
+/// `largestep haptics`: replays a device path through the god object of a mesh.
+fn haptics(
+    mesh: &std::path::Path,
+    path: Option<&std::path::Path>,
+    stiffness: f64,
+    out: &std::path::Path,
+    limits: &Limits,
+) -> ExitCode {
+    use largestep::haptics::{latency, replay, trace_csv, DevicePath, GodObject, TICK};
+    use largestep::plot::{Curve, Panel, Scale};
+    let fail = |e: String| {
+        eprintln!("error: {e}");
+        ExitCode::from(2)
+    };
+    let surface = match largestep::io::read_surface(mesh, limits.max_file_bytes) {
+        Ok(m) => m,
+        Err(e) => return fail(e.to_string()),
+    };
+    let mut god = match GodObject::new(&surface, stiffness) {
+        Ok(g) => g,
+        Err(e) => return fail(format!("{}: {e}", mesh.display())),
+    };
+    if let Err(e) = std::fs::create_dir_all(out) {
+        return fail(format!("{}: {e}", out.display()));
+    }
+    let device = match path {
+        Some(p) => match DevicePath::read(p, limits.max_file_bytes) {
+            Ok(d) => d,
+            Err(e) => return fail(e.to_string()),
+        },
+        None => {
+            let b = god.bounds();
+            let top = god.top();
+            let d = DevicePath::stroke(&b, [top[0], top[2]], 0.1 * (b.max[1] - b.min[1]));
+            let file = out.join("device-path.csv");
+            if let Err(e) = std::fs::write(&file, d.to_csv()) {
+                return fail(format!("{}: {e}", file.display()));
+            }
+            d
+        }
+    };
+    // Ticks are kept in memory (about 120 bytes each): check before replaying.
+    let ticks_n = device.duration() / TICK + 1.0;
+    if let Err(e) = limits.memory("the haptic trace", 120.0 * ticks_n) {
+        return fail(e);
+    }
+    let ticks = match replay(&mut god, &device) {
+        Ok(t) => t,
+        Err(e) => return fail(e),
+    };
+    let csv = out.join("haptics.csv");
+    if let Err(e) = std::fs::write(&csv, trace_csv(&ticks)) {
+        return fail(format!("{}: {e}", csv.display()));
+    }
+    let curve = |label: &str, f: &dyn Fn(&largestep::haptics::Tick) -> f64| Curve {
+        label: label.into(),
+        points: ticks.iter().map(|t| (t.time, f(t))).collect(),
+        dashed: true,
+    };
+    let panels = [
+        Panel {
+            title: format!("god object, k = {stiffness} N/m"),
+            x_label: "time (s)".into(),
+            y_label: "force on the user (N)".into(),
+            scale: Scale::Linear,
+            curves: vec![
+                (0, curve("F_x", &|t| t.force[0])),
+                (1, curve("F_y", &|t| t.force[1])),
+                (2, curve("F_z", &|t| t.force[2])),
+            ],
+        },
+        Panel {
+            title: "work per 1 ms tick".into(),
+            x_label: "time (s)".into(),
+            y_label: "work (us)".into(),
+            scale: Scale::Linear,
+            curves: vec![(3, curve("tick", &|t| t.work * 1e6))],
+        },
+    ];
+    if let Err(e) = largestep::plot::write_panels(&out.join("haptics"), &panels, 1, (900, 320)) {
+        return fail(e);
+    }
+    let [p50, p90, p99, max] = latency(&ticks);
+    let fmax = ticks
+        .iter()
+        .map(|t| t.force.iter().map(|c| c * c).sum::<f64>().sqrt())
+        .fold(0.0, f64::max);
+    let summary = serde_json::json!({
+        "mesh": mesh.display().to_string(),
+        "triangles": surface.triangles.len(),
+        "ticks": ticks.len(),
+        "tick_s": TICK,
+        "stiffness_n_per_m": stiffness,
+        "max_force_n": fmax,
+        "work_us": {"p50": p50 * 1e6, "p90": p90 * 1e6, "p99": p99 * 1e6, "max": max * 1e6},
+    });
+    let json = out.join("summary.json");
+    if let Err(e) = std::fs::write(&json, format!("{summary:#}\n")) {
+        return fail(format!("{}: {e}", json.display()));
+    }
+    println!(
+        "haptics: {} ticks of 1 ms against {} triangles, largest force {fmax:.3} N",
+        ticks.len(),
+        surface.triangles.len()
+    );
+    println!(
+        "  work per tick  p50 {:.1} us, p90 {:.1} us, p99 {:.1} us, max {:.1} us ({} the 1 ms budget at p99)",
+        p50 * 1e6,
+        p90 * 1e6,
+        p99 * 1e6,
+        max * 1e6,
+        if p99 < TICK { "within" } else { "over" }
+    );
+    println!("  trace          {}", csv.display());
+    println!("  plot           {}", out.join("haptics.png").display());
+    println!("  summary        {}", json.display());
+    ExitCode::SUCCESS
 }
 
 fn study(name: &str, out: &std::path::Path, quick: bool) -> ExitCode {

@@ -116,10 +116,16 @@ impl Aabb {
     pub fn ray(&self, origin: [f64; 3], inv_dir: [f64; 3], t_max: f64) -> Option<(f64, f64)> {
         let (mut t0, mut t1) = (0.0f64, t_max);
         for a in 0..3 {
+            if inv_dir[a].is_infinite() {
+                // Parallel to this slab: inside it (faces included) or a miss. The
+                // products below would be 0 * inf = NaN for an origin on a face.
+                if origin[a] < self.min[a] || origin[a] > self.max[a] {
+                    return None;
+                }
+                continue;
+            }
             let lo = (self.min[a] - origin[a]) * inv_dir[a];
             let hi = (self.max[a] - origin[a]) * inv_dir[a];
-            // NaN (0 * inf: the origin on a face with a zero direction) leaves the bound
-            // unchanged: `max`/`min` return the other operand.
             t0 = t0.max(lo.min(hi));
             t1 = t1.min(lo.max(hi));
         }

@@ -148,3 +148,42 @@ pub fn closest_segments(
 pub fn triangle_normal(a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> Option<[f64; 3]> {
     crate::v3::length_and_unit(cross(sub(b, a), sub(c, a))).map(|(_, n)| n)
 }
+
+/// Where the ray `origin + t dir` first meets triangle `abc` for `0 <= t <= t_max`:
+/// `(t, [u, v, w])` with the barycentric weights of the hit (Möller and Trumbore 1997),
+/// either side of the triangle; `None` for a miss, a ray in the triangle's plane or a
+/// degenerate triangle. `slack` widens the triangle by that much in barycentric terms:
+/// with `slack = 0` a ray through a shared edge or vertex may, by rounding, miss every
+/// triangle there (or hit two); a small positive slack makes it hit at least one, which
+/// is what a probe that must not pass through wants. Parity counts want 0 and rays that
+/// avoid edges.
+pub fn ray_triangle(
+    origin: [f64; 3],
+    dir: [f64; 3],
+    [a, b, c]: [[f64; 3]; 3],
+    t_max: f64,
+    slack: f64,
+) -> Option<(f64, [f64; 3])> {
+    let e1 = sub(b, a);
+    let e2 = sub(c, a);
+    let p = cross(dir, e2);
+    let det = dot(e1, p);
+    // Relative to the edges' and direction's scale: a ray (nearly) in the plane.
+    let scale = norm2(e1).sqrt() * norm2(e2).sqrt() * norm2(dir).sqrt();
+    if det.abs() <= 1e-14 * scale || scale == 0.0 {
+        return None;
+    }
+    let inv = 1.0 / det;
+    let s = sub(origin, a);
+    let v = dot(s, p) * inv;
+    if v < -slack || v > 1.0 + slack {
+        return None;
+    }
+    let q = cross(s, e1);
+    let w = dot(dir, q) * inv;
+    if w < -slack || v + w > 1.0 + slack {
+        return None;
+    }
+    let t = dot(e2, q) * inv;
+    (t >= 0.0 && t <= t_max).then_some((t, [1.0 - v - w, v, w]))
+}
