@@ -4,6 +4,7 @@
 
 #[cfg(feature = "cloth")]
 mod cloth;
+mod collide;
 #[cfg(feature = "fem")]
 mod fem;
 #[cfg(feature = "fluid")]
@@ -103,6 +104,7 @@ const STUDIES: &[Study] = &[
     ("poisson", fluid::poisson),
     #[cfg(feature = "fluid")]
     ("cavity", fluid::cavity_study),
+    ("distance-fields", collide::distance_fields),
 ];
 
 /// The names of the studies built in.
