@@ -1216,3 +1216,105 @@ mod haptics {
             .contains("stiffness"));
     }
 }
+
+mod six_dof {
+    use largestep::collide::SdfGrid;
+    use largestep::haptics::{quat_exp, quat_log, SixDof, IDENTITY};
+    use largestep::kernels::interp::Grid3;
+    use std::sync::Arc;
+
+    /// The floor `y <= 0` as a distance grid (trilinear reads of a linear field are
+    /// exact).
+    fn floor() -> Arc<SdfGrid> {
+        let grid = Grid3::spanning([51, 31, 51], [-0.5, -0.3, -0.5], [0.5, 0.3, 0.5]);
+        Arc::new(SdfGrid::sample(grid, |p| p[1]))
+    }
+
+    /// A cube of side 0.1 as a point shell: the surface points of a 5 x 5 x 5 lattice.
+    fn cube() -> Vec<[f64; 3]> {
+        let mut s = Vec::new();
+        for i in 0..5 {
+            for j in 0..5 {
+                for k in 0..5 {
+                    if [i, j, k].iter().any(|&c| c == 0 || c == 4) {
+                        s.push([i, j, k].map(|c| -0.05 + 0.025 * c as f64));
+                    }
+                }
+            }
+        }
+        s
+    }
+
+    #[test]
+    fn pressed_flat_the_coupling_and_the_contacts_are_springs_in_series() {
+        let (kt, kr, kc) = (1000.0, 10.0, 2e4);
+        let mut tool = SixDof::new(cube(), floor(), kt, kr, kc).unwrap();
+        tool.reset([0.0, 0.2, 0.0], IDENTITY);
+        // Free: the tool follows the device exactly.
+        let w = tool.tick([0.01, 0.15, -0.02], quat_exp([0.0, 0.0, 0.3]));
+        assert!(
+            w.force.iter().chain(&w.torque).all(|c| c.abs() < 1e-9),
+            "{w:?}"
+        );
+        assert_eq!(w.contacts, 0);
+        // The device 1 cm below resting contact (the cube's bottom at y = 0).
+        let d = 0.01;
+        tool.reset([0.0, 0.05, 0.0], IDENTITY);
+        let w = tool.tick([0.0, 0.05 - d, 0.0], IDENTITY);
+        let n = 25.0; // the bottom face's points
+        let want = kt * kc * n * d / (kt + kc * n);
+        assert!(
+            (w.force[1] - want).abs() < 1e-9 * want,
+            "F_y {} vs {want}",
+            w.force[1]
+        );
+        assert!(w.force[0].abs() < 1e-9 && w.force[2].abs() < 1e-9);
+        assert!(w.torque.iter().all(|c| c.abs() < 1e-9), "{:?}", w.torque);
+        assert_eq!(w.contacts, 25);
+        assert!((tool.penetration() - (d - want / kt)).abs() < 1e-9);
+    }
+
+    #[test]
+    fn pressed_tilted_the_floor_flattens_the_tool() {
+        let mut tool = SixDof::new(cube(), floor(), 1000.0, 10.0, 2e4).unwrap();
+        tool.reset([0.0, 0.06, 0.0], IDENTITY);
+        let tilt = quat_exp([0.0, 0.0, 10f64.to_radians()]);
+        let mut w = tool.tick([0.0, 0.06, 0.0], tilt);
+        for step in 0..50 {
+            // Lower the device 0.4 mm a tick, 2 cm in all.
+            w = tool.tick([0.0, 0.06 - 0.0004 * (step + 1) as f64, 0.0], tilt);
+        }
+        // The floor pushes straight up: no force along it.
+        assert!(
+            w.force[0].abs() < 1e-6 * w.force[1] && w.force[2].abs() < 1e-6 * w.force[1],
+            "{w:?}"
+        );
+        assert!(w.force[1] > 0.0 && w.contacts > 0);
+        // The tool is tilted less than the device: the contact torque opposes the
+        // coupling's, about z only.
+        let (_, q) = tool.pose();
+        let tilt_tool = quat_log(q)[2];
+        assert!(
+            tilt_tool.abs() < 10f64.to_radians() && tilt_tool > 0.0,
+            "tool tilt {tilt_tool}"
+        );
+        assert!(w.torque[0].abs() < 1e-9 && w.torque[1].abs() < 1e-9);
+        assert!(
+            w.torque[2] < 0.0,
+            "the coupling turns the device back towards the tool"
+        );
+        // Bad input: named.
+        assert!(SixDof::new(Vec::new(), floor(), 1.0, 1.0, 1.0)
+            .unwrap_err()
+            .contains("no points"));
+        assert!(SixDof::new(cube(), floor(), 1.0, 0.0, 1.0)
+            .unwrap_err()
+            .contains("k_rotation"));
+        assert!(SixDof::new(vec![[f64::NAN; 3]], floor(), 1.0, 1.0, 1.0)
+            .unwrap_err()
+            .contains("shell point 0"));
+        let before = tool.pose();
+        assert_eq!(tool.tick([f64::NAN; 3], IDENTITY).force, [0.0; 3]);
+        assert_eq!(tool.pose(), before);
+    }
+}

@@ -15,6 +15,13 @@
 //! that time are the loop's latency. A path is a CSV file of timestamped positions
 //! ([`DevicePath::parse`]), or the scripted stroke of [`DevicePath::stroke`]: replays are
 //! deterministic (the forces do not depend on timing).
+//!
+//! [`SixDof`] renders a rigid tool (a point shell) against a distance field with a
+//! six-DoF virtual coupling (Barbič and James 2008), `src/haptics/six_dof.rs`.
+
+mod six_dof;
+
+pub use six_dof::{quat_exp, quat_log, quat_mul, rotate, Quat, SixDof, Wrench, IDENTITY};
 
 use crate::collide::check_closed;
 use crate::io::{Mesh, ReadError};
