@@ -470,6 +470,44 @@ fn bvh_rebuilds_when_refitting_degrades_it() {
 }
 
 #[test]
+fn element_and_particle_boxes_hold_their_elements() {
+    use largestep::kernels::collide::bv::{element_boxes, particle_boxes};
+    // Component-major: x of 4 points, then y, then z.
+    let x = [0.0, 1.0, 0.0, 0.2, 0.0, 0.0, 1.0, 0.3, 0.0, 0.0, 0.0, 1.0];
+    let mut boxes = Vec::new();
+    element_boxes(&mut boxes, &x, &[[0u32, 1, 2, 3]], 0.1);
+    assert_eq!(
+        boxes,
+        vec![Aabb {
+            min: [-0.1; 3],
+            max: [1.1; 3]
+        }]
+    );
+    element_boxes(&mut boxes, &x, &[[0u32, 1, 2], [1, 2, 3]], 0.0);
+    assert_eq!(
+        boxes[1],
+        Aabb {
+            min: [0.0, 0.0, 0.0],
+            max: [1.0, 1.0, 1.0]
+        }
+    );
+    particle_boxes(&mut boxes, &x, &[0.5]);
+    assert_eq!(
+        boxes[3],
+        Aabb {
+            min: [-0.3, -0.2, 0.5],
+            max: [0.7, 0.8, 1.5]
+        }
+    );
+    // A BVH over tetrahedra answers point queries through their boxes.
+    element_boxes(&mut boxes, &x, &[[0u32, 1, 2, 3]], 0.0);
+    let bvh = Bvh::from_boxes(&boxes);
+    let (mut stack, mut out) = (Vec::new(), Vec::new());
+    bvh.overlapping(&Aabb::point([0.5, 0.5, 0.5]), &mut stack, &mut out);
+    assert_eq!(out, vec![0]);
+}
+
+#[test]
 fn empty_and_single_trees() {
     let mut work = PairWork::default();
     let mut pairs = vec![[9, 9]];

@@ -302,3 +302,41 @@ impl Obb {
         true
     }
 }
+
+/// The boxes of elements of `K` vertices (triangles `K = 3`, tetrahedra `K = 4`, edges
+/// `K = 2`) over component-major positions `x`, each grown by `pad` (m), into `out`
+/// (cleared first): what a BVH over a mesh is built from. Panics on an index out of
+/// range (the domain layer validates meshes).
+pub fn element_boxes<const K: usize>(
+    out: &mut Vec<Aabb>,
+    x: &[f64],
+    elements: &[[u32; K]],
+    pad: f64,
+) {
+    let n = x.len() / 3;
+    out.clear();
+    out.extend(
+        elements.iter().map(|e| {
+            Aabb::of_points(e.iter().map(|&v| crate::get3(x, n, v as usize))).inflated(pad)
+        }),
+    );
+}
+
+/// The boxes of particles at component-major positions `x` with radii `radius` (one per
+/// particle, or a single one for all), into `out` (cleared first).
+pub fn particle_boxes(out: &mut Vec<Aabb>, x: &[f64], radius: &[f64]) {
+    let n = x.len() / 3;
+    assert!(
+        radius.len() == n || radius.len() == 1,
+        "one radius per particle, or one for all"
+    );
+    out.clear();
+    out.extend((0..n).map(|i| {
+        let r = if radius.len() == 1 {
+            radius[0]
+        } else {
+            radius[i]
+        };
+        Aabb::point(crate::get3(x, n, i)).inflated(r)
+    }));
+}
