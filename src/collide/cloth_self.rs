@@ -605,10 +605,8 @@ fn solve3(m: [[f64; 3]; 3], b: [f64; 3]) -> Option<[f64; 3]> {
 pub fn crossed_triangle_pairs(triangles: &[[u32; 3]], x: &[f64]) -> Vec<[u32; 2]> {
     let n = x.len() / 3;
     let p = |i: u32| [x[i as usize], x[n + i as usize], x[2 * n + i as usize]];
-    let boxes: Vec<Aabb> = triangles
-        .iter()
-        .map(|t| Aabb::of_points(t.map(p)))
-        .collect();
+    let mut boxes = Vec::new();
+    crate::kernels::collide::bv::element_boxes(&mut boxes, x, triangles, 0.0);
     let bvh = Bvh::from_boxes(&boxes);
     let mut pairs = Vec::new();
     bvh.self_pairs(&mut PairWork::default(), &mut pairs);
