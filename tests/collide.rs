@@ -963,9 +963,12 @@ mod narrow_phase {
             if sat.depth > 1e-6 {
                 // Overlapping: the least translation is the same number.
                 prop_assert!((c.depth - sat.depth).abs() < 1e-6 * (1.0 + sat.depth), "epa {} sat {}", c.depth, sat.depth);
-                // Moving B by the normal times the depth (plus a hair) separates them.
-                let moved = Convex::Box { center: [off[0] + c.normal[0] * (c.depth + 1e-6), off[1] + c.normal[1] * (c.depth + 1e-6), off[2] + c.normal[2] * (c.depth + 1e-6)], axes: bx, half: hb };
-                prop_assert!(gjk_epa(&a, &moved).unwrap().depth < 0.0);
+                // Moving B by the normal times the depth (plus a little) leaves them at
+                // most touching: the SAT depth along EPA's normal is then about zero.
+                let s = c.depth * (1.0 + 1e-6) + 1e-9;
+                let moved = [off[0] + c.normal[0] * s, off[1] + c.normal[1] * s, off[2] + c.normal[2] * s];
+                let after = box_box([0.0; 3], ax, ha, moved, bx, hb);
+                prop_assert!(after.depth < 1e-6 * (1.0 + c.depth), "still {} deep after the move", after.depth);
             } else if sat.depth < -1e-6 {
                 // Apart: SAT's gap is a lower bound on GJK's distance.
                 prop_assert!(c.depth < 0.0 && -c.depth >= -sat.depth - 1e-9);
