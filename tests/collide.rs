@@ -331,7 +331,7 @@ proptest! {
             let mut g = CellGrid::new(0.3, cells);
             g.build_points(&x);
             let mut got = Vec::new();
-            g.point_pairs(r, &mut got);
+            g.point_pairs(r, &mut Vec::new(), &mut Vec::new(), &mut got);
             prop_assert_eq!(sorted(got), want.clone(), "{:?}", cells);
             // A ball query of any radius (larger than a cell included).
             let p = [q.0, q.1, q.2];

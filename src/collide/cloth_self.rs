@@ -29,6 +29,7 @@ use crate::kernels::collide::bvh::{Bvh, PairWork};
 use crate::kernels::collide::ccd::{
     edge_edge, edge_edge_ccd, vertex_triangle, vertex_triangle_ccd, Proximity,
 };
+use crate::kernels::v3::{cross, dot, length_and_unit, sub};
 
 /// Natural frequency (rad/s) of the repulsion spring per unit mass: `omega^2` times the
 /// overlap is its acceleration. 100 rad/s opens a 4 mm gap in about 10 ms.
@@ -78,6 +79,8 @@ pub struct SelfCollision {
     work: PairWork,
     tri_pairs: Vec<[u32; 2]>,
     pairs: Vec<Pair>,
+    /// The vertices of each pair the last continuous pass found colliding.
+    hits: Vec<[u32; 4]>,
     parent: Vec<u32>,
 }
 
@@ -131,6 +134,7 @@ impl SelfCollision {
             work: PairWork::default(),
             tri_pairs: Vec::new(),
             pairs: Vec::new(),
+            hits: Vec::new(),
             parent: Vec::new(),
         }
     }
@@ -164,7 +168,7 @@ impl SelfCollision {
         self.find_pairs(n, h, true);
         for k in 0..self.pairs.len() {
             let pair = self.pairs[k];
-            let (idx, w, pr) = self.proximity_at(n, pair, &self.x0, 0.0, h);
+            let (idx, w, pr) = self.start_proximity(n, pair);
             if pr.distance >= self.thickness {
                 continue;
             }
@@ -201,7 +205,7 @@ impl SelfCollision {
         self.parent.extend(0..n as u32);
         while left > 0 && stats.zone_rounds < ZONE_ROUNDS {
             stats.zone_rounds += 1;
-            self.rigid_zones(n, h, eta, inv_mass);
+            self.rigid_zones(n, h, inv_mass);
             left = self.collide_pass(n, h, eta, inv_mass, false);
         }
         stats.unresolved = left;
@@ -275,31 +279,35 @@ impl SelfCollision {
     }
 
     /// The pair's four vertices, the weights of the relative motion (positive on the side
-    /// the normal points to), and the proximity at positions `x0 + s h u`.
-    fn proximity_at(
-        &self,
-        n: usize,
-        pair: Pair,
-        x: &[f64],
-        s: f64,
-        h: f64,
-    ) -> ([u32; 4], [f64; 4], Proximity) {
-        let p = |i: u32| {
-            let i = i as usize;
-            [0, 1, 2].map(|a| x[a * n + i] + s * h * self.u[a * n + i])
-        };
-        match pair {
+    /// the normal points to), and its proximity at the start of the step.
+    fn start_proximity(&self, n: usize, pair: Pair) -> ([u32; 4], [f64; 4], Proximity) {
+        let p = |i: u32| [0, 1, 2].map(|a| self.x0[a * n + i as usize]);
+        let pr = match pair {
             Pair::Vf(v, t) => {
                 let [a, b, c] = self.triangles[t as usize];
-                let pr = vertex_triangle(p(v), p(a), p(b), p(c));
-                let w = pr.weights;
-                ([v, a, b, c], [1.0, -w[0], -w[1], -w[2]], pr)
+                vertex_triangle(p(v), p(a), p(b), p(c))
             }
             Pair::Ee(e, f) => {
                 let ([a, b], [c, d]) = (self.edges[e as usize], self.edges[f as usize]);
-                let pr = edge_edge(p(a), p(b), p(c), p(d));
-                let (s1, t1) = (pr.weights[0], pr.weights[1]);
-                ([c, d, a, b], [1.0 - t1, t1, -(1.0 - s1), -s1], pr)
+                edge_edge(p(a), p(b), p(c), p(d))
+            }
+        };
+        let (idx, w) = self.weights(pair, &pr);
+        (idx, w, pr)
+    }
+
+    /// The pair's four vertices and the weights of its relative motion from a proximity's
+    /// weights: vertex minus triangle point, second edge point minus first.
+    fn weights(&self, pair: Pair, pr: &Proximity) -> ([u32; 4], [f64; 4]) {
+        let w = pr.weights;
+        match pair {
+            Pair::Vf(v, t) => {
+                let [a, b, c] = self.triangles[t as usize];
+                ([v, a, b, c], [1.0, -w[0], -w[1], -w[2]])
+            }
+            Pair::Ee(e, f) => {
+                let ([a, b], [c, d]) = (self.edges[e as usize], self.edges[f as usize]);
+                ([c, d, a, b], [1.0 - w[1], w[1], -(1.0 - w[0]), -w[0]])
             }
         }
     }
@@ -366,7 +374,7 @@ impl SelfCollision {
     }
 
     /// One pass of continuous tests over the swept pairs: with `respond`, an inelastic
-    /// impulse at each hit; returns the hits.
+    /// impulse at each hit; returns the hits, whose vertices it keeps in `hits`.
     fn collide_pass(
         &mut self,
         n: usize,
@@ -376,13 +384,13 @@ impl SelfCollision {
         respond: bool,
     ) -> usize {
         self.find_pairs(n, h, false);
-        let mut hits = 0;
+        self.hits.clear();
         for k in 0..self.pairs.len() {
             let pair = self.pairs[k];
             let Some((idx, w, nrm)) = self.ccd(n, pair, h, eta) else {
                 continue;
             };
-            hits += 1;
+            self.hits.push(idx);
             if respond {
                 let vrel = self.relative_normal_velocity(n, &idx, &w, nrm);
                 if vrel < 0.0 {
@@ -392,7 +400,7 @@ impl SelfCollision {
                 }
             }
         }
-        hits
+        self.hits.len()
     }
 
     /// The pair's first contact over the step, with the normal oriented along the
@@ -411,48 +419,35 @@ impl SelfCollision {
             [x0, x1]
         };
         let at = |x: [[f64; 3]; 2], t: f64| [0, 1, 2].map(|k| x[0][k] + t * (x[1][k] - x[0][k]));
-        let unit = |v: [f64; 3]| crate::kernels::v3::length_and_unit(v).map(|(_, u)| u);
+        let unit = |v: [f64; 3]| length_and_unit(v).map(|(_, u)| u);
         // The contact normal: the triangle's, or the two edges' common normal, at the
         // time of contact (Bridson et al. 2002, 7.2); the direction between the closest
         // points is noise there (their distance is about eta).
-        let (idx, w, pr, geometric) = match pair {
+        let (pr, geometric) = match pair {
             Pair::Vf(v, t) => {
                 let [a, b, c] = self.triangles[t as usize];
                 let (tc, pr) = vertex_triangle_ccd(path(v), path(a), path(b), path(c), eta)?;
-                let w = pr.weights;
                 let (pa, pb, pc) = (at(path(a), tc), at(path(b), tc), at(path(c), tc));
-                let nrm = unit(crate::kernels::v3::cross(
-                    crate::kernels::v3::sub(pb, pa),
-                    crate::kernels::v3::sub(pc, pa),
-                ));
-                ([v, a, b, c], [1.0, -w[0], -w[1], -w[2]], pr, nrm)
+                (pr, unit(cross(sub(pb, pa), sub(pc, pa))))
             }
             Pair::Ee(e, f) => {
                 let ([a, b], [c, d]) = (self.edges[e as usize], self.edges[f as usize]);
                 let (tc, pr) = edge_edge_ccd(path(a), path(b), path(c), path(d), eta)?;
-                let (s1, t1) = (pr.weights[0], pr.weights[1]);
-                let e1 = crate::kernels::v3::sub(at(path(b), tc), at(path(a), tc));
-                let e2 = crate::kernels::v3::sub(at(path(d), tc), at(path(c), tc));
-                let c12 = crate::kernels::v3::cross(e1, e2);
+                let e1 = sub(at(path(b), tc), at(path(a), tc));
+                let e2 = sub(at(path(d), tc), at(path(c), tc));
+                let c12 = cross(e1, e2);
                 // Nearly parallel edges have no common normal: keep the closest points'.
-                let nrm = (crate::kernels::v3::dot(c12, c12)
-                    > 1e-12 * crate::kernels::v3::dot(e1, e1) * crate::kernels::v3::dot(e2, e2))
-                .then(|| unit(c12))
-                .flatten();
-                ([c, d, a, b], [1.0 - t1, t1, -(1.0 - s1), -s1], pr, nrm)
+                let parallel = dot(c12, c12) <= 1e-12 * dot(e1, e1) * dot(e2, e2);
+                (pr, if parallel { None } else { unit(c12) })
             }
         };
-        let pr = Proximity {
-            normal: geometric.unwrap_or(pr.normal),
-            ..pr
-        };
-        // At contact the proximity normal is arbitrary (distance ~ 0): orient it so the
-        // features were on its positive side at the start of the step.
-        let (_, _, start) = self.proximity_at(n, pair, &self.x0, 0.0, h);
-        let mut nrm = pr.normal;
-        // Relative position along nrm at the start, by the same weights.
+        let (idx, w) = self.weights(pair, &pr);
+        let mut nrm = geometric.unwrap_or(pr.normal);
+        // Orient the normal so the features were on its positive side at the start of the
+        // step (their relative position along it, by the same weights); exactly level,
+        // by the start's proximity direction.
         let gap0 = weighted_dot(&self.x0, n, &idx, &w, nrm);
-        if gap0 < 0.0 || (gap0 == 0.0 && crate::kernels::v3::dot(start.normal, nrm) < 0.0) {
+        if gap0 < 0.0 || (gap0 == 0.0 && dot(self.start_proximity(n, pair).2.normal, nrm) < 0.0) {
             nrm = nrm.map(|c| -c);
         }
         // Features already in contact that do not approach (separating, or sliding at
@@ -464,8 +459,9 @@ impl SelfCollision {
         Some((idx, w, nrm))
     }
 
-    /// Merges the vertices of every colliding pair into zones and moves each zone rigidly.
-    fn rigid_zones(&mut self, n: usize, h: f64, eta: f64, inv_mass: &[f64]) {
+    /// Merges the vertices of every pair the last pass found colliding into zones and
+    /// moves each zone rigidly.
+    fn rigid_zones(&mut self, n: usize, h: f64, inv_mass: &[f64]) {
         fn find(p: &mut [u32], mut i: u32) -> u32 {
             while p[i as usize] != i {
                 p[i as usize] = p[p[i as usize] as usize];
@@ -473,23 +469,17 @@ impl SelfCollision {
             }
             i
         }
-        self.find_pairs(n, h, false);
-        let mut any = false;
-        for k in 0..self.pairs.len() {
-            let pair = self.pairs[k];
-            if let Some((idx, _, _)) = self.ccd(n, pair, h, eta) {
-                any = true;
-                let r = find(&mut self.parent, idx[0]);
-                for &i in &idx[1..] {
-                    let ri = find(&mut self.parent, i);
-                    if ri != r {
-                        self.parent[ri as usize] = r;
-                    }
+        if self.hits.is_empty() {
+            return;
+        }
+        for idx in &self.hits {
+            let r = find(&mut self.parent, idx[0]);
+            for &i in &idx[1..] {
+                let ri = find(&mut self.parent, i);
+                if ri != r {
+                    self.parent[ri as usize] = r;
                 }
             }
-        }
-        if !any {
-            return;
         }
         // Every zone of two or more vertices (from this round or earlier ones) moves
         // rigidly: vertices grouped by their root.
@@ -536,10 +526,10 @@ impl SelfCollision {
         let mut inertia = [[0.0; 3]; 3];
         for &i in verts {
             let mi = 1.0 / inv_mass[i as usize];
-            let r = crate::kernels::v3::sub(g(&self.x0, i), xc);
-            let du = crate::kernels::v3::sub(g(&self.u, i), vc);
-            let c = crate::kernels::v3::cross(r, du);
-            let rr = crate::kernels::v3::dot(r, r);
+            let r = sub(g(&self.x0, i), xc);
+            let du = sub(g(&self.u, i), vc);
+            let c = cross(r, du);
+            let rr = dot(r, r);
             for a in 0..3 {
                 l[a] += mi * c[a];
                 for b in 0..3 {
@@ -551,15 +541,15 @@ impl SelfCollision {
         // Move the zone by the rigid motion over the step, the rotation by `h omega`
         // exact (Rodrigues): `x0 + h (omega x r)` would stretch the zone by
         // `sqrt(1 + (h |omega|)^2)`, and a thin zone's omega can be large.
-        let (angle, axis) = match crate::kernels::v3::length_and_unit(omega) {
+        let (angle, axis) = match length_and_unit(omega) {
             Some((w, axis)) => (w * h, axis),
             None => (0.0, [0.0; 3]),
         };
         let (sn, cs) = angle.sin_cos();
         for &i in verts {
-            let r = crate::kernels::v3::sub(g(&self.x0, i), xc);
-            let kxr = crate::kernels::v3::cross(axis, r);
-            let kr = crate::kernels::v3::dot(axis, r);
+            let r = sub(g(&self.x0, i), xc);
+            let kxr = cross(axis, r);
+            let kr = dot(axis, r);
             for a in 0..3 {
                 let rotated = r[a] * cs + kxr[a] * sn + axis[a] * kr * (1.0 - cs);
                 self.u[a * n + i as usize] = vc[a] + (rotated - r[a]) / h;

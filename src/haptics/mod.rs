@@ -287,8 +287,10 @@ impl GodObject {
         if !device.iter().all(|c| c.is_finite()) || !self.proxy.iter().all(|c| c.is_finite()) {
             return [0.0; 3];
         }
-        // Active constraint planes: unit normal and offset (n . x >= offset).
-        let mut planes: Vec<([f64; 3], f64)> = Vec::with_capacity(3);
+        // Active constraint planes: unit normal and offset (n . x >= offset); at most
+        // three, kept on the stack (a tick allocates nothing).
+        let mut planes = [([0.0; 3], 0.0); 3];
+        let mut active = 0;
         let mut goal = device;
         for _ in 0..MAX_MOVES {
             let d = sub(goal, self.proxy);
@@ -320,16 +322,17 @@ impl GodObject {
             let back = self.skin / cos.max(1e-12);
             self.proxy = add(self.proxy, scale(dir, (t - back).max(0.0)));
             let plane = (n, dot(n, a) + self.skin);
-            if !planes
+            if !planes[..active]
                 .iter()
                 .any(|p| norm2(sub(p.0, n)) < 1e-24 && (p.1 - plane.1).abs() < self.skin)
             {
-                planes.push(plane);
+                planes[active] = plane;
+                active += 1;
             }
-            if planes.len() >= 3 {
+            if active >= 3 {
                 break;
             }
-            goal = project(device, &planes).unwrap_or(self.proxy);
+            goal = project(device, &planes[..active]).unwrap_or(self.proxy);
         }
         scale(sub(self.proxy, device), self.stiffness)
     }

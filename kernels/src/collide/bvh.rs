@@ -10,9 +10,10 @@
 //! are kept in leaf order: every pair or hit reported is decided on the exact boxes, so
 //! the results equal brute force's (property tests in `tests/collide.rs`).
 //!
-//! Build: at each node the centroids are binned into [`BINS`] bins on all three axes at
-//! once; the split with the least `A_L N_L + A_R N_R` wins, or a leaf where that costs more
-//! than intersecting the node's primitives. Subtrees of more than [`PAR_BUILD`] primitives
+//! Build: a node of at most [`Bvh::max_leaf`] primitives is a leaf (leaves of about one
+//! primitive, where the SAH would stop, made the pair queries slower: see
+//! `docs/benchmarks.md`); a larger one bins its centroids into [`BINS`] bins spanning its
+//! bounds on all three axes at once, and the split with the least `A_L N_L + A_R N_R` wins. Subtrees of more than [`PAR_BUILD`] primitives
 //! are built in parallel (`rayon::join`) into node ranges fixed by their sizes, then the
 //! nodes are compacted into depth-first order, so the tree is the same with any number of
 //! threads. The arrays are kept and reused by the next build: a rebuild of the same size
@@ -448,54 +449,15 @@ impl Bvh {
         dir: [f64; 3],
         t_max: f64,
         stack: &mut Vec<(u32, f64)>,
-        mut hit: impl FnMut(u32, f64) -> Option<f64>,
+        hit: impl FnMut(u32, f64) -> Option<f64>,
     ) -> Option<(u32, f64)> {
         let inv = dir.map(|d| 1.0 / d);
-        let mut best: Option<(u32, f64)> = None;
-        let mut t_best = t_max;
-        let root = self.nodes.first()?;
-        let (t0, _) = root.aabb().ray(origin, inv, t_best)?;
-        stack.clear();
-        stack.push((0, t0));
-        while let Some((i, t_enter)) = stack.pop() {
-            if t_enter > t_best {
-                continue;
-            }
-            let node = &self.nodes[i as usize];
-            if node.is_leaf() {
-                let r = node.first as usize..(node.first + node.count) as usize;
-                for (b, &id) in self.boxes[r.clone()].iter().zip(&self.ids[r]) {
-                    if b.ray(origin, inv, t_best).is_some() {
-                        if let Some(t) = hit(id, t_best) {
-                            if t <= t_best {
-                                t_best = t;
-                                best = Some((id, t));
-                            }
-                        }
-                    }
-                }
-                continue;
-            }
-            let (l, r) = (node.first, node.first + 1);
-            let tl = self.nodes[l as usize].aabb().ray(origin, inv, t_best);
-            let tr = self.nodes[r as usize].aabb().ray(origin, inv, t_best);
-            match (tl, tr) {
-                (Some((a, _)), Some((b, _))) => {
-                    // Far child first onto the stack, so the near one pops first.
-                    if a <= b {
-                        stack.push((r, b));
-                        stack.push((l, a));
-                    } else {
-                        stack.push((l, a));
-                        stack.push((r, b));
-                    }
-                }
-                (Some((a, _)), None) => stack.push((l, a)),
-                (None, Some((b, _))) => stack.push((r, b)),
-                (None, None) => {}
-            }
-        }
-        best
+        self.best_first(
+            t_max,
+            stack,
+            |b, best| b.ray(origin, inv, best).map(|t| t.0),
+            hit,
+        )
     }
 
     /// The primitive nearest `p` within `max_dist` (m): `dist2(id, best2)` returns the
@@ -509,38 +471,54 @@ impl Bvh {
         stack: &mut Vec<(u32, f64)>,
         mut dist2: impl FnMut(u32, f64) -> f64,
     ) -> Option<(u32, f64)> {
+        let bound = |b: &Aabb, best: f64| Some(b.distance_squared(p)).filter(|d| *d <= best);
+        self.best_first(max_dist * max_dist, stack, bound, |id, best| {
+            Some(dist2(id, best))
+        })
+    }
+
+    /// Branch and bound, near child first: `bound(box, best)` is a lower bound of the key
+    /// of anything in the box, `None` when it cannot beat `best`; `eval(id, best)` is a
+    /// primitive's key. Returns the primitive of least key at most `start`, with its key.
+    fn best_first(
+        &self,
+        start: f64,
+        stack: &mut Vec<(u32, f64)>,
+        bound: impl Fn(&Aabb, f64) -> Option<f64>,
+        mut eval: impl FnMut(u32, f64) -> Option<f64>,
+    ) -> Option<(u32, f64)> {
         let mut best: Option<(u32, f64)> = None;
-        let mut best2 = max_dist * max_dist;
+        let mut key = start;
         let root = self.nodes.first()?;
         stack.clear();
-        stack.push((0, root.aabb().distance_squared(p)));
+        stack.push((0, bound(&root.aabb(), key)?));
         while let Some((i, lower)) = stack.pop() {
-            if lower > best2 {
+            if lower > key {
                 continue;
             }
             let node = &self.nodes[i as usize];
             if node.is_leaf() {
                 let r = node.first as usize..(node.first + node.count) as usize;
                 for (b, &id) in self.boxes[r.clone()].iter().zip(&self.ids[r]) {
-                    if b.distance_squared(p) <= best2 {
-                        let d2 = dist2(id, best2);
-                        if d2 <= best2 {
-                            best2 = d2;
-                            best = Some((id, d2));
+                    if bound(b, key).is_some() {
+                        if let Some(k) = eval(id, key).filter(|k| *k <= key) {
+                            key = k;
+                            best = Some((id, k));
                         }
                     }
                 }
                 continue;
             }
             let (l, r) = (node.first, node.first + 1);
-            let dl = self.nodes[l as usize].aabb().distance_squared(p);
-            let dr = self.nodes[r as usize].aabb().distance_squared(p);
-            if dl <= dr {
-                stack.push((r, dr));
-                stack.push((l, dl));
-            } else {
-                stack.push((l, dl));
-                stack.push((r, dr));
+            let kl = bound(&self.nodes[l as usize].aabb(), key);
+            let kr = bound(&self.nodes[r as usize].aabb(), key);
+            // The far child first onto the stack, so the near one pops first.
+            match (kl, kr) {
+                (Some(a), Some(b)) if a <= b => stack.extend([(r, b), (l, a)]),
+                (Some(a), Some(b)) => stack.extend([(l, a), (r, b)]),
+                (Some(a), None) => stack.push((l, a)),
+                (None, Some(b)) => stack.push((r, b)),
+                (None, None) => {}
             }
         }
         best
@@ -580,18 +558,16 @@ fn build_node(
     max_leaf: usize,
 ) {
     let m = recs.len();
-    let leaf = |node: &mut Node| {
+    if m <= max_leaf {
         node.first = offset;
         node.count = m as u32;
-    };
-    if m <= max_leaf {
-        return leaf(node);
+        return;
     }
     // Bins span the node's bounds rather than its centroids' (Wald 2007 bins centroids):
     // one pass fewer per node, and for boxes small against their node the same bins.
     let cmin = node.min;
     let extent = [0, 1, 2].map(|a| node.max[a] - node.min[a]);
-    let split = best_split(recs, &cmin, &extent, node, m, max_leaf);
+    let split = best_split(recs, &cmin, &extent, m);
     let (mid, bounds) = match split {
         Some(Split {
             axis,
@@ -602,8 +578,7 @@ fn build_node(
             let mid = partition(recs, |r| ((r.bins >> (4 * axis)) & 15) < bin as u32);
             (mid, Some((left, right)))
         }
-        None if m <= max_leaf => return leaf(node),
-        // A forced split of a node with no useful plane: halves in order.
+        // No bin boundary separates the centroids: halves in order.
         None => (m / 2, None),
     };
     split_at(recs, offset, node, desc, base, max_leaf, mid, bounds)
@@ -677,17 +652,9 @@ fn bin_of(c: f32, lo: f32, scale: f32) -> usize {
     (((c - lo) * scale) as usize).min(BINS - 1)
 }
 
-/// The best split by the binned SAH, or `None` when a leaf is cheaper (only allowed for
-/// `m <= max_leaf`) or no bin boundary separates the centroids. Costs: traversal 1, a
-/// primitive 1.
-fn best_split(
-    recs: &mut [Rec],
-    cmin: &[f32; 3],
-    extent: &[f32; 3],
-    node: &Node,
-    m: usize,
-    max_leaf: usize,
-) -> Option<Split> {
+/// The best split by the binned SAH (least `A_L N_L + A_R N_R`), or `None` when no bin
+/// boundary separates the centroids.
+fn best_split(recs: &mut [Rec], cmin: &[f32; 3], extent: &[f32; 3], m: usize) -> Option<Split> {
     let mut bounds = [[EMPTY; BINS]; 3];
     let mut counts = [[0u32; BINS]; 3];
     let scale = extent.map(bin_scale);
@@ -701,7 +668,6 @@ fn best_split(
         }
         r.bins = bins;
     }
-    // (cost, axis, bin, left bounds, right bounds)
     let mut best: Option<(f32, Split)> = None;
     for a in 0..3 {
         // Also skips a NaN extent.
@@ -739,12 +705,7 @@ fn best_split(
             }
         }
     }
-    let (cost, split) = best?;
-    let area = node.area();
-    if m <= max_leaf && (area <= 0.0 || 1.0 + cost / area >= m as f32) {
-        return None;
-    }
-    Some(split)
+    best.map(|(_, split)| split)
 }
 
 /// Reorders `recs` so those where `left` holds come first; returns their count.

@@ -78,11 +78,7 @@ impl CellGrid {
     /// The integer cell of `p` (unclamped; saturating at the `i32` range).
     #[inline(always)]
     pub fn cell(&self, p: [f64; 3]) -> [i32; 3] {
-        let o = match self.cells {
-            Cells::Dense { origin, .. } => origin,
-            Cells::Hashed { .. } => [0.0; 3],
-        };
-        [0, 1, 2].map(|a| ((p[a] - o[a]) / self.h).floor() as i32)
+        cell_in(self.cells, self.h, p)
     }
 
     /// The bucket of cell `c`.
@@ -94,14 +90,7 @@ impl CellGrid {
     /// The cell range `[lo, hi]` a box covers, clamped for a dense grid (so a box far
     /// outside still visits a bounded number of cells).
     fn cell_range(&self, b: &Aabb) -> ([i32; 3], [i32; 3]) {
-        let (mut lo, mut hi) = (self.cell(b.min), self.cell(b.max));
-        if let Cells::Dense { dims, .. } = self.cells {
-            for a in 0..3 {
-                lo[a] = lo[a].clamp(0, dims[a] as i32 - 1);
-                hi[a] = hi[a].clamp(0, dims[a] as i32 - 1);
-            }
-        }
-        (lo, hi)
+        range_in(self.cells, self.h, b)
     }
 
     /// Files points (component-major `x`, `3n` values): item i is point i.
@@ -112,27 +101,11 @@ impl CellGrid {
         self.points
             .extend((0..n).map(|i| [x[i], x[n + i], x[2 * n + i]]));
         self.boxes.clear();
-        let buckets = self.bucket_count();
-        self.start.clear();
-        self.start.resize(buckets + 1, 0);
-        for p in &self.points {
-            let b = self.bucket(self.cell(*p));
-            self.start[b + 1] += 1;
-        }
-        for b in 0..buckets {
-            self.start[b + 1] += self.start[b];
-        }
-        self.items.clear();
-        self.items.resize(n, 0);
-        // Fill from the back of each bucket so item ids stay ascending within it.
-        for i in (0..n).rev() {
-            let b = self.bucket(self.cell(self.points[i]));
-            self.start[b + 1] -= 1;
-            self.items[self.start[b + 1] as usize] = i as u32;
-        }
-        // `start[b + 1]` now holds bucket b's start: shift back.
-        self.start.rotate_left(1);
-        self.start[buckets] = n as u32;
+        let (cells, h, buckets) = (self.cells, self.h, self.bucket_count());
+        let points = &self.points;
+        fill(&mut self.start, &mut self.items, buckets, n, |i, put| {
+            put(bucket_in(cells, cell_in(cells, h, points[i])))
+        });
     }
 
     /// Appends to `out` every point within `r` (m) of `p` (closed ball), each once, in
@@ -171,46 +144,24 @@ impl CellGrid {
     }
 
     /// Every pair of filed points within `r` (m) of each other, `[i, j]` with `i < j`,
-    /// into `out` (cleared first). `r` must not exceed the cell size `h` (the scan covers
-    /// the 27 cells around each point); panics otherwise.
-    pub fn point_pairs(&self, r: f64, out: &mut Vec<[u32; 2]>) {
-        assert!(
-            r <= self.h,
-            "point_pairs scans neighbouring cells only: r <= h"
-        );
+    /// into `out` (cleared first): a [`CellGrid::points_within`] query around each point.
+    /// `buckets` and `near` are scratch.
+    pub fn point_pairs(
+        &self,
+        r: f64,
+        buckets: &mut Vec<u32>,
+        near: &mut Vec<u32>,
+        out: &mut Vec<[u32; 2]>,
+    ) {
         out.clear();
-        let r2 = r * r;
-        let mut buckets = [0usize; 27];
         for (i, p) in self.points.iter().enumerate() {
-            let c = self.cell(*p);
-            let mut nb = 0;
-            for dk in -1..=1 {
-                for dj in -1..=1 {
-                    for di in -1..=1 {
-                        buckets[nb] = self.bucket([c[0] + di, c[1] + dj, c[2] + dk]);
-                        nb += 1;
-                    }
-                }
-            }
-            let bs = &mut buckets[..nb];
-            bs.sort_unstable();
-            let mut prev = usize::MAX;
-            for &b in bs.iter() {
-                if b == prev {
-                    continue;
-                }
-                prev = b;
-                for &j in &self.items[self.start[b] as usize..self.start[b + 1] as usize] {
-                    if (j as usize) <= i {
-                        continue;
-                    }
-                    let q = self.points[j as usize];
-                    let d = [q[0] - p[0], q[1] - p[1], q[2] - p[2]];
-                    if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] <= r2 {
-                        out.push([i as u32, j]);
-                    }
-                }
-            }
+            near.clear();
+            self.points_within(*p, r, buckets, near);
+            out.extend(
+                near.iter()
+                    .filter(|&&j| j as usize > i)
+                    .map(|&j| [i as u32, j]),
+            );
         }
     }
 
@@ -227,41 +178,21 @@ impl CellGrid {
                 self.large.push(i as u32);
             }
         }
-        self.start.clear();
-        self.start.resize(buckets + 1, 0);
-        let mut total = 0usize;
-        let cells = self.cells;
-        let filed = |i: usize, b: &Aabb, large: &[u32]| {
-            !b.is_empty() && large.binary_search(&(i as u32)).is_err()
-        };
-        for (i, b) in boxes.iter().enumerate() {
-            if !filed(i, b, &self.large) {
-                continue;
-            }
-            let (lo, hi) = self.cell_range(b);
-            for_cells(lo, hi, |c| {
-                self.start[bucket_in(cells, c) + 1] += 1;
-                total += 1;
-            });
-        }
-        for b in 0..buckets {
-            self.start[b + 1] += self.start[b];
-        }
-        self.items.clear();
-        self.items.resize(total, 0);
-        for (i, b) in boxes.iter().enumerate().rev() {
-            if !filed(i, b, &self.large) {
-                continue;
-            }
-            let (lo, hi) = self.cell_range(b);
-            for_cells(lo, hi, |c| {
-                let bk = bucket_in(cells, c);
-                self.start[bk + 1] -= 1;
-                self.items[self.start[bk + 1] as usize] = i as u32;
-            });
-        }
-        self.start.rotate_left(1);
-        self.start[buckets] = total as u32;
+        let (cells, h, large) = (self.cells, self.h, &self.large);
+        fill(
+            &mut self.start,
+            &mut self.items,
+            buckets,
+            boxes.len(),
+            |i, put| {
+                let b = &boxes[i];
+                if b.is_empty() || large.binary_search(&(i as u32)).is_ok() {
+                    return;
+                }
+                let (lo, hi) = range_in(cells, h, b);
+                for_cells(lo, hi, |c| put(bucket_in(cells, c)));
+            },
+        );
     }
 
     /// Whether a box covers more cells than there are buckets (never, on a dense grid,
@@ -317,6 +248,65 @@ impl CellGrid {
             }
         }
     }
+}
+
+/// The integer cell of `p` under the map `cells` with cell size `h`.
+#[inline(always)]
+fn cell_in(cells: Cells, h: f64, p: [f64; 3]) -> [i32; 3] {
+    let o = match cells {
+        Cells::Dense { origin, .. } => origin,
+        Cells::Hashed { .. } => [0.0; 3],
+    };
+    [0, 1, 2].map(|a| ((p[a] - o[a]) / h).floor() as i32)
+}
+
+/// The cell range of a box, clamped into a dense grid.
+fn range_in(cells: Cells, h: f64, b: &Aabb) -> ([i32; 3], [i32; 3]) {
+    let (mut lo, mut hi) = (cell_in(cells, h, b.min), cell_in(cells, h, b.max));
+    if let Cells::Dense { dims, .. } = cells {
+        for a in 0..3 {
+            lo[a] = lo[a].clamp(0, dims[a] as i32 - 1);
+            hi[a] = hi[a].clamp(0, dims[a] as i32 - 1);
+        }
+    }
+    (lo, hi)
+}
+
+/// Files `n` items under buckets by a counting sort: `entries(i, put)` calls `put` with
+/// each bucket item i goes under (possibly none, possibly several). Afterwards
+/// `items[start[b]..start[b + 1]]` lists bucket b's items, ids ascending (an item filed
+/// under one bucket twice appears twice, adjacently).
+fn fill(
+    start: &mut Vec<u32>,
+    items: &mut Vec<u32>,
+    buckets: usize,
+    n: usize,
+    entries: impl Fn(usize, &mut dyn FnMut(usize)),
+) {
+    start.clear();
+    start.resize(buckets + 1, 0);
+    let mut total = 0usize;
+    for i in 0..n {
+        entries(i, &mut |b| {
+            start[b + 1] += 1;
+            total += 1;
+        });
+    }
+    for b in 0..buckets {
+        start[b + 1] += start[b];
+    }
+    items.clear();
+    items.resize(total, 0);
+    // From the back of each bucket, items in reverse: ids ascend within a bucket.
+    for i in (0..n).rev() {
+        entries(i, &mut |b| {
+            start[b + 1] -= 1;
+            items[start[b + 1] as usize] = i as u32;
+        });
+    }
+    // `start[b + 1]` now holds bucket b's start: shift back.
+    start.rotate_left(1);
+    start[buckets] = total as u32;
 }
 
 /// Number of cells in the inclusive range `[lo, hi]` (as `f64`: it may exceed `u64`).
