@@ -348,9 +348,10 @@ fn haptics(c: &mut Criterion) -> String {
     }
     // Six-DoF: a point shell of the sphere mesh's vertices (radius 0.05, 1,002 points)
     // against a 64^3 distance grid of a torus, pressed 1 cm into its top over 3,000 ticks.
-    use largestep::haptics::{SixDof, IDENTITY};
+    use largestep::haptics::SixDof;
     use largestep::kernels::collide::sdf::Shape;
     use largestep::kernels::interp::Grid3;
+    use largestep::kernels::quat::IDENTITY;
     let shell_mesh = largestep::shapes::uv_sphere([0.0; 3], 0.05, 20, 50);
     let shell: Vec<[f64; 3]> = (0..shell_mesh.positions.len() / 3)
         .map(|i| shell_mesh.as_ref().vertex(i))

@@ -29,6 +29,8 @@ pub mod loads;
 pub mod mass_spring;
 #[cfg(feature = "modal")]
 pub mod modal;
+#[cfg(feature = "rigid")]
+pub mod rigid;
 pub mod scene;
 pub mod simulation;
 pub mod soa;

@@ -1272,8 +1272,9 @@ mod haptics {
 
 mod six_dof {
     use largestep::collide::SdfGrid;
-    use largestep::haptics::{quat_exp, quat_log, SixDof, IDENTITY};
+    use largestep::haptics::SixDof;
     use largestep::kernels::interp::Grid3;
+    use largestep::kernels::quat::{exp as quat_exp, log as quat_log, IDENTITY};
     use std::sync::Arc;
 
     /// The floor `y <= 0` as a distance grid (trilinear reads of a linear field are

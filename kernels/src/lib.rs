@@ -25,6 +25,7 @@ pub mod interp;
 pub mod mass_spring;
 pub mod modal;
 pub mod par;
+pub mod quat;
 pub mod render;
 pub mod sparse;
 pub mod v3;

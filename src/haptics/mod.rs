@@ -21,7 +21,7 @@
 
 mod six_dof;
 
-pub use six_dof::{quat_exp, quat_log, quat_mul, rotate, Quat, SixDof, Wrench, IDENTITY};
+pub use six_dof::{SixDof, Wrench};
 
 use crate::collide::check_closed;
 use crate::io::{Mesh, ReadError};

@@ -13,59 +13,15 @@
 
 use crate::collide::SdfGrid;
 use crate::kernels::interp::sample3_grad;
+use crate::kernels::quat::{
+    conj, exp as quat_exp, log as quat_log, mul as quat_mul, rotate, Quat, IDENTITY,
+};
 use crate::kernels::v3::{add, cross, dot, length_and_unit, scale};
 use nalgebra::{Matrix6, Vector6};
 use std::sync::Arc;
 
 /// Gauss-Newton iterations per tick at most.
 const ITERATIONS: usize = 8;
-
-/// A unit quaternion `[w, x, y, z]`.
-pub type Quat = [f64; 4];
-
-/// The identity rotation.
-pub const IDENTITY: Quat = [1.0, 0.0, 0.0, 0.0];
-
-/// `a b` (apply b, then a).
-pub fn quat_mul(a: Quat, b: Quat) -> Quat {
-    [
-        a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
-        a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
-        a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
-        a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0],
-    ]
-}
-
-/// The rotation by the vector `v` (axis times angle, rad).
-pub fn quat_exp(v: [f64; 3]) -> Quat {
-    match length_and_unit(v) {
-        Some((angle, axis)) => {
-            let (s, c) = (0.5 * angle).sin_cos();
-            [c, axis[0] * s, axis[1] * s, axis[2] * s]
-        }
-        None => IDENTITY,
-    }
-}
-
-/// The rotation vector of `q` (axis times angle in `[0, pi]`).
-pub fn quat_log(q: Quat) -> [f64; 3] {
-    let q = if q[0] < 0.0 { q.map(|c| -c) } else { q };
-    match length_and_unit([q[1], q[2], q[3]]) {
-        Some((s, axis)) => scale(axis, 2.0 * s.atan2(q[0])),
-        None => [0.0; 3],
-    }
-}
-
-/// `q v q*`.
-pub fn rotate(q: Quat, v: [f64; 3]) -> [f64; 3] {
-    let u = [q[1], q[2], q[3]];
-    let t = scale(cross(u, v), 2.0);
-    add(add(v, scale(t, q[0])), cross(u, t))
-}
-
-fn conj(q: Quat) -> Quat {
-    [q[0], -q[1], -q[2], -q[3]]
-}
 
 /// What one tick of [`SixDof::tick`] gives the user.
 #[derive(Clone, Copy, Debug, PartialEq)]

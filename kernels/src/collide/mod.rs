@@ -10,6 +10,7 @@ pub mod bv;
 pub mod bvh;
 pub mod ccd;
 pub mod grid;
+pub mod manifold;
 pub mod narrow;
 pub mod prox;
 pub mod sdf;

@@ -1,0 +1,114 @@
+//! Unit quaternions `[w, x, y, z]` as rotations (Shoemake 1985): products, the
+//! exponential map, rotation of vectors, matrices, and the first-order update
+//! `q' = 1/2 [0, w] q` of a body spinning at angular velocity `w` (world frame, rad/s).
+//!
+//! Shared by the rigid bodies, the six-DoF haptic tool and the character animation.
+
+use crate::v3::{add, cross, length_and_unit, scale};
+
+/// A unit quaternion `[w, x, y, z]`.
+pub type Quat = [f64; 4];
+
+/// The identity rotation.
+pub const IDENTITY: Quat = [1.0, 0.0, 0.0, 0.0];
+
+/// `a b` (apply b, then a).
+#[inline]
+pub fn mul(a: Quat, b: Quat) -> Quat {
+    [
+        a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
+        a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
+        a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
+        a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0],
+    ]
+}
+
+/// The conjugate: the inverse rotation of a unit quaternion.
+#[inline]
+pub fn conj(q: Quat) -> Quat {
+    [q[0], -q[1], -q[2], -q[3]]
+}
+
+/// The rotation by the vector `v` (axis times angle, rad).
+pub fn exp(v: [f64; 3]) -> Quat {
+    match length_and_unit(v) {
+        Some((angle, axis)) => {
+            let (s, c) = (0.5 * angle).sin_cos();
+            [c, axis[0] * s, axis[1] * s, axis[2] * s]
+        }
+        None => IDENTITY,
+    }
+}
+
+/// The rotation vector of `q` (axis times angle in `[0, pi]`).
+pub fn log(q: Quat) -> [f64; 3] {
+    let q = if q[0] < 0.0 { q.map(|c| -c) } else { q };
+    match length_and_unit([q[1], q[2], q[3]]) {
+        Some((s, axis)) => scale(axis, 2.0 * s.atan2(q[0])),
+        None => [0.0; 3],
+    }
+}
+
+/// `q v q*`.
+#[inline]
+pub fn rotate(q: Quat, v: [f64; 3]) -> [f64; 3] {
+    let u = [q[1], q[2], q[3]];
+    let t = scale(cross(u, v), 2.0);
+    add(add(v, scale(t, q[0])), cross(u, t))
+}
+
+/// `q* v q`: `v` taken into the frame `q` rotates from.
+#[inline]
+pub fn rotate_inv(q: Quat, v: [f64; 3]) -> [f64; 3] {
+    rotate(conj(q), v)
+}
+
+/// `q / |q|`, or `None` for a zero or non-finite `q`.
+pub fn normalize(q: Quat) -> Option<Quat> {
+    let n = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
+    (n.is_finite() && n > 0.0).then(|| q.map(|c| c / n))
+}
+
+/// The rotation matrix of a unit `q`, rows.
+pub fn to_matrix(q: Quat) -> [[f64; 3]; 3] {
+    let [w, x, y, z] = q;
+    [
+        [
+            1.0 - 2.0 * (y * y + z * z),
+            2.0 * (x * y - w * z),
+            2.0 * (x * z + w * y),
+        ],
+        [
+            2.0 * (x * y + w * z),
+            1.0 - 2.0 * (x * x + z * z),
+            2.0 * (y * z - w * x),
+        ],
+        [
+            2.0 * (x * z - w * y),
+            2.0 * (y * z + w * x),
+            1.0 - 2.0 * (x * x + y * y),
+        ],
+    ]
+}
+
+/// The time derivative of `q` under angular velocity `w` (world frame, rad/s):
+/// `1/2 [0, w] q` (Baraff, "Rigid body simulation", section 4).
+#[inline]
+pub fn derivative(q: Quat, w: [f64; 3]) -> Quat {
+    mul([0.0, w[0], w[1], w[2]], q).map(|c| 0.5 * c)
+}
+
+/// `q` advanced by `dt` (s) at angular velocity `w` by the first-order update
+/// `q + dt/2 [0, w] q`, renormalised (the form rigid-body solvers use; exact to first
+/// order, and keeps the drift of the norm out).
+#[inline]
+pub fn integrate(q: Quat, w: [f64; 3], dt: f64) -> Quat {
+    let d = derivative(q, w);
+    let r = [
+        q[0] + dt * d[0],
+        q[1] + dt * d[1],
+        q[2] + dt * d[2],
+        q[3] + dt * d[3],
+    ];
+    normalize(r).unwrap_or(q)
+}

@@ -1,0 +1,478 @@
+//! Rigid bodies: mass properties against closed forms, free-body invariants per
+//! integrator, the Dzhanibekov flip against Euler's equations' elliptic solution, the
+//! restitution law, resting stacks, joints, and bad input.
+
+use largestep::io::Mesh;
+use largestep::kernels::quat;
+use largestep::rigid::{
+    mass, BodyDesc, Correction, JointDesc, JointKind, Motion, RigidDesc, RigidIntegrator,
+    RigidSolver, Shape,
+};
+use std::sync::Arc;
+
+fn rel(a: f64, b: f64) -> f64 {
+    (a - b).abs() / b.abs().max(1e-300)
+}
+
+fn ground() -> BodyDesc {
+    BodyDesc {
+        motion: Motion::Static,
+        ..BodyDesc::new(
+            Shape::Box {
+                half: [10.0, 0.5, 10.0],
+            },
+            [0.0, -0.5, 0.0],
+        )
+    }
+}
+
+#[test]
+fn box_mesh_inertia_matches_the_closed_form() {
+    let h = [0.3, 0.5, 0.7];
+    let m = largestep::shapes::cuboid(h.map(|x| -x + 1.0), h.map(|x| x + 1.0));
+    let p = mass::mesh(&m, 700.0).unwrap();
+    let b = mass::solid_box(h, 700.0);
+    assert!(rel(p.mass, b.mass) < 1e-12);
+    for a in 0..3 {
+        assert!((p.center[a] - 1.0).abs() < 1e-12);
+        for c in 0..3 {
+            assert!(
+                (p.inertia[a][c] - b.inertia[a][c]).abs() < 1e-12 * b.inertia[0][0],
+                "{a}{c}: {} vs {}",
+                p.inertia[a][c],
+                b.inertia[a][c]
+            );
+        }
+    }
+}
+
+#[test]
+fn tetrahedron_inertia_matches_the_closed_form() {
+    // The unit right tetrahedron (0, e1, e2, e3): volume 1/6, centroid 1/4, and about the
+    // centroid I_xx = 1/80 (m = 1/6 at unit density), products 1/480 (Tonon 2004).
+    let pts = [
+        [0.0, 0.0, 0.0],
+        [1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [0.0, 0.0, 1.0],
+    ];
+    let tris = [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]];
+    let m = largestep::shapes::from_triangles(&pts, &tris);
+    let p = mass::mesh(&m, 1.0).unwrap();
+    assert!(rel(p.mass, 1.0 / 6.0) < 1e-14);
+    for a in 0..3 {
+        assert!((p.center[a] - 0.25).abs() < 1e-14);
+        assert!(
+            rel(p.inertia[a][a], 1.0 / 80.0) < 1e-12,
+            "{}",
+            p.inertia[a][a]
+        );
+        for c in 0..3 {
+            if a != c {
+                assert!(
+                    rel(p.inertia[a][c], 1.0 / 480.0) < 1e-12,
+                    "{}",
+                    p.inertia[a][c]
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn tessellated_sphere_converges_to_the_closed_form() {
+    let exact = mass::solid_sphere(0.5, 1000.0);
+    let mut last = f64::INFINITY;
+    for (rings, sectors) in [(8, 16), (16, 32), (32, 64), (64, 128)] {
+        let m = largestep::shapes::uv_sphere([0.0; 3], 0.5, rings, sectors);
+        let p = mass::mesh(&m, 1000.0).unwrap();
+        let e = rel(p.inertia[0][0], exact.inertia[0][0]);
+        // Inscribed polyhedra: the error falls about 4x per halving of the facet size.
+        assert!(e < last / 3.0, "{rings}: {e} after {last}");
+        last = e;
+    }
+    assert!(last < 2e-3, "{last}");
+}
+
+#[test]
+fn tessellated_capsule_matches_the_closed_form() {
+    let exact = mass::solid_capsule(0.4, 0.2, 1000.0);
+    let m = capsule_mesh(0.4, 0.2, 96);
+    let p = mass::mesh(&m, 1000.0).unwrap();
+    assert!(rel(p.mass, exact.mass) < 2e-3, "{} {}", p.mass, exact.mass);
+    for a in 0..3 {
+        assert!(
+            rel(p.inertia[a][a], exact.inertia[a][a]) < 4e-3,
+            "{a}: {} vs {}",
+            p.inertia[a][a],
+            exact.inertia[a][a]
+        );
+    }
+}
+
+/// A closed capsule along y: a latitude-longitude sphere split at its equator and
+/// stretched apart by 2 hh.
+fn capsule_mesh(hh: f64, r: f64, n: usize) -> Mesh {
+    let rings = n / 2;
+    let mut pts = vec![[0.0, r + hh, 0.0]];
+    for i in 1..rings {
+        let th = std::f64::consts::PI * i as f64 / rings as f64;
+        let y = r * th.cos() + if i <= rings / 2 { hh } else { -hh };
+        for j in 0..n {
+            let ph = 2.0 * std::f64::consts::PI * j as f64 / n as f64;
+            pts.push([r * th.sin() * ph.cos(), y, r * th.sin() * ph.sin()]);
+        }
+        if i == rings / 2 {
+            // The equator twice: the top ring of the lower half.
+            for j in 0..n {
+                let ph = 2.0 * std::f64::consts::PI * j as f64 / n as f64;
+                pts.push([r * ph.cos(), -hh, r * ph.sin()]);
+            }
+        }
+    }
+    pts.push([0.0, -r - hh, 0.0]);
+    let ring_count = rings; // rings - 1 latitude rings plus the duplicated equator
+    let ring = |k: usize, j: usize| (1 + k * n + j % n) as u32;
+    let mut tris = Vec::new();
+    for j in 0..n {
+        tris.push([0, ring(0, j + 1), ring(0, j)]);
+    }
+    for k in 0..ring_count - 1 {
+        for j in 0..n {
+            tris.push([ring(k, j), ring(k, j + 1), ring(k + 1, j + 1)]);
+            tris.push([ring(k, j), ring(k + 1, j + 1), ring(k + 1, j)]);
+        }
+    }
+    let last = (pts.len() - 1) as u32;
+    for j in 0..n {
+        tris.push([last, ring(ring_count - 1, j), ring(ring_count - 1, j + 1)]);
+    }
+    largestep::shapes::from_triangles(&pts, &tris)
+}
+
+#[test]
+fn open_meshes_and_bad_bodies_are_refused() {
+    let pts = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+    let open = largestep::shapes::from_triangles(&pts, &[[0, 1, 2]]);
+    let e = mass::mesh(&open, 1.0).unwrap_err().to_string();
+    assert!(e.contains("edge") || e.contains("open"), "{e}");
+    let mut d = RigidDesc::default();
+    d.bodies
+        .push(BodyDesc::new(Shape::Mesh(Arc::new(open)), [0.0; 3]));
+    let e = d.build().unwrap_err().to_string();
+    assert!(e.starts_with("body 0"), "{e}");
+    for bad in [
+        BodyDesc {
+            density: 0.0,
+            ..BodyDesc::new(Shape::Sphere { radius: 1.0 }, [0.0; 3])
+        },
+        BodyDesc {
+            density: -1.0,
+            ..BodyDesc::new(Shape::Sphere { radius: 1.0 }, [0.0; 3])
+        },
+        BodyDesc::new(Shape::Sphere { radius: 0.0 }, [0.0; 3]),
+        BodyDesc {
+            orientation: [0.0; 4],
+            ..BodyDesc::new(Shape::Sphere { radius: 1.0 }, [0.0; 3])
+        },
+        BodyDesc::new(Shape::Sphere { radius: 1.0 }, [f64::NAN, 0.0, 0.0]),
+        BodyDesc::new(
+            Shape::Box {
+                half: [1.0, f64::INFINITY, 1.0],
+            },
+            [0.0; 3],
+        ),
+    ] {
+        let d = RigidDesc {
+            bodies: vec![ground(), bad],
+            ..RigidDesc::default()
+        };
+        let e = d.build().unwrap_err().to_string();
+        assert!(e.starts_with("body 1"), "{e}");
+    }
+    let d = RigidDesc {
+        bodies: vec![
+            ground(),
+            BodyDesc::new(Shape::Sphere { radius: 1.0 }, [0.0; 3]),
+        ],
+        joints: vec![JointDesc {
+            a: 1,
+            b: Some(5),
+            kind: JointKind::Ball { anchor: [0.0; 3] },
+        }],
+        ..RigidDesc::default()
+    };
+    let e = d.build().unwrap_err().to_string();
+    assert!(e.contains("joint 0") && e.contains("body 5"), "{e}");
+}
+
+/// A box with three distinct moments, spinning about `axis` (body frame) at `rate`, plus
+/// a small perturbation about the other two.
+fn spinner(integrator: RigidIntegrator, w: [f64; 3]) -> RigidDesc {
+    RigidDesc {
+        bodies: vec![BodyDesc {
+            angular_velocity: w,
+            ..BodyDesc::new(
+                Shape::Box {
+                    half: [0.1, 0.3, 0.5],
+                },
+                [0.0; 3],
+            )
+        }],
+        gravity: [0.0; 3],
+        integrator,
+        ..RigidDesc::default()
+    }
+}
+
+#[test]
+fn torque_free_bodies_keep_angular_momentum_in_the_momentum_methods() {
+    let w0 = [0.3, 4.0, 0.2];
+    for integrator in [
+        RigidIntegrator::ExplicitEuler,
+        RigidIntegrator::SymplecticEuler,
+        RigidIntegrator::Rk4,
+        RigidIntegrator::ImplicitGyroscopic,
+    ] {
+        let (m, mut s, mut w) = spinner(integrator, w0).build().unwrap();
+        let l0 = m.angular_momentum(&s, 0);
+        let e0 = m.kinetic_energy(&s);
+        for _ in 0..2000 {
+            m.step(&mut s, &mut w, 1e-3).unwrap();
+        }
+        let l1 = m.angular_momentum(&s, 0);
+        let dl = ((l1[0] - l0[0]).powi(2) + (l1[1] - l0[1]).powi(2) + (l1[2] - l0[2]).powi(2))
+            .sqrt()
+            / (l0[0].powi(2) + l0[1].powi(2) + l0[2].powi(2)).sqrt();
+        let de = (m.kinetic_energy(&s) - e0) / e0;
+        eprintln!("{integrator:?}: |dL|/|L| = {dl:.2e}, dE/E = {de:.2e}");
+        match integrator {
+            RigidIntegrator::ImplicitGyroscopic => {
+                assert!(dl < 0.05, "{dl}");
+                // Backward Euler dissipates: energy never grows.
+                assert!(de <= 1e-12, "{de}");
+            }
+            // Exact up to rounding over 8,000 sub-steps.
+            _ => assert!(dl < 1e-10, "{integrator:?}: {dl}"),
+        }
+        if integrator == RigidIntegrator::Rk4 {
+            assert!(de.abs() < 1e-6, "{de}");
+        }
+    }
+}
+
+/// K(k) by the arithmetic-geometric mean: `pi / (2 AGM(1, sqrt(1 - k²)))`.
+fn elliptic_k(k2: f64) -> f64 {
+    let (mut a, mut b) = (1.0f64, (1.0 - k2).sqrt());
+    for _ in 0..40 {
+        let (na, nb) = ((a + b) / 2.0, (a * b).sqrt());
+        a = na;
+        b = nb;
+    }
+    std::f64::consts::PI / (2.0 * a)
+}
+
+#[test]
+fn dzhanibekov_flip_period_matches_eulers_equations() {
+    // Spin about the intermediate axis with a small push about the others. Euler's
+    // equations solved by Jacobi's elliptic functions (Landau and Lifshitz, Mechanics,
+    // section 37): with I1 < I2 < I3 and L² > 2 E I2, w2 ~ sn(tau) and
+    // tau = t sqrt((I3 - I2)(L² - 2 E I1) / (I1 I2 I3)), so w2 changes sign every
+    // 2 K(k) in tau, k² = (I2 - I1)(2 E I3 - L²) / ((I3 - I2)(L² - 2 E I1)).
+    let w0 = [0.0, 5.0, 0.05];
+    let (m, mut s, mut w) = spinner(RigidIntegrator::Rk4, w0).build().unwrap();
+    let i = m.principal_inertia(0);
+    // The box's principal frame is its own: [I1, I2, I3] along x, y, z for hx<hy<hz.
+    let (i3, i2, i1) = (i[0], i[1], i[2]);
+    let (w1, w2, w3) = (w0[2], w0[1], w0[0]);
+    let e2 = i1 * w1 * w1 + i2 * w2 * w2 + i3 * w3 * w3;
+    let l2 = (i1 * w1).powi(2) + (i2 * w2).powi(2) + (i3 * w3).powi(2);
+    let (a, b) = if l2 > e2 * i2 { (i1, i3) } else { (i3, i1) };
+    let lambda = ((b - i2) * (l2 - e2 * a) / (i1 * i2 * i3)).abs().sqrt();
+    let k2 = ((i2 - a) * (e2 * b - l2) / ((b - i2) * (l2 - e2 * a))).abs();
+    let half_period = 2.0 * elliptic_k(k2) / lambda;
+    // Time the sign changes of the spin about the intermediate axis.
+    let dt = 1e-3;
+    let mut crossings = Vec::new();
+    let mut last = w0[1];
+    while s.time < 4.5 * half_period {
+        m.step(&mut s, &mut w, dt).unwrap();
+        let wb = quat::rotate_inv(s.q[0], s.w[0])[1];
+        if wb.signum() != last.signum() {
+            // Linear interpolation of the crossing.
+            crossings.push(s.time - dt * wb / (wb - last));
+        }
+        last = wb;
+    }
+    assert!(crossings.len() >= 4, "{crossings:?}");
+    let measured = (crossings[3] - crossings[1]) / 2.0;
+    let e = rel(measured, half_period);
+    eprintln!("flip: measured {measured:.4} s, theory {half_period:.4} s, error {e:.2e}");
+    assert!(e < 1e-3, "{measured} vs {half_period}");
+}
+
+fn drop_ball(e: f64, dt: f64) -> Vec<f64> {
+    let d = RigidDesc {
+        bodies: vec![
+            ground(),
+            BodyDesc::new(Shape::Sphere { radius: 0.1 }, [0.0, 1.1, 0.0]),
+        ],
+        restitution: e,
+        ..RigidDesc::default()
+    };
+    let (m, mut s, mut w) = d.build().unwrap();
+    let mut apexes = Vec::new();
+    let mut last_v = 0.0;
+    while s.time < 3.0 {
+        m.step(&mut s, &mut w, dt).unwrap();
+        let v = s.v[1][1];
+        if last_v > 0.0 && v <= 0.0 {
+            apexes.push(s.x[1][1] - 0.1);
+        }
+        last_v = v;
+    }
+    apexes
+}
+
+#[test]
+fn bounces_follow_the_restitution_law() {
+    for e in [0.9, 0.5] {
+        let apexes = drop_ball(e, 1e-3);
+        assert!(apexes.len() >= 2, "{apexes:?}");
+        // Each bounce keeps e² of the height (drop from 1 m).
+        let mut h = 1.0;
+        for (k, a) in apexes.iter().take(3).enumerate() {
+            let expect = h * e * e;
+            eprintln!("e = {e}: bounce {k} reached {a:.4} m, law {expect:.4} m");
+            assert!(rel(*a, expect) < 0.03, "bounce {k}: {a} vs {expect}");
+            h = *a;
+        }
+    }
+}
+
+fn stack(count: usize, solver: RigidSolver) -> RigidDesc {
+    let mut bodies = vec![ground()];
+    for k in 0..count {
+        bodies.push(BodyDesc::new(
+            Shape::Box {
+                half: [0.5, 0.5, 0.5],
+            },
+            [0.0, 0.5 + k as f64, 0.0],
+        ));
+    }
+    RigidDesc {
+        bodies,
+        solver,
+        ..RigidDesc::default()
+    }
+}
+
+#[test]
+fn ten_box_stack_rests() {
+    // Soft contacts (30 Hz) settle the stack by their sag, and the sway the first
+    // impacts start dies out, within three seconds; from then on the boxes stay put.
+    let (m, mut s, mut w) = stack(10, RigidSolver::SequentialImpulses).build().unwrap();
+    let x0 = s.x.clone();
+    while s.time < 3.0 {
+        m.step(&mut s, &mut w, 1.0 / 60.0).unwrap();
+    }
+    let settled = s.x.clone();
+    let sag = x0[10][1] - settled[10][1];
+    let mut drift = 0.0f64;
+    let mut tilt = 0.0f64;
+    while s.time < 10.0 {
+        m.step(&mut s, &mut w, 1.0 / 60.0).unwrap();
+        for (i, x) in settled.iter().enumerate().skip(1) {
+            let d = largestep::kernels::v3::sub(s.x[i], *x);
+            drift = drift.max(largestep::kernels::v3::dot(d, d).sqrt());
+            tilt = tilt.max(2.0 * s.q[i][0].clamp(-1.0, 1.0).acos());
+        }
+    }
+    eprintln!(
+        "ten-box stack: sag {sag:.2e} m while settling, then drift {drift:.2e} m and tilt {tilt:.2e} rad over 7 s"
+    );
+    assert!(sag > 0.0 && sag < 0.03, "{sag}");
+    assert!(drift < 2e-3, "{drift}");
+    assert!(tilt < 2e-3, "{tilt}");
+}
+
+#[test]
+fn penalty_and_one_shot_impulses_hold_a_box_up() {
+    for solver in [
+        RigidSolver::Impulse,
+        RigidSolver::Penalty {
+            stiffness: None,
+            damping: None,
+        },
+    ] {
+        let (m, mut s, mut w) = stack(1, solver).build().unwrap();
+        while s.time < 3.0 {
+            m.step(&mut s, &mut w, 1.0 / 240.0).unwrap();
+        }
+        eprintln!("{solver:?}: y = {}", s.x[1][1]);
+        assert!((s.x[1][1] - 0.5).abs() < 0.02, "{solver:?}: {}", s.x[1][1]);
+        assert!(s.v[1][1].abs() < 0.05);
+    }
+}
+
+#[test]
+fn pendulum_joint_keeps_its_length() {
+    for kind in ["ball", "distance", "hinge"] {
+        let anchor = [0.0, 2.0, 0.0];
+        let j = match kind {
+            "ball" => JointKind::Ball { anchor },
+            "hinge" => JointKind::Hinge {
+                anchor,
+                axis: [0.0, 0.0, 1.0],
+            },
+            _ => JointKind::Distance {
+                anchor_a: [1.0, 2.0, 0.0],
+                anchor_b: anchor,
+            },
+        };
+        let mut bob = BodyDesc::new(Shape::Sphere { radius: 0.1 }, [1.0, 2.0, 0.0]);
+        if kind != "distance" {
+            // A rod: a thin box from the anchor to the bob.
+            bob = BodyDesc::new(
+                Shape::Box {
+                    half: [0.5, 0.05, 0.05],
+                },
+                [0.5, 2.0, 0.0],
+            );
+        }
+        let d = RigidDesc {
+            bodies: vec![bob],
+            joints: vec![JointDesc {
+                a: 0,
+                b: None,
+                kind: j,
+            }],
+            correction: Correction::Split,
+            ..RigidDesc::default()
+        };
+        let (m, mut s, mut w) = d.build().unwrap();
+        let e0 = m.kinetic_energy(&s) + m.potential_energy(&s);
+        let mut drift = 0.0f64;
+        while s.time < 5.0 {
+            m.step(&mut s, &mut w, 1.0 / 240.0).unwrap();
+            let tip = if kind == "distance" {
+                s.x[0]
+            } else {
+                largestep::kernels::v3::add(s.x[0], quat::rotate(s.q[0], [-0.5, 0.0, 0.0]))
+            };
+            let want = if kind == "distance" { 1.0 } else { 0.0 };
+            let r = ((tip[0] - anchor[0]).powi(2)
+                + (tip[1] - anchor[1]).powi(2)
+                + (tip[2] - anchor[2]).powi(2))
+            .sqrt();
+            drift = drift.max((r - want).abs());
+        }
+        let e1 = m.kinetic_energy(&s) + m.potential_energy(&s);
+        eprintln!("{kind}: drift {drift:.2e} m, energy {e0:.3} -> {e1:.3}");
+        assert!(drift < 0.01, "{kind}: {drift}");
+        assert!(
+            e1 <= e0 + 1e-6 * e0.abs().max(1.0),
+            "{kind}: energy grew {e0} -> {e1}"
+        );
+    }
+}
