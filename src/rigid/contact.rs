@@ -9,7 +9,7 @@ use largestep_kernels::collide::manifold::{
 };
 use largestep_kernels::collide::narrow::Convex;
 use largestep_kernels::quat;
-use largestep_kernels::v3::{add, dot, scale, sub};
+use largestep_kernels::v3::{add, dot, sub};
 
 /// Contact margin as a fraction of the smaller body's feature size: points this far apart
 /// are kept as speculative contacts.
@@ -133,6 +133,12 @@ fn manifold(
 /// `w.previous` for warm starting), and reports the counts.
 pub(crate) fn collide(m: &Rigid, s: &RigidState, w: &mut RigidWork, dt: f64) -> RigidStepInfo {
     let n = m.len();
+    std::mem::swap(&mut w.contacts, &mut w.previous);
+    w.contacts.clear();
+    let mut info = RigidStepInfo::default();
+    if !m.collides() {
+        return info;
+    }
     // Hull points in world coordinates, for the bodies that have them.
     for i in 0..n {
         if let Collider::Hull(h) = &m.colliders[i] {
@@ -148,9 +154,6 @@ pub(crate) fn collide(m: &Rigid, s: &RigidState, w: &mut RigidWork, dt: f64) -> 
         w.boxes.push(body_box(m, s, i, MARGIN * m.size[i] + sweep));
     }
     w.sap.pairs(&w.boxes, &mut w.pairs);
-    std::mem::swap(&mut w.contacts, &mut w.previous);
-    w.contacts.clear();
-    let mut info = RigidStepInfo::default();
     for &[a, b] in &w.pairs {
         let (i, j) = (a as usize, b as usize);
         if !m.is_dynamic(i) && !m.is_dynamic(j) {
@@ -208,6 +211,5 @@ pub(crate) fn collide(m: &Rigid, s: &RigidState, w: &mut RigidWork, dt: f64) -> 
             info.warm += 1;
         }
     }
-    let _ = scale;
     info
 }

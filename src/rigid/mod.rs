@@ -28,8 +28,8 @@
 
 mod contact;
 pub mod mass;
+pub mod scene;
 mod solver;
-// pub mod scene;
 
 use crate::io::Mesh;
 use crate::validate::ModelError;
@@ -658,13 +658,13 @@ impl RigidDesc {
         m.jointed.dedup();
         let w = RigidWork {
             hulls: m
-            .colliders
-            .iter()
-            .map(|c| match c {
-                Collider::Hull(h) => Vec::with_capacity(h.len()),
-                _ => Vec::new(),
-            })
-            .collect(),
+                .colliders
+                .iter()
+                .map(|c| match c {
+                    Collider::Hull(h) => Vec::with_capacity(h.len()),
+                    _ => Vec::new(),
+                })
+                .collect(),
             ..RigidWork::default()
         };
         Ok((m, s, w))
@@ -688,7 +688,7 @@ fn body_surface(b: &BodyDesc) -> Result<Mesh, String> {
             for h in half {
                 pos(*h, "each half extent of a box")?;
             }
-            crate::shapes::cuboid(half.map(|h| -h), *half)
+            faceted_box(*half)
         }
         Shape::Capsule {
             half_height,
@@ -704,6 +704,35 @@ fn body_surface(b: &BodyDesc) -> Result<Mesh, String> {
         }
         Shape::Mesh(m) => (**m).clone(),
     })
+}
+
+/// A box of half extents `h` drawn with four vertices per face, so that each face shades
+/// flat (a shared corner would average three normals and round the box off).
+fn faceted_box(h: [f64; 3]) -> Mesh {
+    let mut pts = Vec::with_capacity(24);
+    let mut tris = Vec::with_capacity(12);
+    for axis in 0..3 {
+        for sign in [-1.0, 1.0] {
+            let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+            let base = pts.len() as u32;
+            for (a, b) in [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)] {
+                let mut p = [0.0; 3];
+                p[axis] = sign * h[axis];
+                p[u] = a * h[u];
+                p[v] = b * h[v];
+                pts.push(p);
+            }
+            // Counter-clockwise seen from outside: (u, v, axis) is right-handed.
+            if sign > 0.0 {
+                tris.push([base, base + 1, base + 2]);
+                tris.push([base, base + 2, base + 3]);
+            } else {
+                tris.push([base, base + 2, base + 1]);
+                tris.push([base, base + 3, base + 2]);
+            }
+        }
+    }
+    crate::shapes::from_triangles(&pts, &tris)
 }
 
 /// The joint of `j` with anchors taken into the bodies' frames at the start.
@@ -859,6 +888,12 @@ impl Rigid {
     /// Principal moments of inertia of body `i` (kg m²).
     pub fn principal_inertia(&self, i: usize) -> [f64; 3] {
         self.inertia[i]
+    }
+
+    /// Whether contacts can happen: two bodies or more, one of them dynamic (else the
+    /// collision stage is left out).
+    pub fn collides(&self) -> bool {
+        self.len() >= 2 && self.inv_mass.iter().any(|&m| m > 0.0)
     }
 
     /// Whether body `i` is moved by forces.

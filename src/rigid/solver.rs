@@ -266,6 +266,18 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
         Correction::Split => 0.8,
         Correction::Baumgarte => 0.2,
     });
+    let g = dot(d.gravity, d.gravity).sqrt();
+    // Approach speeds below gravity's pull over two steps rest rather than bounce.
+    let threshold = 2.0 * g * dt + 1e-9;
+    let params = Params {
+        h,
+        beta,
+        penalty,
+        contact_soft,
+        joint_soft,
+        correction: d.correction,
+        bounce: threshold,
+    };
     for _ in 0..substeps {
         // Velocities: gravity and the gyroscopic term.
         for i in 0..n {
@@ -308,17 +320,7 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
         if penalty {
             penalty_forces(m, sw, &w.contacts, h);
         }
-        solve_pass(
-            m,
-            sw,
-            Pass::Solve,
-            h,
-            beta,
-            penalty,
-            contact_soft,
-            joint_soft,
-            d.correction,
-        );
+        solve_pass(m, sw, Pass::Solve, params);
         if d.correction == Correction::Split {
             for p in sw.pseudo.iter_mut() {
                 *p = [[0.0; 3]; 2];
@@ -329,17 +331,7 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
             for r in sw.joints.iter_mut() {
                 r.plambda = 0.0;
             }
-            solve_pass(
-                m,
-                sw,
-                Pass::Pseudo,
-                h,
-                beta,
-                penalty,
-                contact_soft,
-                joint_soft,
-                d.correction,
-            );
+            solve_pass(m, sw, Pass::Pseudo, params);
         }
         // Positions.
         for i in 0..n {
@@ -350,17 +342,7 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
             sw.vel[i] = [s.v[i], s.w[i]];
         }
         if d.correction == Correction::Soft {
-            solve_pass(
-                m,
-                sw,
-                Pass::Relax,
-                h,
-                beta,
-                penalty,
-                contact_soft,
-                joint_soft,
-                d.correction,
-            );
+            solve_pass(m, sw, Pass::Relax, params);
         }
         for k in 0..sw.joints.len() {
             sw.joint_lambda[k] = sw.joints[k].lambda;
@@ -376,11 +358,9 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
             );
         }
     }
-    // Restitution: contacts that pushed and were approaching faster than gravity's pull
-    // over two steps leave at e times their approach speed.
-    let g = dot(d.gravity, d.gravity).sqrt();
-    let threshold = 2.0 * g * dt + 1e-9;
-    if d.restitution > 0.0 && !penalty {
+    // Restitution: contacts that pushed and were approaching faster than the threshold
+    // leave at e times their approach speed (one-shot impulses bounced as they went).
+    if d.restitution > 0.0 && accumulate {
         for k in 0..sw.contacts.len() {
             let mut c = sw.contacts[k];
             if c.approach < threshold || c.max_normal == 0.0 {
@@ -419,19 +399,30 @@ fn joint_row_count(m: &Rigid) -> usize {
         .sum()
 }
 
-/// One pass over the joints and contacts (see [`Pass`]).
-#[allow(clippy::too_many_arguments)]
-fn solve_pass(
-    m: &Rigid,
-    sw: &mut SolverWork,
-    pass: Pass,
+/// What every pass of a step shares.
+#[derive(Clone, Copy)]
+struct Params {
     h: f64,
     beta: f64,
     penalty: bool,
     contact_soft: Soft,
     joint_soft: Soft,
     correction: Correction,
-) {
+    /// Approach speeds (m/s) above which one-shot impulses bounce.
+    bounce: f64,
+}
+
+/// One pass over the joints and contacts (see [`Pass`]).
+fn solve_pass(m: &Rigid, sw: &mut SolverWork, pass: Pass, p: Params) {
+    let Params {
+        h,
+        beta,
+        penalty,
+        contact_soft,
+        joint_soft,
+        correction,
+        bounce,
+    } = p;
     let d = m.desc();
     let accumulate = d.solver == RigidSolver::SequentialImpulses;
     let SolverWork {
@@ -509,8 +500,16 @@ fn solve_pass(
             }
         };
         let r = &mut c.normal;
-        let dl =
-            r.mass * soft.mass_scale * (target - relative(r, vel)) - soft.impulse_scale * r.lambda;
+        let vn = relative(r, vel);
+        // One-shot impulses bounce each approaching contact as they meet it (Guendelman
+        // et al. 2003's collision processing): a row of touching balls passes an
+        // impact on from one to the next within the pass (Newton's cradle).
+        let (target, soft) = if !accumulate && -vn > bounce {
+            (target.max(d.restitution * -vn), Soft::RIGID)
+        } else {
+            (target, soft)
+        };
+        let dl = r.mass * soft.mass_scale * (target - vn) - soft.impulse_scale * r.lambda;
         let old = r.lambda;
         let new = if accumulate {
             (old + dl).max(0.0)

@@ -134,6 +134,11 @@ impl PathPart for usize {
     }
 }
 
+/// A key path as the scene writes it: `rigid.body[3].orientation`.
+pub fn dotted_key(p: &[Key]) -> String {
+    dotted(p)
+}
+
 fn dotted(p: &[Key]) -> String {
     let mut s = String::new();
     for k in p {

@@ -46,6 +46,11 @@ pub const DOMAINS: &[Domain] = &[
         table: "fluid",
         build: crate::fluid::scene::build,
     },
+    #[cfg(feature = "rigid")]
+    Domain {
+        table: "rigid",
+        build: crate::rigid::scene::build,
+    },
     #[cfg(feature = "modal")]
     Domain {
         table: "sound",

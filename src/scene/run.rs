@@ -379,6 +379,8 @@ pub struct Runner {
     grid_preview: Option<GridPreview>,
     /// Whether a system listens to the others' contact impulses (they record them then).
     listening: bool,
+    /// The per-frame tables being written (system index, writer, path).
+    tables: Vec<(usize, std::io::BufWriter<std::fs::File>, PathBuf)>,
 }
 
 /// The preview of grid frames, made as they are written: each frame's picture is
@@ -422,7 +424,45 @@ impl Runner {
             kept: None,
             grid_preview: None,
             listening,
+            tables: Vec::new(),
         }
+    }
+
+    /// Opens each system's per-frame table ([`Simulation::frame_table`]) with its header:
+    /// `<file>` for the first system to name it, `<table>_<file>` for any other.
+    fn open_tables(&mut self) -> Result<(), RunError> {
+        self.tables.clear();
+        let mut names: Vec<&str> = Vec::new();
+        for (k, sys) in self.systems.iter().enumerate() {
+            let Some(t) = sys.sim.frame_table() else {
+                continue;
+            };
+            let name = if names.contains(&t.file) {
+                format!("{}_{}", sys.table, t.file)
+            } else {
+                t.file.to_string()
+            };
+            names.push(t.file);
+            let path = self.out_dir.join(name);
+            let mut w =
+                std::io::BufWriter::new(crate::io::create_replacing(&path).map_err(io_err(&path))?);
+            writeln!(w, "{}", t.header).map_err(io_err(&path))?;
+            self.tables.push((k, w, path));
+        }
+        Ok(())
+    }
+
+    /// Appends frame `k`'s rows to every per-frame table, flushed (a failed run leaves
+    /// whole frames).
+    fn write_tables(&mut self, k: usize) -> Result<(), RunError> {
+        for (sys, w, path) in self.tables.iter_mut() {
+            self.systems[*sys]
+                .sim
+                .write_frame_rows(k, w)
+                .and_then(|_| w.flush())
+                .map_err(io_err(path))?;
+        }
+        Ok(())
     }
 
     /// The scene's systems.
@@ -710,6 +750,7 @@ impl Runner {
 
     fn write_frame(&mut self, k: usize) -> Result<bool, RunError> {
         self.write_grid_pictures(k)?;
+        self.write_tables(k)?;
         let copy = self.kept.is_some().then(|| self.with_frame(Mesh::from_ref));
         if let (Some(kept), Some(mut m)) = (&mut self.kept, copy) {
             if let Some(prev) = kept.last() {
@@ -842,6 +883,7 @@ impl Runner {
             crate::io::create_replacing(&csv_path).map_err(io_err(&csv_path))?,
         );
         writeln!(csv, "{}", FrameRecord::CSV_HEADER).map_err(io_err(&csv_path))?;
+        self.open_tables()?;
 
         let e0 = self.energy();
         let e_start = e0.total();

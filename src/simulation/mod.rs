@@ -196,6 +196,16 @@ pub struct Audio<'a> {
     pub sample_rate: u32,
 }
 
+/// A table a system writes a block of rows to at every frame (`bodies.csv` of rigid
+/// bodies): its file name in the output folder and its header line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FrameTable {
+    /// File name (CSV).
+    pub file: &'static str,
+    /// The header line, without its newline.
+    pub header: &'static str,
+}
+
 /// A running simulation of one system (see the module docs).
 pub trait Simulation: Send {
     /// Advances by `dt` (s): one step, or several smaller ones when step-size control
@@ -253,6 +263,17 @@ pub trait Simulation: Send {
     /// The sound made so far, for systems that make one.
     fn audio(&self) -> Option<Audio<'_>> {
         None
+    }
+
+    /// The table this system writes rows to at every frame, if any.
+    fn frame_table(&self) -> Option<FrameTable> {
+        None
+    }
+
+    /// Writes the rows of [`Simulation::frame_table`] for frame `frame` now.
+    fn write_frame_rows(&self, frame: usize, w: &mut dyn std::io::Write) -> std::io::Result<()> {
+        let _ = (frame, w);
+        Ok(())
     }
 
     /// Whether the system has a volume to write as a frame ([`Simulation::write_volume`]).
