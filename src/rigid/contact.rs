@@ -154,6 +154,9 @@ pub(crate) fn collide(m: &Rigid, s: &RigidState, w: &mut RigidWork, dt: f64) -> 
         w.boxes.push(body_box(m, s, i, MARGIN * m.size[i] + sweep));
     }
     w.sap.pairs(&w.boxes, &mut w.pairs);
+    // Pairs in order, so the contacts come out sorted by pair (warm starting looks last
+    // step's up by pair) without sorting the contacts themselves.
+    w.pairs.sort_unstable();
     for &[a, b] in &w.pairs {
         let (i, j) = (a as usize, b as usize);
         if !m.is_dynamic(i) && !m.is_dynamic(j) {
@@ -191,7 +194,6 @@ pub(crate) fn collide(m: &Rigid, s: &RigidState, w: &mut RigidWork, dt: f64) -> 
     info.contacts = w.contacts.len();
     // Warm start: a point takes the impulse of last step's nearest point of the same pair
     // within a quarter of the smaller body's feature size (in a's frame).
-    w.contacts.sort_by_key(|c| (c.a, c.b));
     for c in &mut w.contacts {
         let lo = w.previous.partition_point(|p| (p.a, p.b) < (c.a, c.b));
         let tol = 0.25 * m.size[c.a as usize].min(m.size[c.b as usize]);

@@ -423,7 +423,7 @@ pub struct RigidState {
 }
 
 /// Scratch for stepping, kept between steps (contact impulses for warm starting).
-#[derive(Debug, Default)]
+#[derive(Clone, Debug, Default)]
 pub struct RigidWork {
     pub(crate) boxes: Vec<Aabb>,
     pub(crate) sap: SweepAndPrune,

@@ -18,7 +18,6 @@
 //! scales its impulse by `a2 / (1 + a2)`, `a2 = hω (2ζ + hω)`, less `1 / (1 + a2)` of what
 //! it has accumulated: the implicit spring-damper that a rigid row is the limit of.
 
-use super::contact::ContactPoint;
 use super::{mat_vec, Correction, Joint, JointKind, Rigid, RigidSolver, RigidState, RigidWork};
 use largestep_kernels::quat;
 use largestep_kernels::v3::{add, cross, dot, length_and_unit, scale, sub};
@@ -64,7 +63,25 @@ impl Soft {
     };
 }
 
-/// One scalar row between bodies a and b (b = `usize::MAX`: the world).
+/// A body as the solver sees it: its velocities, inverse mass and world inverse
+/// inertia (zero for static and kinematic bodies), in one 128-byte record.
+#[derive(Clone, Copy, Debug, Default)]
+struct SolverBody {
+    v: [f64; 3],
+    w: [f64; 3],
+    inv_mass: f64,
+    inv_inertia: [[f64; 3]; 3],
+}
+
+/// A body's motion since the step's start: the displacement of its centre and
+/// `R R0ᵀ - I`, which takes an offset at the start to its change.
+#[derive(Clone, Copy, Debug, Default)]
+struct Motion {
+    dx: [f64; 3],
+    dr: [[f64; 3]; 3],
+}
+
+/// One scalar joint row between bodies a and b (b = `usize::MAX`: the world).
 #[derive(Clone, Copy, Debug, Default)]
 struct Row {
     a: usize,
@@ -79,78 +96,151 @@ struct Row {
     ib: [f64; 3],
     /// Effective mass.
     mass: f64,
-    /// The position error (joints: the constraint's value, m or rad).
+    /// The position error (the constraint's value, m or rad).
     error: f64,
-    /// Accumulated impulse over the present sub-step.
+    /// Accumulated impulse over the present sub-step, and the split one.
     lambda: f64,
-    /// Split impulses: the pseudo impulse.
     plambda: f64,
 }
 
-/// Rows of one contact point: the normal and two friction directions, with what the
-/// sub-steps need to track the penetration.
+/// One contact point's three rows (normal, two tangents) in compact form: the rows'
+/// Jacobians are `[-d, -(ra x d), d, rb x d]` for their direction `d`, formed as they are
+/// used, so a contact is 256 bytes and a pile's contacts stay in cache.
 #[derive(Clone, Copy, Debug, Default)]
-struct ContactRows {
-    normal: Row,
-    t1: Row,
-    t2: Row,
+struct ContactRow {
+    a: u32,
+    b: u32,
     /// The contact's index in `RigidWork::contacts`.
-    index: usize,
-    /// The contact point in a's and b's body frames at the step's start.
-    anchor_a: [f64; 3],
-    anchor_b: [f64; 3],
-    /// Penetration at the step's start (m) and the approach speed then (m/s, > 0 closing).
+    index: u32,
+    /// Normal (a into b) and tangents.
+    dir: [[f64; 3]; 3],
+    /// The contact point from each centre at the step's start.
+    ra: [f64; 3],
+    rb: [f64; 3],
+    /// Effective masses and accumulated impulses of the three rows.
+    mass: [f64; 3],
+    lambda: [f64; 3],
+    /// Split impulses' normal impulse.
+    plambda: f64,
+    /// Penetration now and at the step's start (m), the approach speed then (m/s).
+    error: f64,
     depth: f64,
     approach: f64,
+    /// Baumgarte and split impulses leave this much penetration alone (m).
+    slop: f64,
     /// The largest normal impulse of any sub-step (restitution acts only on contacts
-    /// that pushed), and the step's total impulse (N s, normal and tangents).
+    /// that pushed), and the step's total impulse (N s).
     max_normal: f64,
     total: [f64; 3],
-    /// Baumgarte and split impulses: the error below which nothing is corrected.
-    slop: f64,
 }
 
 /// The solver's scratch, kept between steps.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct SolverWork {
-    /// Velocities (v, w) of each body during the solve.
-    vel: Vec<[[f64; 3]; 2]>,
+    bodies: Vec<SolverBody>,
     /// Split-impulse pseudo-velocities (v, w) of each body in the present sub-step.
     pseudo: Vec<[[f64; 3]; 2]>,
-    inv_inertia: Vec<[[f64; 3]; 3]>,
-    /// Each body's pose at the step's start.
+    /// Each body's pose at the step's start, and its motion since.
     x0: Vec<[f64; 3]>,
-    q0: Vec<quat::Quat>,
-    contacts: Vec<ContactRows>,
+    r0: Vec<[[f64; 3]; 3]>,
+    motion: Vec<Motion>,
+    contacts: Vec<ContactRow>,
     joints: Vec<Row>,
     /// Joint impulses of the last sub-step, for warm starting (rows in a fixed order).
     joint_lambda: Vec<f64>,
 }
 
+/// The velocity of a contact row along `d` with lever arms `ca = ra x d`, `cb = rb x d`:
+/// `d (vb - va) + cb wb - ca wa`.
+#[inline(always)]
+fn contact_velocity(
+    va: &[[f64; 3]; 2],
+    vb: &[[f64; 3]; 2],
+    d: [f64; 3],
+    ca: [f64; 3],
+    cb: [f64; 3],
+) -> f64 {
+    dot(d, sub(vb[0], va[0])) + dot(cb, vb[1]) - dot(ca, va[1])
+}
+
+/// Applies the impulse `l` along a contact row (`-l` on a, `l` on b).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn contact_push(
+    a: &SolverBody,
+    b: &SolverBody,
+    va: &mut [[f64; 3]; 2],
+    vb: &mut [[f64; 3]; 2],
+    d: [f64; 3],
+    ca: [f64; 3],
+    cb: [f64; 3],
+    l: f64,
+) {
+    va[0] = sub(va[0], scale(d, a.inv_mass * l));
+    va[1] = sub(va[1], scale(mat_vec(a.inv_inertia, ca), l));
+    vb[0] = add(vb[0], scale(d, b.inv_mass * l));
+    vb[1] = add(vb[1], scale(mat_vec(b.inv_inertia, cb), l));
+}
+
+impl SolverBody {
+    #[inline(always)]
+    fn vel(&self) -> [[f64; 3]; 2] {
+        [self.v, self.w]
+    }
+}
+
 impl SolverWork {
-    #[inline]
-    fn push(m: &Rigid, r: &Row, lambda: f64, v: &mut [[[f64; 3]; 2]]) {
-        let ima = m.inv_mass[r.a];
-        let va = &mut v[r.a];
-        va[0] = add(va[0], scale(r.la, ima * lambda));
-        va[1] = add(va[1], scale(r.ia, lambda));
+    /// The velocity of joint row `r`.
+    #[inline(always)]
+    fn row_velocity(&self, r: &Row, pseudo: bool) -> f64 {
+        let get = |i: usize| {
+            if pseudo {
+                self.pseudo[i]
+            } else {
+                self.bodies[i].vel()
+            }
+        };
+        let va = get(r.a);
+        let mut s = dot(r.la, va[0]) + dot(r.aa, va[1]);
         if r.b != usize::MAX {
-            let imb = m.inv_mass[r.b];
-            let vb = &mut v[r.b];
-            vb[0] = add(vb[0], scale(r.lb, imb * lambda));
-            vb[1] = add(vb[1], scale(r.ib, lambda));
+            let vb = get(r.b);
+            s += dot(r.lb, vb[0]) + dot(r.ab, vb[1]);
+        }
+        s
+    }
+
+    /// Applies the impulse `l` along joint row `r`.
+    #[inline(always)]
+    fn row_push(&mut self, r: &Row, l: f64, pseudo: bool) {
+        for (i, lin, ang) in [(r.a, r.la, r.ia), (r.b, r.lb, r.ib)] {
+            if i == usize::MAX {
+                continue;
+            }
+            let im = self.bodies[i].inv_mass;
+            let v = if pseudo {
+                &mut self.pseudo[i]
+            } else {
+                let b = &mut self.bodies[i];
+                b.v = add(b.v, scale(lin, im * l));
+                b.w = add(b.w, scale(ang, l));
+                continue;
+            };
+            v[0] = add(v[0], scale(lin, im * l));
+            v[1] = add(v[1], scale(ang, l));
         }
     }
 
-    /// A row with its `M^-1 Jᵀ` and effective mass.
-    fn row(&self, m: &Rigid, a: usize, b: usize, j: [[f64; 3]; 4]) -> Row {
+    /// A joint row with its `M^-1 Jᵀ` and effective mass.
+    fn row(&self, a: usize, b: usize, j: [[f64; 3]; 4]) -> Row {
         let [la, aa, lb, ab] = j;
-        let ia = mat_vec(self.inv_inertia[a], aa);
-        let mut k = m.inv_mass[a] * dot(la, la) + dot(aa, ia);
+        let ba = &self.bodies[a];
+        let ia = mat_vec(ba.inv_inertia, aa);
+        let mut k = ba.inv_mass * dot(la, la) + dot(aa, ia);
         let mut ib = [0.0; 3];
         if b != usize::MAX {
-            ib = mat_vec(self.inv_inertia[b], ab);
-            k += m.inv_mass[b] * dot(lb, lb) + dot(ab, ib);
+            let bb = &self.bodies[b];
+            ib = mat_vec(bb.inv_inertia, ab);
+            k += bb.inv_mass * dot(lb, lb) + dot(ab, ib);
         }
         Row {
             a,
@@ -189,6 +279,17 @@ enum Pass {
     Pseudo,
 }
 
+fn mat_mul_t(a: [[f64; 3]; 3], b: [[f64; 3]; 3]) -> [[f64; 3]; 3] {
+    // a bᵀ
+    let mut out = [[0.0; 3]; 3];
+    for (i, row) in out.iter_mut().enumerate() {
+        for (j, o) in row.iter_mut().enumerate() {
+            *o = dot(a[i], b[j]);
+        }
+    }
+    out
+}
+
 /// Advances `s` by `dt`: the sub-steps of the module docs over the contacts in
 /// `w.contacts` (their impulses written back) and the joints.
 pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
@@ -197,13 +298,18 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
     let substeps = d.iterations;
     let h = dt / substeps as f64;
     let sw = &mut w.solver;
-    sw.inv_inertia.clear();
-    sw.inv_inertia
-        .extend((0..n).map(|i| m.inv_inertia_world(i, s.q[i])));
+    sw.bodies.clear();
+    sw.bodies.extend((0..n).map(|i| SolverBody {
+        v: s.v[i],
+        w: s.w[i],
+        inv_mass: m.inv_mass[i],
+        inv_inertia: m.inv_inertia_world(i, s.q[i]),
+    }));
     sw.x0.clone_from(&s.x);
-    sw.q0.clone_from(&s.q);
-    sw.vel.clear();
-    sw.vel.extend((0..n).map(|i| [s.v[i], s.w[i]]));
+    sw.r0.clear();
+    sw.r0.extend(s.q.iter().map(|q| quat::to_matrix(*q)));
+    sw.motion.clear();
+    sw.motion.resize(n, Motion::default());
     sw.pseudo.clear();
     sw.pseudo.resize(n, [[0.0; 3]; 2]);
     let accumulate = d.solver == RigidSolver::SequentialImpulses;
@@ -215,28 +321,35 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
         let (a, b) = (c.a as usize, c.b as usize);
         let ra = sub(c.point, s.x[a]);
         let rb = sub(c.point, s.x[b]);
-        let jac = |dir: [f64; 3]| {
-            [
-                scale(dir, -1.0),
-                scale(cross(ra, dir), -1.0),
-                dir,
-                cross(rb, dir),
-            ]
-        };
         let nrm = c.normal;
         let (t1, t2) = tangents(nrm);
-        let mut rows = ContactRows {
-            normal: sw.row(m, a, b, jac(nrm)),
-            t1: sw.row(m, a, b, jac(t1)),
-            t2: sw.row(m, a, b, jac(t2)),
-            index,
-            anchor_a: quat::rotate_inv(s.q[a], ra),
-            anchor_b: quat::rotate_inv(s.q[b], rb),
+        let (ba, bb) = (&sw.bodies[a], &sw.bodies[b]);
+        let mass = [nrm, t1, t2].map(|dir| {
+            let (ca, cb) = (cross(ra, dir), cross(rb, dir));
+            let k = ba.inv_mass
+                + bb.inv_mass
+                + dot(ca, mat_vec(ba.inv_inertia, ca))
+                + dot(cb, mat_vec(bb.inv_inertia, cb));
+            if k > 0.0 {
+                1.0 / k
+            } else {
+                0.0
+            }
+        });
+        let mut row = ContactRow {
+            a: c.a,
+            b: c.b,
+            index: index as u32,
+            dir: [nrm, t1, t2],
+            ra,
+            rb,
+            mass,
             depth: c.depth,
+            error: c.depth,
             slop: SLOP * m.size[a].min(m.size[b]),
-            ..ContactRows::default()
+            ..ContactRow::default()
         };
-        rows.approach = -relative(&rows.normal, &sw.vel);
+        row.approach = -contact_velocity(&ba.vel(), &bb.vel(), nrm, cross(ra, nrm), cross(rb, nrm));
         if accumulate {
             // Warm start from last step's impulse per sub-step, inside the cone.
             let per = scale(c.impulse, 1.0 / substeps as f64);
@@ -249,11 +362,9 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
                 l1 *= f;
                 l2 *= f;
             }
-            rows.normal.lambda = ln;
-            rows.t1.lambda = l1;
-            rows.t2.lambda = l2;
+            row.lambda = [ln, l1, l2];
         }
-        sw.contacts.push(rows);
+        sw.contacts.push(row);
     }
     if sw.joint_lambda.len() != joint_row_count(m) {
         sw.joint_lambda = vec![0.0; joint_row_count(m)];
@@ -278,47 +389,74 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
         correction: d.correction,
         bounce: threshold,
     };
-    for _ in 0..substeps {
+    for sub_step in 0..substeps {
         // Velocities: gravity and the gyroscopic term.
-        for i in 0..n {
-            let [v, om] = &mut sw.vel[i];
-            m.advance_velocity(i, s.q[i], v, om, h);
+        for (i, b) in sw.bodies.iter_mut().enumerate() {
+            m.advance_velocity(i, s.q[i], &mut b.v, &mut b.w, h);
         }
         // Joint rows at the present pose.
         sw.joints.clear();
         for j in &m.joints {
-            joint_rows(m, s, sw, j);
+            joint_rows(s, sw, j);
         }
         // Warm start: each row's impulse of the last sub-step again.
         for k in 0..sw.joints.len() {
             let l = if accumulate { sw.joint_lambda[k] } else { 0.0 };
             sw.joints[k].lambda = l;
-            SolverWork::push(m, &sw.joints[k], l, &mut sw.vel);
+            let r = sw.joints[k];
+            sw.row_push(&r, l, false);
         }
-        for k in 0..sw.contacts.len() {
-            let c = &mut sw.contacts[k];
+        let SolverWork {
+            bodies, contacts, ..
+        } = sw;
+        for c in contacts.iter_mut() {
             if !accumulate {
-                c.normal.lambda = 0.0;
-                c.t1.lambda = 0.0;
-                c.t2.lambda = 0.0;
+                c.lambda = [0.0; 3];
                 continue;
             }
-            let c = *c;
-            SolverWork::push(m, &c.normal, c.normal.lambda, &mut sw.vel);
-            SolverWork::push(m, &c.t1, c.t1.lambda, &mut sw.vel);
-            SolverWork::push(m, &c.t2, c.t2.lambda, &mut sw.vel);
+            let (a, b) = (c.a as usize, c.b as usize);
+            let (ba, bb) = (bodies[a], bodies[b]);
+            let (mut va, mut vb) = (ba.vel(), bb.vel());
+            for r in 0..3 {
+                let dir = c.dir[r];
+                contact_push(
+                    &ba,
+                    &bb,
+                    &mut va,
+                    &mut vb,
+                    dir,
+                    cross(c.ra, dir),
+                    cross(c.rb, dir),
+                    c.lambda[r],
+                );
+            }
+            store(bodies, a, b, va, vb);
         }
         // Present penetrations from the motion since the step's start.
-        for c in sw.contacts.iter_mut() {
-            let (a, b) = (c.normal.a, c.normal.b);
-            let pa = add(s.x[a], quat::rotate(s.q[a], c.anchor_a));
-            let pb = add(s.x[b], quat::rotate(s.q[b], c.anchor_b));
-            let pa0 = add(sw.x0[a], quat::rotate(sw.q0[a], c.anchor_a));
-            let pb0 = add(sw.x0[b], quat::rotate(sw.q0[b], c.anchor_b));
-            c.normal.error = c.depth - dot(c.normal.lb, sub(sub(pb, pb0), sub(pa, pa0)));
+        if sub_step > 0 {
+            for i in 0..n {
+                let r = quat::to_matrix(s.q[i]);
+                let mut dr = mat_mul_t(r, sw.r0[i]);
+                for (k, row) in dr.iter_mut().enumerate() {
+                    row[k] -= 1.0;
+                }
+                sw.motion[i] = Motion {
+                    dx: sub(s.x[i], sw.x0[i]),
+                    dr,
+                };
+            }
+            let SolverWork {
+                contacts, motion, ..
+            } = sw;
+            for c in contacts.iter_mut() {
+                let (ma, mb) = (&motion[c.a as usize], &motion[c.b as usize]);
+                let da = add(ma.dx, mat_vec(ma.dr, c.ra));
+                let db = add(mb.dx, mat_vec(mb.dr, c.rb));
+                c.error = c.depth - dot(c.dir[0], sub(db, da));
+            }
         }
         if penalty {
-            penalty_forces(m, sw, &w.contacts, h);
+            penalty_forces(m, sw, h);
         }
         solve_pass(m, sw, Pass::Solve, params);
         if d.correction == Correction::Split {
@@ -326,7 +464,7 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
                 *p = [[0.0; 3]; 2];
             }
             for c in sw.contacts.iter_mut() {
-                c.normal.plambda = 0.0;
+                c.plambda = 0.0;
             }
             for r in sw.joints.iter_mut() {
                 r.plambda = 0.0;
@@ -335,11 +473,13 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
         }
         // Positions.
         for i in 0..n {
-            s.v[i] = sw.vel[i][0];
-            s.w[i] = sw.vel[i][1];
+            let b = &mut sw.bodies[i];
+            s.v[i] = b.v;
+            s.w[i] = b.w;
             let [pv, pw] = sw.pseudo[i];
             m.advance_position(s, i, h, pv, pw);
-            sw.vel[i] = [s.v[i], s.w[i]];
+            b.v = s.v[i];
+            b.w = s.w[i];
         }
         if d.correction == Correction::Soft {
             solve_pass(m, sw, Pass::Relax, params);
@@ -348,42 +488,57 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
             sw.joint_lambda[k] = sw.joints[k].lambda;
         }
         for c in sw.contacts.iter_mut() {
-            c.max_normal = c.max_normal.max(c.normal.lambda);
-            c.total = add(
-                c.total,
-                add(
-                    scale(c.normal.lb, c.normal.lambda),
-                    add(scale(c.t1.lb, c.t1.lambda), scale(c.t2.lb, c.t2.lambda)),
-                ),
-            );
+            c.max_normal = c.max_normal.max(c.lambda[0]);
+            for r in 0..3 {
+                c.total = add(c.total, scale(c.dir[r], c.lambda[r]));
+            }
         }
     }
     // Restitution: contacts that pushed and were approaching faster than the threshold
     // leave at e times their approach speed (one-shot impulses bounced as they went).
     if d.restitution > 0.0 && accumulate {
-        for k in 0..sw.contacts.len() {
-            let mut c = sw.contacts[k];
+        let SolverWork {
+            bodies, contacts, ..
+        } = sw;
+        for c in contacts.iter_mut() {
             if c.approach < threshold || c.max_normal == 0.0 {
                 continue;
             }
-            let vn = relative(&c.normal, &sw.vel);
-            let dl = c.normal.mass * (d.restitution * c.approach - vn);
-            let new = (c.normal.lambda + dl).max(0.0);
-            SolverWork::push(m, &c.normal, new - c.normal.lambda, &mut sw.vel);
-            c.total = add(c.total, scale(c.normal.lb, new - c.normal.lambda));
-            c.normal.lambda = new;
-            sw.contacts[k] = c;
+            let (a, b) = (c.a as usize, c.b as usize);
+            let (ba, bb) = (bodies[a], bodies[b]);
+            let (mut va, mut vb) = (ba.vel(), bb.vel());
+            let nrm = c.dir[0];
+            let (ca, cb) = (cross(c.ra, nrm), cross(c.rb, nrm));
+            let vn = contact_velocity(&va, &vb, nrm, ca, cb);
+            let dl = c.mass[0] * (d.restitution * c.approach - vn);
+            let new = (c.lambda[0] + dl).max(0.0);
+            contact_push(&ba, &bb, &mut va, &mut vb, nrm, ca, cb, new - c.lambda[0]);
+            store(bodies, a, b, va, vb);
+            c.total = add(c.total, scale(nrm, new - c.lambda[0]));
+            c.lambda[0] = new;
         }
     }
-    for i in 0..n {
+    for (i, b) in sw.bodies.iter().enumerate() {
         if m.is_dynamic(i) {
-            s.v[i] = sw.vel[i][0];
-            s.w[i] = sw.vel[i][1];
+            s.v[i] = b.v;
+            s.w[i] = b.w;
         }
     }
     for r in &sw.contacts {
-        let c = &mut w.contacts[r.index];
-        c.impulse = r.total;
+        w.contacts[r.index as usize].impulse = r.total;
+    }
+}
+
+/// Writes two bodies' velocities back (a static or kinematic one keeps its own).
+#[inline(always)]
+fn store(bodies: &mut [SolverBody], a: usize, b: usize, va: [[f64; 3]; 2], vb: [[f64; 3]; 2]) {
+    if bodies[a].inv_mass > 0.0 {
+        bodies[a].v = va[0];
+        bodies[a].w = va[1];
+    }
+    if bodies[b].inv_mass > 0.0 {
+        bodies[b].v = vb[0];
+        bodies[b].w = vb[1];
     }
 }
 
@@ -425,15 +580,9 @@ fn solve_pass(m: &Rigid, sw: &mut SolverWork, pass: Pass, p: Params) {
     } = p;
     let d = m.desc();
     let accumulate = d.solver == RigidSolver::SequentialImpulses;
-    let SolverWork {
-        vel,
-        pseudo,
-        joints,
-        contacts,
-        ..
-    } = sw;
     // Joints: equalities.
-    for r in joints.iter_mut() {
+    for k in 0..sw.joints.len() {
+        let mut r = sw.joints[k];
         let (target, soft) = match (pass, correction) {
             (Pass::Pseudo, _) => (-beta * r.error / h, Soft::RIGID),
             (Pass::Relax, _) | (Pass::Solve, Correction::Split) => (0.0, Soft::RIGID),
@@ -441,39 +590,59 @@ fn solve_pass(m: &Rigid, sw: &mut SolverWork, pass: Pass, p: Params) {
             (Pass::Solve, Correction::Baumgarte) => (-beta * r.error / h, Soft::RIGID),
         };
         if pass == Pass::Pseudo {
-            let rel = relative(r, pseudo);
-            let dl = r.mass * (target - rel);
+            let dl = r.mass * (target - sw.row_velocity(&r, true));
             r.plambda += dl;
-            SolverWork::push(m, r, dl, pseudo);
+            sw.row_push(&r, dl, true);
         } else {
-            let rel = relative(r, vel);
-            let dl = r.mass * soft.mass_scale * (target - rel) - soft.impulse_scale * r.lambda;
+            let dl = r.mass * soft.mass_scale * (target - sw.row_velocity(&r, false))
+                - soft.impulse_scale * r.lambda;
             r.lambda += dl;
-            SolverWork::push(m, r, dl, vel);
+            sw.row_push(&r, dl, false);
         }
+        sw.joints[k] = r;
     }
     if penalty {
         return;
     }
+    let SolverWork {
+        bodies,
+        contacts,
+        pseudo,
+        ..
+    } = sw;
     for c in contacts.iter_mut() {
-        let e = c.normal.error;
+        let (a, b) = (c.a as usize, c.b as usize);
+        let (ba, bb) = (bodies[a], bodies[b]);
+        let e = c.error;
+        let nrm = c.dir[0];
+        let (ca, cb) = (cross(c.ra, nrm), cross(c.rb, nrm));
         if pass == Pass::Pseudo {
             let target = beta * (e - c.slop).max(0.0) / h;
             if target == 0.0 {
                 continue;
             }
-            let r = &mut c.normal;
-            let dl = r.mass * (target - relative(r, pseudo));
-            let new = (r.plambda + dl).max(0.0);
-            SolverWork::push(m, r, new - r.plambda, pseudo);
-            r.plambda = new;
+            let (mut va, mut vb) = (pseudo[a], pseudo[b]);
+            let dl = c.mass[0] * (target - contact_velocity(&va, &vb, nrm, ca, cb));
+            let new = (c.plambda + dl).max(0.0);
+            contact_push(&ba, &bb, &mut va, &mut vb, nrm, ca, cb, new - c.plambda);
+            c.plambda = new;
+            if ba.inv_mass > 0.0 {
+                pseudo[a] = va;
+            }
+            if bb.inv_mass > 0.0 {
+                pseudo[b] = vb;
+            }
             continue;
         }
+        let (mut va, mut vb) = (ba.vel(), bb.vel());
         // Friction first, within Coulomb's cone of the normal impulse so far.
-        let cap = d.friction * c.normal.lambda;
-        let d1 = c.t1.mass * -relative(&c.t1, vel);
-        let d2 = c.t2.mass * -relative(&c.t2, vel);
-        let (old1, old2) = (c.t1.lambda, c.t2.lambda);
+        let cap = d.friction * c.lambda[0];
+        let (t1, t2) = (c.dir[1], c.dir[2]);
+        let (ca1, cb1) = (cross(c.ra, t1), cross(c.rb, t1));
+        let (ca2, cb2) = (cross(c.ra, t2), cross(c.rb, t2));
+        let d1 = c.mass[1] * -contact_velocity(&va, &vb, t1, ca1, cb1);
+        let d2 = c.mass[2] * -contact_velocity(&va, &vb, t2, ca2, cb2);
+        let (old1, old2) = (c.lambda[1], c.lambda[2]);
         let (mut l1, mut l2) = (old1 + d1, old2 + d2);
         let lt = (l1 * l1 + l2 * l2).sqrt();
         if lt > cap {
@@ -481,10 +650,10 @@ fn solve_pass(m: &Rigid, sw: &mut SolverWork, pass: Pass, p: Params) {
             l1 *= f;
             l2 *= f;
         }
-        c.t1.lambda = l1;
-        c.t2.lambda = l2;
-        SolverWork::push(m, &c.t1, l1 - old1, vel);
-        SolverWork::push(m, &c.t2, l2 - old2, vel);
+        c.lambda[1] = l1;
+        c.lambda[2] = l2;
+        contact_push(&ba, &bb, &mut va, &mut vb, t1, ca1, cb1, l1 - old1);
+        contact_push(&ba, &bb, &mut va, &mut vb, t2, ca2, cb2, l2 - old2);
         // Normal: apart, close the gap and no more; overlapping, push out by the bias.
         let (target, soft) = if e < 0.0 {
             (e / h, Soft::RIGID)
@@ -499,8 +668,7 @@ fn solve_pass(m: &Rigid, sw: &mut SolverWork, pass: Pass, p: Params) {
                 _ => (0.0, Soft::RIGID),
             }
         };
-        let r = &mut c.normal;
-        let vn = relative(r, vel);
+        let vn = contact_velocity(&va, &vb, nrm, ca, cb);
         // One-shot impulses bounce each approaching contact as they meet it (Guendelman
         // et al. 2003's collision processing): a row of touching balls passes an
         // impact on from one to the next within the pass (Newton's cradle).
@@ -509,31 +677,21 @@ fn solve_pass(m: &Rigid, sw: &mut SolverWork, pass: Pass, p: Params) {
         } else {
             (target, soft)
         };
-        let dl = r.mass * soft.mass_scale * (target - vn) - soft.impulse_scale * r.lambda;
-        let old = r.lambda;
+        let dl = c.mass[0] * soft.mass_scale * (target - vn) - soft.impulse_scale * c.lambda[0];
+        let old = c.lambda[0];
         let new = if accumulate {
             (old + dl).max(0.0)
         } else {
             old + dl.max(0.0)
         };
-        r.lambda = new;
-        SolverWork::push(m, r, new - old, vel);
+        c.lambda[0] = new;
+        contact_push(&ba, &bb, &mut va, &mut vb, nrm, ca, cb, new - old);
+        store(bodies, a, b, va, vb);
     }
-}
-
-#[inline]
-fn relative(r: &Row, v: &[[[f64; 3]; 2]]) -> f64 {
-    let va = &v[r.a];
-    let mut s = dot(r.la, va[0]) + dot(r.aa, va[1]);
-    if r.b != usize::MAX {
-        let vb = &v[r.b];
-        s += dot(r.lb, vb[0]) + dot(r.ab, vb[1]);
-    }
-    s
 }
 
 /// Penalty springs at each overlapping contact point over a sub-step `h`.
-fn penalty_forces(m: &Rigid, sw: &mut SolverWork, contacts: &[ContactPoint], h: f64) {
+fn penalty_forces(m: &Rigid, sw: &mut SolverWork, h: f64) {
     let d = m.desc();
     let RigidSolver::Penalty { stiffness, damping } = d.solver else {
         return;
@@ -542,32 +700,32 @@ fn penalty_forces(m: &Rigid, sw: &mut SolverWork, contacts: &[ContactPoint], h: 
     // pair's overlapping points share the spring (contacts are sorted by pair).
     let omega = 2.0 * std::f64::consts::PI / (20.0 * h);
     let SolverWork {
-        vel,
-        contacts: rows,
-        ..
+        bodies, contacts, ..
     } = sw;
-    for k in 0..rows.len() {
-        let c = rows[k];
-        let depth = c.normal.error;
+    for k in 0..contacts.len() {
+        let c = contacts[k];
+        let depth = c.error;
         if depth <= 0.0 {
             continue;
         }
-        let p = &contacts[c.index];
-        let (a, b) = (p.a as usize, p.b as usize);
+        let (a, b) = (c.a as usize, c.b as usize);
         let lo = k.saturating_sub(8);
-        let points = rows[lo..(k + 8).min(rows.len())]
+        let points = contacts[lo..(k + 8).min(contacts.len())]
             .iter()
-            .filter(|q| {
-                let o = &contacts[q.index];
-                o.a == p.a && o.b == p.b && q.normal.error > 0.0
-            })
+            .filter(|q| q.a == c.a && q.b == c.b && q.error > 0.0)
             .count();
         let light = m.mass[a].min(m.mass[b]) / points.max(1) as f64;
         let ks = stiffness.unwrap_or(light * omega * omega);
         let kd = damping.unwrap_or(2.0 * light * omega);
-        let vn = relative(&c.normal, vel);
+        let (ba, bb) = (bodies[a], bodies[b]);
+        let (mut va, mut vb) = (ba.vel(), bb.vel());
+        let arms = c.dir.map(|dir| (cross(c.ra, dir), cross(c.rb, dir)));
+        let vel = |va: &[[f64; 3]; 2], vb: &[[f64; 3]; 2], r: usize| {
+            contact_velocity(va, vb, c.dir[r], arms[r].0, arms[r].1)
+        };
+        let vn = vel(&va, &vb, 0);
         let fn_ = (ks * depth - kd * vn).max(0.0);
-        let (v1, v2) = (relative(&c.t1, vel), relative(&c.t2, vel));
+        let (v1, v2) = (vel(&va, &vb, 1), vel(&va, &vb, 2));
         let vt = (v1 * v1 + v2 * v2).sqrt();
         let ft = (d.friction * fn_).min(kd * vt);
         let (f1, f2) = if vt > 0.0 {
@@ -575,17 +733,19 @@ fn penalty_forces(m: &Rigid, sw: &mut SolverWork, contacts: &[ContactPoint], h: 
         } else {
             (0.0, 0.0)
         };
-        SolverWork::push(m, &c.normal, fn_ * h, vel);
-        SolverWork::push(m, &c.t1, f1 * h, vel);
-        SolverWork::push(m, &c.t2, f2 * h, vel);
-        rows[k].normal.lambda = fn_ * h;
-        rows[k].t1.lambda = f1 * h;
-        rows[k].t2.lambda = f2 * h;
+        let l = [fn_ * h, f1 * h, f2 * h];
+        for r in 0..3 {
+            contact_push(
+                &ba, &bb, &mut va, &mut vb, c.dir[r], arms[r].0, arms[r].1, l[r],
+            );
+        }
+        store(bodies, a, b, va, vb);
+        contacts[k].lambda = l;
     }
 }
 
 /// The rows of joint `j` at the present state, into `sw.joints`.
-fn joint_rows(m: &Rigid, s: &RigidState, sw: &mut SolverWork, j: &Joint) {
+fn joint_rows(s: &RigidState, sw: &mut SolverWork, j: &Joint) {
     let (a, b) = (j.a, j.b);
     let world = b == usize::MAX;
     let ra = quat::rotate(s.q[a], j.la);
@@ -598,7 +758,7 @@ fn joint_rows(m: &Rigid, s: &RigidState, sw: &mut SolverWork, j: &Joint) {
     let pa = add(s.x[a], ra);
     let err = sub(pb, pa);
     let push = |sw: &mut SolverWork, jac: [[f64; 3]; 4], e: f64| {
-        let mut r = sw.row(m, a, b, jac);
+        let mut r = sw.row(a, b, jac);
         r.error = e;
         sw.joints.push(r);
     };

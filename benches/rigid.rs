@@ -1,0 +1,155 @@
+//! Rigid-body benchmarks of issue 19.
+//!
+//! - `rigid/pile/step`: one step (dt = 1/60 s) of `scenes/rigid-pile.toml`, 1,000 boxes
+//!   tumbling onto a slab, from the state after 2 s (the boxes landing and piling, the
+//!   most contacts), single-threaded: criterion's time of a step from a copy of that state.
+//! - The whole run: the scene's 360 steps, each timed, the mean per step; beside it the
+//!   peer's on the same bodies (rapier3d 0.36.1 in `benches/peers/rapier-pile`, run here
+//!   when built; it reads the bodies from `target/criterion/rigid-pile.bin`), with the
+//!   solver settings of each.
+//! - Machine fraction: the solver's floating-point work counted from the contacts (each
+//!   contact point's three rows cost 24 multiply-adds a visit, two visits a sub-step, four
+//!   sub-steps) over one thread's share of the peak FMA rate measured in the same run.
+//!
+//! Run with `cargo bench --bench rigid`; the summary is printed and written to
+//! `target/criterion/rigid-summary.md`.
+
+use criterion::{BatchSize, Criterion};
+use largestep::rigid::scene::RigidSim;
+use largestep::rigid::{Rigid, RigidState, RigidWork, Shape};
+use largestep::scene::Scene;
+use std::io::Write;
+use std::time::Instant;
+
+/// The pile scene's model and start state.
+fn pile() -> (Rigid, RigidState, RigidWork) {
+    let scene = Scene::load(std::path::Path::new("scenes/rigid-pile.toml")).expect("scene");
+    let sim = scene.into_simulation().expect("one system");
+    let sim: &RigidSim = sim.downcast_ref().expect("a rigid scene");
+    sim.model().desc().build().expect("builds")
+}
+
+/// Writes the bodies for the peer (see `benches/peers/rapier-pile`).
+fn write_bodies(m: &Rigid, s: &RigidState) {
+    let mut out = Vec::new();
+    for (i, b) in m.desc().bodies.iter().enumerate() {
+        let Shape::Box { half } = b.shape else {
+            panic!("the pile holds boxes only");
+        };
+        let rv = largestep::kernels::quat::log(s.q[i]);
+        let fixed = if m.is_dynamic(i) { 0.0 } else { 1.0 };
+        for v in [
+            s.x[i][0], s.x[i][1], s.x[i][2], rv[0], rv[1], rv[2], half[0], half[1], half[2],
+            b.density, fixed,
+        ] {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    std::fs::create_dir_all("target/criterion").ok();
+    std::fs::write("target/criterion/rigid-pile.bin", out).expect("write bodies");
+}
+
+/// Runs the rapier3d peer when it is built: its output line with sleeping off and on.
+fn run_peer() -> Option<Vec<String>> {
+    let exe = std::path::Path::new("benches/peers/rapier-pile/target/release/rapier-pile-peer");
+    let out = std::process::Command::new(exe)
+        .arg("target/criterion/rigid-pile.bin")
+        .output()
+        .ok()?;
+    let text = String::from_utf8(out.stdout).ok()?;
+    Some(text.lines().map(str::to_string).collect())
+}
+
+/// The mean per step (ms) in a peer line "...: 2.950 ms per step ...".
+fn peer_ms(line: &str) -> Option<f64> {
+    let at = line.find(" ms per step")?;
+    line[..at].rsplit(' ').next()?.parse().ok()
+}
+
+fn main() {
+    // Single-threaded, as the peer.
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build_global()
+        .ok();
+    let mut c = Criterion::default()
+        .configure_from_args()
+        .sample_size(20)
+        .measurement_time(std::time::Duration::from_secs(8));
+    let (m, s0, w0) = pile();
+    write_bodies(&m, &s0);
+    let dt = 1.0 / 60.0;
+
+    // The whole run, each step timed.
+    let (mut s, mut w) = (s0.clone(), w0.clone());
+    let mut times = Vec::new();
+    let mut contacts = 0usize;
+    let mut deepest = 0.0f64;
+    let mut at_2s = None;
+    for k in 0..360 {
+        if k == 120 {
+            at_2s = Some((s.clone(), w.clone()));
+        }
+        let t = Instant::now();
+        let info = m.step(&mut s, &mut w, dt).expect("step");
+        times.push(t.elapsed().as_secs_f64() * 1e3);
+        contacts += info.contacts;
+        deepest = deepest.max(info.max_depth);
+    }
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    let lowest = (1..m.len())
+        .map(|i| s.x[i][1])
+        .fold(f64::INFINITY, f64::min);
+    let fastest = (1..m.len())
+        .map(|i| largestep::kernels::v3::dot(s.v[i], s.v[i]).sqrt())
+        .fold(0.0, f64::max);
+
+    let (s2, w2) = at_2s.expect("120 steps");
+    c.bench_function("rigid/pile/step", |b| {
+        b.iter_batched(
+            || (s2.clone(), w2.clone()),
+            |(mut s, mut w)| m.step(&mut s, &mut w, dt).expect("step"),
+            BatchSize::LargeInput,
+        )
+    });
+
+    let limits = largestep::machine::measure(64);
+    let per_thread = limits.peak_gflops() / limits.threads as f64;
+    let d = m.desc();
+    // Multiply-adds per contact point and step: three rows, 24 each a visit, a solve and a
+    // relax visit per sub-step.
+    let flops = contacts as f64 / 360.0 * 3.0 * 24.0 * 2.0 * 2.0 * d.iterations as f64;
+    let ms = mean(&times);
+    let fraction = flops / (ms * 1e-3) / (per_thread * 1e9);
+    let peer = run_peer();
+    let peer_off = peer
+        .as_ref()
+        .and_then(|l| l.iter().find(|l| l.contains("sleeping off")).cloned());
+    let ratio = peer_off
+        .as_deref()
+        .and_then(peer_ms)
+        .map_or("not built".to_string(), |p| {
+            format!("{p:.3} ms ({:.2}x ours)", p / ms)
+        });
+    let summary = format!(
+        "## Pile of 1,000 boxes (`scenes/rigid-pile.toml`), dt = 1/60 s, 1 thread\n\n\
+| | largestep | peer: rapier3d 0.36.1 (sleeping off) |\n|---|---|---|\n\
+| mean step over the 360 steps | {ms:.3} ms (first 120: {:.3}, last 120: {:.3}) | {ratio} |\n\
+| solver | {} sub-steps of sequential impulses, soft contacts (30 Hz, damping ratio 20), relax, friction 0.5 | 4 iterations, soft contacts (rapier's defaults), friction 0.5 |\n\n\
+{:.0} contact points a step on average, deepest {deepest:.4} m; at the end the lowest centre is at {lowest:.3} m and the fastest box moves {fastest:.3} m/s.\n\n\
+Machine: {:.1} GFLOP/s of solver work, {:.1}% of one thread's peak FMA rate ({per_thread:.1} GFLOP/s).\n\n\
+Peer output:\n\n```\n{}\n```\n",
+        mean(&times[..120]),
+        mean(&times[240..]),
+        d.iterations,
+        contacts as f64 / 360.0,
+        flops / (ms * 1e-3) / 1e9,
+        100.0 * fraction,
+        peer.map_or("not built (see benches/peers/rapier-pile)".into(), |l| l.join("\n")),
+    );
+    println!("\n{summary}");
+    if let Ok(mut f) = std::fs::File::create("target/criterion/rigid-summary.md") {
+        let _ = f.write_all(summary.as_bytes());
+    }
+    c.final_summary();
+}
