@@ -476,3 +476,266 @@ fn pendulum_joint_keeps_its_length() {
         );
     }
 }
+
+mod witkin {
+    use super::{elliptic_k, rel};
+    use largestep::rigid::witkin::{
+        Constraint, Witkin, WitkinError, WitkinIntegrator, WitkinState,
+    };
+
+    fn state(x: Vec<[f64; 3]>) -> WitkinState {
+        let n = x.len();
+        WitkinState {
+            x,
+            v: vec![[0.0; 3]; n],
+            ..WitkinState::default()
+        }
+    }
+
+    /// The period of a pendulum of length `l` released at `theta0` (rad):
+    /// `4 sqrt(l / g) K(sin²(theta0 / 2))`.
+    fn period(l: f64, theta0: f64) -> f64 {
+        4.0 * (l / 9.81f64).sqrt() * elliptic_k((theta0 / 2.0).sin().powi(2))
+    }
+
+    /// Times of the particle's upward crossings of its lowest point, per swing.
+    fn measure_period(w: &Witkin, mut s: WitkinState, dt: f64, until: f64, i: usize) -> (f64, f64) {
+        let mut crossings = Vec::new();
+        let mut last_vx = s.v[i][0];
+        let mut drift = 0.0f64;
+        while s.time < until {
+            w.step(&mut s, dt).unwrap();
+            drift = drift.max(w.drift(&s.x));
+            let vx = s.v[i][0];
+            // vx changes sign at the turning points: two per period.
+            if vx.signum() != last_vx.signum() && last_vx != 0.0 {
+                crossings.push(s.time - dt * vx / (vx - last_vx));
+            }
+            last_vx = vx;
+        }
+        assert!(crossings.len() >= 5, "{crossings:?}");
+        ((crossings[4] - crossings[0]) / 2.0, drift)
+    }
+
+    #[test]
+    fn bead_on_a_circular_wire_swings_with_the_pendulum_period() {
+        // A bead on a vertical circle of radius 1 m released 60 degrees from the bottom.
+        let th = 60f64.to_radians();
+        let w = Witkin {
+            inv_mass: vec![1.0],
+            constraints: vec![Constraint::Circle {
+                a: 0,
+                center: [0.0, 0.0, 0.0],
+                normal: [0.0, 0.0, 1.0],
+                radius: 1.0,
+            }],
+            gravity: [0.0, -9.81, 0.0],
+            ks: 0.0,
+            kd: 0.0,
+            integrator: WitkinIntegrator::Rk4,
+        };
+        let s = state(vec![[th.sin(), -th.cos(), 0.0]]);
+        w.validate(&s).unwrap();
+        let (t, drift) = measure_period(&w, s, 1e-3, 6.0, 0);
+        let e = rel(t, period(1.0, th));
+        eprintln!(
+            "bead on a wire: period {t:.5} s, theory {:.5} s, error {e:.1e}, drift {drift:.1e} m",
+            period(1.0, th)
+        );
+        assert!(e < 1e-4, "{e}");
+        assert!(drift < 1e-6, "{drift}");
+    }
+
+    #[test]
+    fn drift_grows_without_feedback_and_stays_bounded_with_it() {
+        // A pendulum on an anchor, explicit Euler: the rod stretches without feedback.
+        let mut worst = Vec::new();
+        for (ks, kd) in [(0.0, 0.0), (100.0, 20.0)] {
+            let w = Witkin {
+                inv_mass: vec![1.0],
+                constraints: vec![Constraint::Anchor {
+                    a: 0,
+                    point: [0.0, 0.0, 0.0],
+                    length: 1.0,
+                }],
+                gravity: [0.0, -9.81, 0.0],
+                ks,
+                kd,
+                integrator: WitkinIntegrator::SymplecticEuler,
+            };
+            let mut s = state(vec![[1.0, 0.0, 0.0]]);
+            let mut drift = 0.0f64;
+            while s.time < 10.0 {
+                w.step(&mut s, 1e-3).unwrap();
+                drift = drift.max(w.drift(&s.x));
+            }
+            eprintln!("pendulum, feedback ks = {ks}, kd = {kd}: drift {drift:.2e} m");
+            worst.push(drift);
+        }
+        assert!(worst[1] < 0.2 * worst[0], "{worst:?}");
+        assert!(worst[1] < 2e-3, "{worst:?}");
+    }
+
+    #[test]
+    fn double_pendulum_keeps_energy_and_constraints() {
+        let w = Witkin {
+            inv_mass: vec![1.0, 1.0],
+            constraints: vec![
+                Constraint::Anchor {
+                    a: 0,
+                    point: [0.0, 0.0, 0.0],
+                    length: 1.0,
+                },
+                Constraint::Distance {
+                    a: 0,
+                    b: 1,
+                    length: 1.0,
+                },
+            ],
+            gravity: [0.0, -9.81, 0.0],
+            ks: 0.0,
+            kd: 0.0,
+            integrator: WitkinIntegrator::Rk4,
+        };
+        let mut s = state(vec![[1.0, 0.0, 0.0], [2.0, 0.0, 0.0]]);
+        let e0 = w.kinetic_energy(&s) + w.potential_energy(&s);
+        let mut drift = 0.0f64;
+        while s.time < 10.0 {
+            w.step(&mut s, 5e-4).unwrap();
+            drift = drift.max(w.drift(&s.x));
+        }
+        let e1 = w.kinetic_energy(&s) + w.potential_energy(&s);
+        // Energy scale: the drop from horizontal to hanging, 3 m g.
+        let de = (e1 - e0).abs() / (3.0 * 9.81);
+        eprintln!(
+            "double pendulum over 10 s: energy change {de:.1e} of m g h, drift {drift:.1e} m"
+        );
+        assert!(de < 1e-3, "{de}");
+        assert!(drift < 1e-4, "{drift}");
+    }
+
+    #[test]
+    fn redundant_constraints_and_bad_indices_are_reported() {
+        let anchor = Constraint::Anchor {
+            a: 0,
+            point: [0.0; 3],
+            length: 1.0,
+        };
+        let w = Witkin {
+            inv_mass: vec![1.0],
+            constraints: vec![anchor, anchor],
+            gravity: [0.0, -9.81, 0.0],
+            ks: 0.0,
+            kd: 0.0,
+            integrator: WitkinIntegrator::Rk4,
+        };
+        let mut s = state(vec![[1.0, 0.0, 0.0]]);
+        assert_eq!(w.step(&mut s, 1e-3), Err(WitkinError::Singular { step: 1 }));
+        let w = Witkin {
+            constraints: vec![Constraint::Distance {
+                a: 0,
+                b: 3,
+                length: 1.0,
+            }],
+            ..w
+        };
+        let e = w
+            .validate(&state(vec![[1.0, 0.0, 0.0]]))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("constraint 0") && e.contains("particle 3"),
+            "{e}"
+        );
+    }
+}
+
+mod scenes {
+    use largestep::scene::{Runner, Scene};
+    use std::path::Path;
+
+    fn scene(name: &str) -> Scene {
+        Scene::load(
+            &Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("scenes")
+                .join(name),
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn rigid_scenes_write_bodies_csv_each_frame() {
+        let out = std::env::temp_dir().join(format!("largestep-rigid-{}", std::process::id()));
+        let mut runner = Runner::new(scene("rigid-dominoes.toml"), &out);
+        let summary = runner.run(Some(5), &mut |_| {}).unwrap();
+        let text = std::fs::read_to_string(out.join("bodies.csv")).unwrap();
+        let mut lines = text.lines();
+        assert_eq!(
+            lines.next(),
+            Some("frame,time,body,x,y,z,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz")
+        );
+        let rows: Vec<Vec<f64>> = lines
+            .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+            .collect();
+        // 21 bodies (the slab, the pushed domino and nineteen more), frames 0 to 5.
+        assert_eq!(rows.len(), 21 * 6);
+        assert!(rows
+            .iter()
+            .all(|r| r.len() == 16 && r.iter().all(|v| v.is_finite())));
+        // Unit quaternions, and frame 0 is where the scene put the first domino.
+        for r in &rows {
+            let n = (r[6] * r[6] + r[7] * r[7] + r[8] * r[8] + r[9] * r[9]).sqrt();
+            assert!((n - 1.0).abs() < 1e-9);
+        }
+        let first = &rows[1];
+        assert_eq!((first[0], first[2]), (0.0, 1.0));
+        assert!((first[3] + 1.0).abs() < 1e-12 && (first[4] - 0.2).abs() < 1e-12);
+        assert!((first[15] + 3.0).abs() < 1e-12, "the push: w_z = -3 rad/s");
+        assert_eq!(summary.frames_written, 6);
+        std::fs::remove_dir_all(&out).ok();
+    }
+
+    #[test]
+    fn scenes_leave_out_what_they_do_not_need() {
+        let sim = scene("rigid-t-handle.toml").into_simulation().unwrap();
+        let stages = sim.stages();
+        let collide = stages
+            .iter()
+            .find(|s| s.name == "collision structures")
+            .unwrap();
+        assert!(!collide.built, "one body needs no collision structures");
+        let joints = stages.iter().find(|s| s.name == "joints").unwrap();
+        assert!(!joints.built);
+        let sim = scene("rigid-cradle.toml").into_simulation().unwrap();
+        assert!(sim.stages().iter().any(|s| s.name == "joints" && s.built));
+    }
+
+    #[test]
+    fn bad_rigid_scenes_name_the_line() {
+        let base = "[scene]\ndt = 0.01\nduration = 1.0\n";
+        for (body, needle) in [
+            ("[[rigid.body]]\nshape = { box = [1.0, -1.0, 1.0] }\n", "half extent"),
+            ("[[rigid.body]]\nshape = { sphere = 1.0, box = [1.0, 1.0, 1.0] }\n", "a shape is one of"),
+            ("[[rigid.body]]\nshape = { sphere = 1.0 }\norientation = [0.0, 0.0, 0.0, 0.0]\n", "zero"),
+            ("[[rigid.body]]\nshape = { sphere = 1.0 }\ndensity = -3.0\n", "density"),
+            ("[[rigid.body]]\nshape = { mesh = \"missing.obj\" }\n", "missing.obj"),
+            ("[[rigid.body]]\nshape = { sphere = 1.0 }\n[[rigid.joint]]\ntype = \"ball\"\na = 0\nb = 4\nanchor = [0.0, 0.0, 0.0]\n", "body 4 does not exist"),
+            ("[rigid]\nsolver = \"magic\"\n[[rigid.body]]\nshape = { sphere = 1.0 }\n", "unknown solver"),
+            ("[[rigid.body]]\nshape = { sphere = 1.0 }\nposition = [nan, 0.0, 0.0]\n", "finite"),
+            ("[[rigid.array]]\nshape = { sphere = 1.0 }\ncount = [100000, 100000, 1000]\nspacing = [1.0, 1.0, 1.0]\n", "memory budget"),
+            ("[[rigid.particle]]\nposition = [0.0, 0.0, 0.0]\n[[rigid.constraint]]\ntype = \"anchor\"\na = 2\npoint = [0.0, 1.0, 0.0]\n", "particle 2 does not exist"),
+        ] {
+            let text = format!("{base}{body}");
+            let e = Scene::parse(&text, "bad.toml").unwrap_err();
+            assert!(e.line > 0, "{e}");
+            assert!(e.to_string().contains(needle), "{needle}: {e}");
+        }
+        // A non-unit orientation is normalised with a warning.
+        let text = format!("{base}[[rigid.body]]\nshape = {{ sphere = 1.0 }}\norientation = [2.0, 0.0, 0.0, 0.0]\n");
+        let sim = Scene::parse(&text, "ok.toml")
+            .unwrap()
+            .into_simulation()
+            .unwrap();
+        assert!(sim.warnings().iter().any(|w| w.contains("normalised")));
+    }
+}

@@ -30,6 +30,7 @@ mod contact;
 pub mod mass;
 pub mod scene;
 mod solver;
+pub mod witkin;
 
 use crate::io::Mesh;
 use crate::validate::ModelError;

@@ -35,6 +35,19 @@
 //! jitter = 0.05                 # m, a fixed pseudo-random offset of each body
 //! tilt = 0.3                    # rad, a fixed pseudo-random turn of each body
 //!
+//! # Witkin's constrained particles instead of bodies (a system holds one or the other):
+//! feedback = [0.0, 0.0]         # [rigid]: ks (1/s^2) and kd (1/s) pulling drift back
+//! [[rigid.particle]]
+//! position = [1.0, 2.0, 0.0]    # m
+//! velocity = [0.0, 0.0, 0.0]    # m/s
+//! mass = 1.0                    # kg
+//! pinned = false
+//! [[rigid.constraint]]
+//! type = "distance"             # distance (a, b), anchor (a, point), circle (a, center, normal)
+//! a = 0
+//! b = 1
+//! length = 1.0                  # m (default: the start distance; the circle's radius)
+//!
 //! [[rigid.joint]]
 //! type = "hinge"                # ball, hinge, fixed, distance
 //! a = 1                         # body index (bodies first, then arrays' bodies in order)
@@ -45,6 +58,7 @@
 //! anchor_b = [0.0, 2.0, 0.0]
 //! ```
 
+use super::witkin::{Constraint, Witkin, WitkinError, WitkinIntegrator, WitkinState};
 use super::{
     BodyDesc, Correction, JointDesc, JointKind, Motion, Rigid, RigidDesc, RigidError,
     RigidIntegrator, RigidSolver, RigidState, RigidStepInfo, RigidWork, Shape,
@@ -85,6 +99,44 @@ pub struct RigidTable {
     pub array: Vec<ArrayTable>,
     #[serde(default)]
     pub joint: Vec<JointTable>,
+    #[serde(default)]
+    pub feedback: Option<[f64; 2]>,
+    #[serde(default)]
+    pub particle: Vec<ParticleTable>,
+    #[serde(default)]
+    pub constraint: Vec<ConstraintTable>,
+}
+
+/// `[[rigid.particle]]`: a point mass of Witkin's constrained dynamics.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ParticleTable {
+    pub position: [f64; 3],
+    #[serde(default)]
+    pub velocity: Option<[f64; 3]>,
+    #[serde(default)]
+    pub mass: Option<f64>,
+    #[serde(default)]
+    pub pinned: Option<bool>,
+}
+
+/// `[[rigid.constraint]]`: a constraint on particles.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ConstraintTable {
+    #[serde(rename = "type")]
+    pub kind: String,
+    pub a: i64,
+    #[serde(default)]
+    pub b: Option<i64>,
+    #[serde(default)]
+    pub point: Option<[f64; 3]>,
+    #[serde(default)]
+    pub center: Option<[f64; 3]>,
+    #[serde(default)]
+    pub normal: Option<[f64; 3]>,
+    #[serde(default)]
+    pub length: Option<f64>,
 }
 
 /// `shape = { box = [..] }` and the others.
@@ -403,6 +455,11 @@ pub fn desc(ctx: &Context<'_>, t: &RigidTable) -> Result<(RigidDesc, Vec<String>
             ));
         }
         total += a.count.iter().map(|&c| c as f64).product::<f64>();
+        ctx.memory(
+            &path(&[&"array", &k]),
+            &format!("{total} rigid bodies"),
+            total * BYTES_PER_BODY,
+        )?;
     }
     ctx.memory(
         &at("body"),
@@ -561,9 +618,18 @@ pub fn desc(ctx: &Context<'_>, t: &RigidTable) -> Result<(RigidDesc, Vec<String>
     ))
 }
 
-/// Builds the `[rigid]` system.
+/// Builds the `[rigid]` system: rigid bodies, or Witkin's constrained particles.
 pub fn build(ctx: &Context<'_>) -> Result<Box<dyn Simulation>, SceneError> {
     let t: RigidTable = ctx.table()?;
+    if !t.particle.is_empty() || !t.constraint.is_empty() {
+        return Ok(Box::new(witkin(ctx, &t)?));
+    }
+    if t.feedback.is_some() {
+        return Err(ctx.error(
+            &path(&[&"feedback"]),
+            "feedback applies to [[rigid.particle]] systems",
+        ));
+    }
     let (d, warnings) = desc(ctx, &t)?;
     let mut sim = RigidSim::new(&d).map_err(|e| {
         let key = match &e {
@@ -575,6 +641,388 @@ pub fn build(ctx: &Context<'_>) -> Result<Box<dyn Simulation>, SceneError> {
     })?;
     sim.warnings = warnings;
     Ok(Box::new(sim))
+}
+
+/// The Witkin system of `[[rigid.particle]]` and `[[rigid.constraint]]`.
+fn witkin(ctx: &Context<'_>, t: &RigidTable) -> Result<WitkinSim, SceneError> {
+    if !t.body.is_empty() || !t.array.is_empty() || !t.joint.is_empty() {
+        return Err(ctx.error(
+            &path(&[&"particle"]),
+            "a [rigid] system holds bodies (with joints) or Witkin particles (with constraints), not both",
+        ));
+    }
+    for k in [
+        "solver",
+        "correction",
+        "stiffness",
+        "damping",
+        "restitution",
+        "friction",
+        "iterations",
+    ] {
+        let given = match k {
+            "solver" => t.solver.is_some(),
+            "correction" => t.correction.is_some(),
+            "stiffness" => t.stiffness.is_some(),
+            "damping" => t.damping.is_some(),
+            "restitution" => t.restitution.is_some(),
+            "friction" => t.friction.is_some(),
+            _ => t.iterations.is_some(),
+        };
+        if given {
+            return Err(ctx.error(
+                &path(&[&k]),
+                format!("{k} applies to rigid bodies, not to Witkin particles"),
+            ));
+        }
+    }
+    let n = t.particle.len();
+    if n == 0 {
+        return Err(ctx.error(
+            &path(&[&"constraint"]),
+            "constraints need [[rigid.particle]]",
+        ));
+    }
+    ctx.memory(
+        &path(&[&"particle"]),
+        &format!("{n} particles"),
+        n as f64 * 256.0,
+    )?;
+    let rows: f64 = t
+        .constraint
+        .iter()
+        .map(|c| if c.kind == "circle" { 2.0 } else { 1.0 })
+        .sum();
+    // J W Jᵀ is dense: rows² doubles.
+    ctx.memory(
+        &path(&[&"constraint"]),
+        &format!("{rows} constraint rows"),
+        8.0 * rows * rows,
+    )?;
+    let mut s = WitkinState::default();
+    let mut inv_mass = Vec::with_capacity(n);
+    for (k, p) in t.particle.iter().enumerate() {
+        let key = path(&[&"particle", &k]);
+        s.x.push(finite3(ctx, &key, Some(p.position), "position")?);
+        s.v.push(finite3(ctx, &key, p.velocity, "velocity")?);
+        let m = ctx.positive(p.mass.unwrap_or(1.0), &key, "mass")?;
+        inv_mass.push(if p.pinned.unwrap_or(false) {
+            0.0
+        } else {
+            1.0 / m
+        });
+        if p.pinned.unwrap_or(false) {
+            s.v[k] = [0.0; 3];
+        }
+    }
+    let mut constraints = Vec::with_capacity(t.constraint.len());
+    for (k, c) in t.constraint.iter().enumerate() {
+        let key = |f: &str| path(&[&"constraint", &k, &f]);
+        let particle = |v: i64, f: &str| -> Result<usize, SceneError> {
+            let i = ctx.index(v, &key(f), "particle")?;
+            if i >= n {
+                return Err(ctx.error(
+                    &key(f),
+                    format!("particle {i} does not exist: there are {n}"),
+                ));
+            }
+            Ok(i)
+        };
+        let a = particle(c.a, "a")?;
+        let need = |v: Option<[f64; 3]>, f: &str| -> Result<[f64; 3], SceneError> {
+            let v = v.ok_or_else(|| {
+                ctx.error(
+                    &path(&[&"constraint", &k]),
+                    format!("a {} constraint needs `{f}`", c.kind),
+                )
+            })?;
+            finite3(ctx, &key(f), Some(v), f)
+        };
+        let dist = |p: [f64; 3], q: [f64; 3]| {
+            let d = largestep_kernels::v3::sub(p, q);
+            largestep_kernels::v3::dot(d, d).sqrt()
+        };
+        let length = |start: f64| -> Result<f64, SceneError> {
+            ctx.positive(c.length.unwrap_or(start), &key("length"), "length")
+        };
+        constraints.push(match c.kind.as_str() {
+            "distance" => {
+                let b = particle(
+                    c.b.ok_or_else(|| {
+                        ctx.error(
+                            &path(&[&"constraint", &k]),
+                            "a distance constraint needs `b`",
+                        )
+                    })?,
+                    "b",
+                )?;
+                Constraint::Distance {
+                    a,
+                    b,
+                    length: length(dist(s.x[a], s.x[b]))?,
+                }
+            }
+            "anchor" => {
+                let point = need(c.point, "point")?;
+                Constraint::Anchor {
+                    a,
+                    point,
+                    length: length(dist(s.x[a], point))?,
+                }
+            }
+            "circle" => {
+                let center = need(c.center, "center")?;
+                let normal = need(c.normal, "normal")?;
+                let normal = largestep_kernels::v3::length_and_unit(normal)
+                    .ok_or_else(|| ctx.error(&key("normal"), "the normal must not be zero"))?
+                    .1;
+                // The radius defaults to the start distance from the centre.
+                Constraint::Circle {
+                    a,
+                    center,
+                    normal,
+                    radius: length(dist(s.x[a], center))?,
+                }
+            }
+            o => {
+                return Err(ctx.error(
+                    &key("type"),
+                    format!("unknown constraint type `{o}`; one of: distance, anchor, circle"),
+                ))
+            }
+        });
+    }
+    let [ks, kd] = t.feedback.unwrap_or([0.0, 0.0]);
+    let ks = ctx.non_negative(ks, &path(&[&"feedback"]), "ks")?;
+    let kd = ctx.non_negative(kd, &path(&[&"feedback"]), "kd")?;
+    let integrator = match t.integrator.as_deref().unwrap_or("rk4") {
+        "explicit-euler" => WitkinIntegrator::ExplicitEuler,
+        "symplectic-euler" => WitkinIntegrator::SymplecticEuler,
+        "rk4" => WitkinIntegrator::Rk4,
+        o => return Err(ctx.error(
+            &path(&[&"integrator"]),
+            format!(
+                "`{o}` does not integrate particles; one of: explicit-euler, symplectic-euler, rk4"
+            ),
+        )),
+    };
+    let gravity = match t.gravity {
+        Some(g) => finite3(ctx, &path(&[&"gravity"]), Some(g), "gravity")?,
+        None if ctx.gravity != [0.0; 3] => ctx.gravity,
+        None => [0.0, -9.81, 0.0],
+    };
+    let w = Witkin {
+        inv_mass,
+        constraints,
+        gravity,
+        ks,
+        kd,
+        integrator,
+    };
+    w.validate(&s).map_err(|e| {
+        let key = match &e {
+            WitkinError::Constraint { index, .. } => path(&[&"constraint", index]),
+            WitkinError::Particle { index, .. } => path(&[&"particle", index]),
+            _ => Vec::new(),
+        };
+        ctx.error(&key, e.to_string())
+    })?;
+    Ok(WitkinSim::new(w, s))
+}
+
+/// A running Witkin system (see [`super::witkin`]).
+pub struct WitkinSim {
+    model: Witkin,
+    state: WitkinState,
+    /// Particles, then the fixed points drawn (anchors, wire circles).
+    positions: Vec<f64>,
+    fixed: Vec<[f64; 3]>,
+    segments: Arc<[[u32; 2]]>,
+    drift: f64,
+    start_drift: f64,
+}
+
+impl WitkinSim {
+    /// The simulation of `model` from `state`.
+    pub fn new(model: Witkin, state: WitkinState) -> WitkinSim {
+        let n = state.x.len() as u32;
+        let mut fixed = Vec::new();
+        let mut segments = Vec::new();
+        for c in &model.constraints {
+            match *c {
+                Constraint::Distance { a, b, .. } => segments.push([a as u32, b as u32]),
+                Constraint::Anchor { a, point, .. } => {
+                    segments.push([a as u32, n + fixed.len() as u32]);
+                    fixed.push(point);
+                }
+                Constraint::Circle {
+                    center,
+                    normal,
+                    radius,
+                    ..
+                } => {
+                    // The wire: a 48-gon in the circle's plane.
+                    let (u, v) = perpendiculars(normal);
+                    let first = n + fixed.len() as u32;
+                    for k in 0..48 {
+                        let t = 2.0 * std::f64::consts::PI * k as f64 / 48.0;
+                        let (sn, cs) = t.sin_cos();
+                        fixed.push([0, 1, 2].map(|a| center[a] + radius * (cs * u[a] + sn * v[a])));
+                        segments.push([first + k, first + (k + 1) % 48]);
+                    }
+                }
+            }
+        }
+        let drift = model.drift(&state.x);
+        let mut sim = WitkinSim {
+            model,
+            state,
+            positions: Vec::new(),
+            fixed,
+            segments: segments.into(),
+            drift,
+            start_drift: drift,
+        };
+        sim.refresh();
+        sim
+    }
+
+    fn refresh(&mut self) {
+        let pts: Vec<[f64; 3]> = self.state.x.iter().chain(&self.fixed).copied().collect();
+        let total = pts.len();
+        self.positions.clear();
+        self.positions.resize(3 * total, 0.0);
+        for (i, p) in pts.iter().enumerate() {
+            for a in 0..3 {
+                self.positions[a * total + i] = p[a];
+            }
+        }
+    }
+
+    /// The model.
+    pub fn model(&self) -> &Witkin {
+        &self.model
+    }
+
+    /// The state.
+    pub fn state(&self) -> &WitkinState {
+        &self.state
+    }
+
+    /// The largest constraint violation seen so far (m).
+    pub fn max_drift(&self) -> f64 {
+        self.drift
+    }
+}
+
+fn perpendiculars(n: [f64; 3]) -> ([f64; 3], [f64; 3]) {
+    let a = if n[0].abs() < 0.57 {
+        [1.0, 0.0, 0.0]
+    } else {
+        [0.0, 1.0, 0.0]
+    };
+    let u = largestep_kernels::v3::length_and_unit(largestep_kernels::v3::cross(n, a))
+        .map_or([0.0, 0.0, 1.0], |x| x.1);
+    (u, largestep_kernels::v3::cross(n, u))
+}
+
+impl Simulation for WitkinSim {
+    fn step(&mut self, dt: f64) -> Result<StepInfo, IntegrateError> {
+        let t0 = Instant::now();
+        self.model
+            .step(&mut self.state, dt)
+            .map_err(|e| IntegrateError::Failed {
+                step: self.state.steps + 1,
+                why: e.to_string(),
+            })?;
+        self.drift = self.drift.max(self.model.drift(&self.state.x));
+        self.refresh();
+        Ok(StepInfo {
+            newton_iterations: 0,
+            linear_iterations: 0,
+            residual: 0.0,
+            solve_seconds: t0.elapsed().as_secs_f64(),
+        })
+    }
+
+    fn time(&self) -> f64 {
+        self.state.time
+    }
+
+    fn steps(&self) -> u64 {
+        self.state.steps
+    }
+
+    fn energy(&self) -> Energy {
+        Energy {
+            kinetic: self.model.kinetic_energy(&self.state),
+            potential: self.model.potential_energy(&self.state),
+            external_work: 0.0,
+        }
+    }
+
+    fn max_penetration(&self) -> f64 {
+        0.0
+    }
+
+    fn frame(&self) -> FrameData<'_> {
+        FrameData::Mesh(MeshRef {
+            positions: &self.positions,
+            triangles: &[],
+            segments: &self.segments,
+        })
+    }
+
+    fn stages(&self) -> Vec<Stage> {
+        let m = &self.model;
+        vec![
+            Stage::built(
+                "Witkin constrained dynamics",
+                format!(
+                    "{} particles, {} scalar constraints, dense Cholesky of J W J^T, {:?}",
+                    m.inv_mass.len(),
+                    m.rows(),
+                    m.integrator
+                ),
+            ),
+            Stage::new(
+                "drift feedback",
+                m.ks > 0.0 || m.kd > 0.0,
+                if m.ks > 0.0 || m.kd > 0.0 {
+                    format!("ks = {} 1/s^2, kd = {} 1/s", m.ks, m.kd)
+                } else {
+                    "feedback = [0, 0]".to_string()
+                },
+            ),
+            Stage::left_out(
+                "collision structures",
+                "particles under constraints collide with nothing",
+            ),
+        ]
+    }
+
+    fn scenery(&self, _around: ([f64; 3], [f64; 3])) -> Vec<Mesh> {
+        Vec::new()
+    }
+
+    fn method(&self) -> String {
+        format!("Witkin {:?}", self.model.integrator)
+    }
+
+    fn linear_solver(&self) -> Option<&'static str> {
+        Some("dense Cholesky (J W J^T)")
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+
+    fn warnings(&self) -> Vec<String> {
+        vec![format!(
+            "constraint drift: at most {:.3e} m over the run (from {:.1e} m at the start)",
+            self.drift, self.start_drift
+        )]
+    }
 }
 
 /// The key of body `i`: bodies first, then the arrays' bodies.
