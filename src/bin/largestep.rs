@@ -132,7 +132,8 @@ enum Command {
     /// Run a study: error against run time, orders, stability.
     Study {
         /// Which study (integrators, jello-stability, jello-accuracy, cloth-accuracy, cloth-stability,
-        /// fem-accuracy, fem-stability, modes, fluids, poisson, cavity, distance-fields).
+        /// fem-accuracy, fem-stability, modes, fluids, poisson, cavity, distance-fields,
+        /// rigid-integrators).
         name: String,
         /// Output folder for the report (default: out/studies; `--out docs/studies`
         /// regenerates the committed reports).

@@ -799,12 +799,14 @@ fn witkin(ctx: &Context<'_>, t: &RigidTable) -> Result<WitkinSim, SceneError> {
         "explicit-euler" => WitkinIntegrator::ExplicitEuler,
         "symplectic-euler" => WitkinIntegrator::SymplecticEuler,
         "rk4" => WitkinIntegrator::Rk4,
-        o => return Err(ctx.error(
-            &path(&[&"integrator"]),
-            format!(
+        o => {
+            return Err(ctx.error(
+                &path(&[&"integrator"]),
+                format!(
                 "`{o}` does not integrate particles; one of: explicit-euler, symplectic-euler, rk4"
             ),
-        )),
+            ))
+        }
     };
     let gravity = match t.gravity {
         Some(g) => finite3(ctx, &path(&[&"gravity"]), Some(g), "gravity")?,

@@ -17,6 +17,8 @@ mod jello;
 #[cfg(feature = "modal")]
 mod modal;
 mod problems;
+#[cfg(feature = "rigid")]
+mod rigid;
 
 use std::cell::Cell;
 use std::path::Path;
@@ -105,6 +107,8 @@ const STUDIES: &[Study] = &[
     #[cfg(feature = "fluid")]
     ("cavity", fluid::cavity_study),
     ("distance-fields", collide::distance_fields),
+    #[cfg(feature = "rigid")]
+    ("rigid-integrators", rigid::integrators),
 ];
 
 /// The names of the studies built in.
