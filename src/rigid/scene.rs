@@ -895,8 +895,8 @@ impl WitkinSim {
         self.positions.clear();
         self.positions.resize(3 * total, 0.0);
         for (i, p) in pts.iter().enumerate() {
-            for a in 0..3 {
-                self.positions[a * total + i] = p[a];
+            for (a, c) in p.iter().enumerate() {
+                self.positions[a * total + i] = *c;
             }
         }
     }

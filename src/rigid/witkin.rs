@@ -204,7 +204,7 @@ impl Witkin {
                 }
                 Constraint::Anchor { a, point, length } => {
                     exists(a)?;
-                    if !(length.is_finite() && length > 0.0) || !point.iter().all(|p| p.is_finite())
+                    if !(length.is_finite() && length > 0.0 && point.iter().all(|p| p.is_finite()))
                     {
                         return Err(bad("needs a finite point and a length > 0".into()));
                     }
@@ -217,9 +217,10 @@ impl Witkin {
                 } => {
                     exists(a)?;
                     let len = dot(normal, normal).sqrt();
-                    if !(radius.is_finite() && radius > 0.0)
-                        || !center.iter().all(|p| p.is_finite())
-                        || !((len - 1.0).abs() < 1e-9)
+                    if !(radius.is_finite()
+                        && radius > 0.0
+                        && center.iter().all(|p| p.is_finite())
+                        && (len - 1.0).abs() < 1e-9)
                     {
                         return Err(bad(
                             "needs a finite centre, a unit normal and a radius > 0".into()

@@ -164,8 +164,7 @@ pub(super) fn integrators(
     let best = |name: &str| {
         points
             .iter()
-            .filter(|p| p.integrator == name)
-            .last()
+            .rfind(|p| p.integrator == name)
             .map_or(f64::NAN, |p| p.orientation_error)
     };
     Ok(format!(
