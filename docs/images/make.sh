@@ -26,6 +26,11 @@ cloth-pinned-bottom scenes/cloth-pinned-bottom.toml 1280x720 contact-sheet.png
 hanging-chain scenes/hanging-chain.toml 640x360 animation.gif
 fem-nut scenes/fem-nut.toml 1280x720 contact-sheet.png
 fem-ball scenes/fem-ball.toml 640x360 animation.gif
+rigid-pile scenes/rigid-pile.toml 1280x720 contact-sheet.png
+rigid-dominoes scenes/rigid-dominoes.toml 1280x720 contact-sheet.png
+rigid-cradle scenes/rigid-cradle.toml 640x360 animation.gif
+rigid-t-handle scenes/rigid-t-handle.toml 640x360 animation.gif
+rigid-chain scenes/rigid-chain.toml 640x360 animation.gif
 LIST
 # The twisted bar: fem-twist (corotational, behind) and fem-twist-linear (linear, in
 # front, z + 0.25 m) run apart and drawn in one picture: each frame of the two runs

@@ -944,25 +944,56 @@ impl Rigid {
         )
     }
 
-    /// Every body's surface posed, one after the other, as component-major positions
-    /// (see [`Rigid::surface_triangles`]).
+    /// Every body's surface posed, one after the other, then the two anchors of each
+    /// distance joint (the strings of a pendulum), as component-major positions (see
+    /// [`Rigid::surface_triangles`] and [`Rigid::joint_segments`]).
     pub fn posed_surfaces(&self, s: &RigidState, out: &mut Vec<f64>) {
-        let total = self.surface_local.len();
+        let surface = self.surface_local.len();
+        let strings: Vec<&Joint> = self
+            .joints
+            .iter()
+            .filter(|j| matches!(j.kind, JointKind::Distance { .. }))
+            .collect();
+        let total = surface + 2 * strings.len();
         out.clear();
         out.resize(3 * total, 0.0);
+        let mut put = |k: usize, p: [f64; 3]| {
+            for a in 0..3 {
+                out[a * total + k] = p[a];
+            }
+        };
         for i in 0..self.len() {
             for k in self.surface_start[i]..self.surface_start[i + 1] {
-                let p = add(s.x[i], quat::rotate(s.q[i], self.surface_local[k]));
-                for a in 0..3 {
-                    out[a * total + k] = p[a];
-                }
+                put(k, add(s.x[i], quat::rotate(s.q[i], self.surface_local[k])));
             }
+        }
+        for (k, j) in strings.iter().enumerate() {
+            put(surface + 2 * k, add(s.x[j.a], quat::rotate(s.q[j.a], j.la)));
+            let b = if j.b == usize::MAX {
+                j.lb
+            } else {
+                add(s.x[j.b], quat::rotate(s.q[j.b], j.lb))
+            };
+            put(surface + 2 * k + 1, b);
         }
     }
 
     /// The triangles of [`Rigid::posed_surfaces`].
     pub fn surface_triangles(&self) -> &Arc<[[u32; 3]]> {
         &self.surface_triangles
+    }
+
+    /// The segments of [`Rigid::posed_surfaces`]: one per distance joint.
+    pub fn joint_segments(&self) -> Vec<[u32; 2]> {
+        let surface = self.surface_local.len() as u32;
+        let strings = self
+            .joints
+            .iter()
+            .filter(|j| matches!(j.kind, JointKind::Distance { .. }))
+            .count() as u32;
+        (0..strings)
+            .map(|k| [surface + 2 * k, surface + 2 * k + 1])
+            .collect()
     }
 
     /// Advances `s` by `dt` (s): collision, velocities, constraints, positions (module

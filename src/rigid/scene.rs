@@ -1053,8 +1053,10 @@ pub struct RigidSim {
     state: RigidState,
     work: RigidWork,
     last: RigidStepInfo,
-    /// The posed surfaces of the present state (component-major).
+    /// The posed surfaces of the present state (component-major) and the distance
+    /// joints' strings.
     positions: Vec<f64>,
+    segments: Vec<[u32; 2]>,
     warnings: Vec<String>,
     deepest: f64,
 }
@@ -1069,9 +1071,11 @@ impl RigidSim {
             work,
             last: RigidStepInfo::default(),
             positions: Vec::new(),
+            segments: Vec::new(),
             warnings: Vec::new(),
             deepest: 0.0,
         };
+        sim.segments = sim.model.joint_segments();
         sim.model.posed_surfaces(&sim.state, &mut sim.positions);
         Ok(sim)
     }
@@ -1142,7 +1146,7 @@ impl Simulation for RigidSim {
         FrameData::Mesh(MeshRef {
             positions: &self.positions,
             triangles: self.model.surface_triangles(),
-            segments: &[],
+            segments: &self.segments,
         })
     }
 
