@@ -41,3 +41,17 @@ pub fn length_and_unit(a: [f64; 3]) -> Option<(f64, [f64; 3])> {
     let l = dot(a, a).sqrt();
     (l > 0.0 && l.is_finite()).then(|| (l, a.map(|c| c / l)))
 }
+
+/// Two unit vectors completing the unit `n` to a right-handed orthonormal frame
+/// `(t1, t2, n)`: `t1` from the world axis least aligned with `n` (x unless `n` leans
+/// toward it), `t2 = n x t1`. Deterministic in `n`, so frames built from the same normal
+/// agree (contact friction directions, wire circles).
+pub fn tangent_frame(n: [f64; 3]) -> ([f64; 3], [f64; 3]) {
+    let a = if n[0].abs() < 0.57 {
+        [1.0, 0.0, 0.0]
+    } else {
+        [0.0, 1.0, 0.0]
+    };
+    let t1 = length_and_unit(cross(n, a)).map_or([0.0, 0.0, 1.0], |x| x.1);
+    (t1, cross(n, t1))
+}

@@ -435,6 +435,14 @@ pub struct RigidWork {
     pub(crate) hulls: Vec<Vec<[f64; 3]>>,
 }
 
+impl RigidWork {
+    /// The contact points of the last step or [`Rigid::find_contacts`], sorted by body
+    /// pair, with the impulses the step gave them.
+    pub fn contacts(&self) -> &[ContactPoint] {
+        &self.contacts
+    }
+}
+
 /// What one step did.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct RigidStepInfo {
@@ -561,7 +569,7 @@ impl RigidDesc {
                 t[0][0], t[0][1], t[0][2], t[1][1], t[1][2], t[2][2],
             ]);
             let rot = [[r[0], r[1], r[2]], [r[3], r[4], r[5]], [r[6], r[7], r[8]]];
-            let q_principal = quat_from_matrix(rot);
+            let q_principal = quat::from_matrix(rot);
             // Shape frame -> body frame: p_body = Rpᵀ (p_shape - c).
             let to_body = |p: [f64; 3]| quat::rotate_inv(q_principal, sub(p, mp.center));
             let collider = match &b.shape {
@@ -826,45 +834,6 @@ fn joint(k: usize, j: &JointDesc, m: &Rigid, s: &RigidState) -> Result<Joint, Ri
     Ok(out)
 }
 
-/// The unit quaternion of a rotation matrix (rows; Shepperd's method).
-pub fn quat_from_matrix(r: [[f64; 3]; 3]) -> Quat {
-    let tr = r[0][0] + r[1][1] + r[2][2];
-    let q = if tr > 0.0 {
-        let s = (tr + 1.0).sqrt() * 2.0;
-        [
-            0.25 * s,
-            (r[2][1] - r[1][2]) / s,
-            (r[0][2] - r[2][0]) / s,
-            (r[1][0] - r[0][1]) / s,
-        ]
-    } else if r[0][0] > r[1][1] && r[0][0] > r[2][2] {
-        let s = (1.0 + r[0][0] - r[1][1] - r[2][2]).sqrt() * 2.0;
-        [
-            (r[2][1] - r[1][2]) / s,
-            0.25 * s,
-            (r[0][1] + r[1][0]) / s,
-            (r[0][2] + r[2][0]) / s,
-        ]
-    } else if r[1][1] > r[2][2] {
-        let s = (1.0 + r[1][1] - r[0][0] - r[2][2]).sqrt() * 2.0;
-        [
-            (r[0][2] - r[2][0]) / s,
-            (r[0][1] + r[1][0]) / s,
-            0.25 * s,
-            (r[1][2] + r[2][1]) / s,
-        ]
-    } else {
-        let s = (1.0 + r[2][2] - r[0][0] - r[1][1]).sqrt() * 2.0;
-        [
-            (r[1][0] - r[0][1]) / s,
-            (r[0][2] + r[2][0]) / s,
-            (r[1][2] + r[2][1]) / s,
-            0.25 * s,
-        ]
-    };
-    quat::normalize(q).unwrap_or(quat::IDENTITY)
-}
-
 impl Rigid {
     /// The description it was built from.
     pub fn desc(&self) -> &RigidDesc {
@@ -994,6 +963,13 @@ impl Rigid {
         (0..strings)
             .map(|k| [surface + 2 * k, surface + 2 * k + 1])
             .collect()
+    }
+
+    /// The collision stage alone: the contact points of the present state (speculative
+    /// ones within the margin a step of `dt` needs) into `w`, read back by
+    /// [`RigidWork::contacts`]. [`Rigid::step`] runs it first.
+    pub fn find_contacts(&self, s: &RigidState, w: &mut RigidWork, dt: f64) -> RigidStepInfo {
+        contact::collide(self, s, w, dt)
     }
 
     /// Advances `s` by `dt` (s): collision, velocities, constraints, positions (module

@@ -864,7 +864,7 @@ impl WitkinSim {
                     ..
                 } => {
                     // The wire: a 48-gon in the circle's plane.
-                    let (u, v) = perpendiculars(normal);
+                    let (u, v) = largestep_kernels::v3::tangent_frame(normal);
                     let first = n + fixed.len() as u32;
                     for k in 0..48 {
                         let t = 2.0 * std::f64::consts::PI * k as f64 / 48.0;
@@ -915,17 +915,6 @@ impl WitkinSim {
     pub fn max_drift(&self) -> f64 {
         self.drift
     }
-}
-
-fn perpendiculars(n: [f64; 3]) -> ([f64; 3], [f64; 3]) {
-    let a = if n[0].abs() < 0.57 {
-        [1.0, 0.0, 0.0]
-    } else {
-        [0.0, 1.0, 0.0]
-    };
-    let u = largestep_kernels::v3::length_and_unit(largestep_kernels::v3::cross(n, a))
-        .map_or([0.0, 0.0, 1.0], |x| x.1);
-    (u, largestep_kernels::v3::cross(n, u))
 }
 
 impl Simulation for WitkinSim {

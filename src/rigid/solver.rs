@@ -20,7 +20,7 @@
 
 use super::{mat_vec, Correction, Joint, JointKind, Rigid, RigidSolver, RigidState, RigidWork};
 use largestep_kernels::quat;
-use largestep_kernels::v3::{add, cross, dot, length_and_unit, scale, sub};
+use largestep_kernels::v3::{add, cross, dot, length_and_unit, scale, sub, tangent_frame};
 
 /// Baumgarte and split impulses leave this fraction of the feature size unresolved
 /// (slop), so resting contacts stay touching and their manifolds stay put.
@@ -257,17 +257,6 @@ impl SolverWork {
     }
 }
 
-/// A unit vector perpendicular to the unit `n`, and a third completing the frame.
-fn tangents(n: [f64; 3]) -> ([f64; 3], [f64; 3]) {
-    let a = if n[0].abs() < 0.57 {
-        [1.0, 0.0, 0.0]
-    } else {
-        [0.0, 1.0, 0.0]
-    };
-    let t1 = length_and_unit(cross(n, a)).map_or([0.0, 0.0, 1.0], |x| x.1);
-    (t1, cross(n, t1))
-}
-
 /// What a sub-step's pass does.
 #[derive(Clone, Copy, PartialEq, Eq)]
 enum Pass {
@@ -322,7 +311,7 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
         let ra = sub(c.point, s.x[a]);
         let rb = sub(c.point, s.x[b]);
         let nrm = c.normal;
-        let (t1, t2) = tangents(nrm);
+        let (t1, t2) = tangent_frame(nrm);
         let (ba, bb) = (&sw.bodies[a], &sw.bodies[b]);
         let mass = [nrm, t1, t2].map(|dir| {
             let (ca, cb) = (cross(ra, dir), cross(rb, dir));
@@ -371,6 +360,9 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
     }
 
     let contact_soft = Soft::new(CONTACT_HERTZ.min(0.25 / h), CONTACT_DAMPING, h);
+    // Against a body that cannot move, twice as stiff (Box2D v3's static softness): the
+    // load on it is the whole stack's, with only one body's mass in the row.
+    let static_soft = Soft::new((2.0 * CONTACT_HERTZ).min(0.25 / h), CONTACT_DAMPING, h);
     let joint_soft = Soft::new(JOINT_HERTZ.min(0.25 / h), JOINT_DAMPING, h);
     let beta = d.beta.unwrap_or(match d.correction {
         Correction::Soft => 0.0,
@@ -385,6 +377,7 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
         beta,
         penalty,
         contact_soft,
+        static_soft,
         joint_soft,
         correction: d.correction,
         bounce: threshold,
@@ -561,6 +554,7 @@ struct Params {
     beta: f64,
     penalty: bool,
     contact_soft: Soft,
+    static_soft: Soft,
     joint_soft: Soft,
     correction: Correction,
     /// Approach speeds (m/s) above which one-shot impulses bounce.
@@ -574,6 +568,7 @@ fn solve_pass(m: &Rigid, sw: &mut SolverWork, pass: Pass, p: Params) {
         beta,
         penalty,
         contact_soft,
+        static_soft,
         joint_soft,
         correction,
         bounce,
@@ -660,7 +655,12 @@ fn solve_pass(m: &Rigid, sw: &mut SolverWork, pass: Pass, p: Params) {
         } else {
             match (pass, correction) {
                 (Pass::Solve, Correction::Soft) => {
-                    ((contact_soft.bias_rate * e).min(MAX_PUSH), contact_soft)
+                    let soft = if ba.inv_mass == 0.0 || bb.inv_mass == 0.0 {
+                        static_soft
+                    } else {
+                        contact_soft
+                    };
+                    ((soft.bias_rate * e).min(MAX_PUSH), soft)
                 }
                 (Pass::Solve, Correction::Baumgarte) => {
                     (beta * (e - c.slop).max(0.0) / h, Soft::RIGID)
@@ -792,7 +792,7 @@ fn joint_rows(s: &RigidState, sw: &mut SolverWork, j: &Joint) {
         JointKind::Hinge { .. } => {
             let ua = quat::rotate(s.q[a], j.axis_a);
             let ub = quat::rotate(qb, j.axis_b);
-            let (p1, p2) = tangents(ua);
+            let (p1, p2) = tangent_frame(ua);
             let c = cross(ua, ub);
             push(sw, angular(p1), dot(c, p1));
             push(sw, angular(p2), dot(c, p2));
