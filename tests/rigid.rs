@@ -819,7 +819,7 @@ mod contact_sets {
             };
             let overlapping = |list: &[(u8, f64, [f64; 3], [f64; 3])]| -> BTreeSet<(usize, usize)> {
                 let (m, s, mut w) = desc(list).build().unwrap();
-                m.find_contacts(&s, &mut w, 1e-6);
+                m.find_contacts(&s, &mut w, 1e-6).unwrap();
                 w.contacts()
                     .iter()
                     .filter(|c| c.depth > 1e-9)
@@ -964,4 +964,64 @@ fn a_kinematic_paddle_pushes_a_box() {
     );
     // Static bodies never move.
     assert_eq!(s.x[0], [0.0, -0.5, 0.0]);
+}
+
+/// One-way coupling: rigid bodies as moving obstacles of the cloth.
+#[cfg(feature = "cloth")]
+mod coupling {
+    use largestep::scene::{Runner, Scene};
+    use std::path::Path;
+
+    #[test]
+    fn a_rising_box_lifts_the_cloth_and_no_vertex_enters_it() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/rigid-cloth.toml");
+        let scene = Scene::load(&path).unwrap();
+        let out = std::env::temp_dir().join(format!("largestep-coupling-{}", std::process::id()));
+        let mut runner = Runner::new(scene, &out);
+        runner.keep_frames(true);
+        runner.run(Some(40), &mut |_| {}).unwrap();
+        let cloth = 30 * 30;
+        let mut deepest = 0.0f64;
+        let mut top = f64::NEG_INFINITY;
+        for (frame, record) in runner.kept_frames().iter().zip(runner.records()) {
+            let n = frame.positions.len() / 3;
+            // The box: half 0.3, centre rising from -0.32 at 0.25 m/s.
+            let cy = -0.32 + 0.25 * record.time;
+            for i in 0..cloth {
+                let p = [
+                    frame.positions[i],
+                    frame.positions[n + i],
+                    frame.positions[2 * n + i],
+                ];
+                let q = [p[0].abs() - 0.3, (p[1] - cy).abs() - 0.3, p[2].abs() - 0.3];
+                let inside = q.iter().all(|&c| c < 0.0);
+                if inside {
+                    deepest = deepest.max(-q.iter().fold(f64::NEG_INFINITY, |m, &c| m.max(c)));
+                }
+                top = top.max(p[1]);
+            }
+        }
+        eprintln!("rising box: deepest cloth vertex inside {deepest:.2e} m, highest cloth point {top:.3} m");
+        // The contacts hold vertices at their thickness outside the box where it is at
+        // the end of the step.
+        assert!(deepest < 1e-4, "{deepest}");
+        // After 40 frames of 4 steps (2.7 s) the box top is at 0.65 m: the cloth was lifted.
+        assert!(top > 0.6, "{top}");
+        std::fs::remove_dir_all(&out).ok();
+    }
+}
+
+#[test]
+fn too_many_overlapping_pairs_are_refused_before_allocating() {
+    // Twenty spheres at one point: 190 pairs, over a limit of 50.
+    let d = RigidDesc {
+        bodies: (0..20)
+            .map(|_| BodyDesc::new(Shape::Sphere { radius: 1.0 }, [0.0; 3]))
+            .collect(),
+        max_pairs: 50,
+        ..RigidDesc::default()
+    };
+    let (m, mut s, mut w) = d.build().unwrap();
+    let e = m.step(&mut s, &mut w, 0.01).unwrap_err().to_string();
+    assert!(e.contains("190 body pairs") && e.contains("50"), "{e}");
 }

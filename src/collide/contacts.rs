@@ -50,7 +50,7 @@
 //! The contacts are per-step state: they live with the positions and velocities, not in
 //! the model.
 
-use super::Obstacle;
+use super::{MovingObstacle, Obstacle};
 use crate::solve::Filter;
 use largestep_kernels::get3;
 use largestep_kernels::v3::{cross, dot, length_and_unit as unit, sub};
@@ -115,6 +115,7 @@ impl VertexContacts {
     pub fn resolve(
         &mut self,
         obstacles: &[Obstacle],
+        moving: &[MovingObstacle],
         triangles: &[[u32; 3]],
         fixed: &[u32],
         mass: &[f64],
@@ -128,9 +129,17 @@ impl VertexContacts {
         self.approach.clear();
         self.approach_slack = CONTACT_THICKNESS / h;
         self.edge_contacts = 0;
-        if obstacles.is_empty() {
+        if obstacles.is_empty() && moving.is_empty() {
             return 0;
         }
+        // Fixed obstacles move with no velocity; moving ones with their rigid motion, and
+        // velocities are taken relative to it.
+        let all = || {
+            obstacles
+                .iter()
+                .map(|o| (o, None))
+                .chain(moving.iter().map(|m| (&m.shape, Some(m))))
+        };
         let n = mass.len();
         self.released.clear();
         self.released.resize(n, false);
@@ -152,7 +161,7 @@ impl VertexContacts {
                 prev += 1;
             }
             self.released[i] = pulled;
-            for o in obstacles {
+            for (o, mv) in all() {
                 let p = get3(x, n, i);
                 let Some((d, nrm)) = o.distance(p) else {
                     continue;
@@ -160,10 +169,12 @@ impl VertexContacts {
                 if d.is_nan() || d >= REACH || (pulled && d >= 0.0) {
                     continue;
                 }
+                let ov = mv.map_or([0.0; 3], |m| m.velocity_at(p));
                 // Inside: out through the surface it came in by, not the nearest one (a
                 // vertex that went through a table's top near its edge goes back up, not
-                // out of the side, where it would fall off).
-                let start = std::array::from_fn(|k| p[k] - h * v[k * n + i]);
+                // out of the side, where it would fall off). The path is the one relative
+                // to the obstacle.
+                let start = std::array::from_fn(|k| p[k] - h * (v[k * n + i] - ov[k]));
                 let (d, nrm) = if d < 0.0 {
                     o.entry(start, p).unwrap_or((d, nrm))
                 } else {
@@ -172,7 +183,7 @@ impl VertexContacts {
                 for k in 0..3 {
                     x[k * n + i] = p[k] + (CONTACT_THICKNESS - d) * nrm[k];
                 }
-                let vel = get3(v, n, i);
+                let vel = sub(get3(v, n, i), ov);
                 let vn = dot(vel, nrm);
                 if vn > 0.0 {
                     continue; // moving away: released
@@ -189,7 +200,7 @@ impl VertexContacts {
                     0.0
                 };
                 for k in 0..3 {
-                    v[k * n + i] = keep * vt[k];
+                    v[k * n + i] = ov[k] + keep * vt[k];
                 }
                 self.contacts.push(Contact {
                     vertex: i as u32,
@@ -204,16 +215,18 @@ impl VertexContacts {
             // nearest such obstacle decides (a vertex between two gets one prescription).
             let (p, vel) = (get3(x, n, i), get3(v, n, i));
             let mut first: Option<([f64; 3], f64, f64)> = None;
-            for o in obstacles {
+            for (o, mv) in all() {
                 let Some((d, nrm)) = o.distance(p) else {
                     continue;
                 };
-                let vn = dot(vel, nrm);
+                let ov = mv.map_or([0.0; 3], |m| m.velocity_at(p));
+                let vn = dot(sub(vel, ov), nrm);
                 let gap = d - CONTACT_THICKNESS;
                 if vn < 0.0 && d >= REACH && d + h * vn < 0.0 {
                     let arrival = gap / -vn;
                     if first.is_none_or(|f| arrival < f.2) {
-                        first = Some((nrm, -gap / h, arrival));
+                        // The prescribed normal velocity: the obstacle's, less the gap.
+                        first = Some((nrm, dot(ov, nrm) - gap / h, arrival));
                     }
                 }
             }

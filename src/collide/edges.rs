@@ -19,7 +19,12 @@ impl Obstacle {
     /// shapes, half-spaces and distance grids have none.
     pub fn sharp_edges(&self) -> impl Iterator<Item = ([f64; 3], [f64; 3])> {
         let edges = match self {
-            Obstacle::Box { min, max } => Some(box_edges(*min, *max)),
+            Obstacle::Box { min, max } => Some(box_edges(|c| {
+                std::array::from_fn(|a| if c >> a & 1 == 1 { max[a] } else { min[a] })
+            })),
+            Obstacle::Oriented { center, axes, half } => {
+                Some(box_edges(|c| oriented_corner(*center, axes, *half, c)))
+            }
             _ => None,
         };
         edges.into_iter().flatten()
@@ -29,17 +34,38 @@ impl Obstacle {
     pub fn sharp_edge_bounds(&self) -> Option<([f64; 3], [f64; 3])> {
         match self {
             Obstacle::Box { min, max } => Some((*min, *max)),
+            Obstacle::Oriented { center, axes, half } => {
+                let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+                for c in 0..8 {
+                    let p = oriented_corner(*center, axes, *half, c);
+                    for a in 0..3 {
+                        lo[a] = lo[a].min(p[a]);
+                        hi[a] = hi[a].max(p[a]);
+                    }
+                }
+                Some((lo, hi))
+            }
             _ => None,
         }
     }
 }
 
-/// The twelve edges of the box `[min, max]`: from each corner along each axis on which
-/// it is at `min`.
-fn box_edges(min: [f64; 3], max: [f64; 3]) -> [([f64; 3], [f64; 3]); 12] {
-    let corner = |c: usize| -> [f64; 3] {
-        std::array::from_fn(|a| if c >> a & 1 == 1 { max[a] } else { min[a] })
-    };
+/// Corner `c` (bit k: the + side of axis k) of an oriented box.
+fn oriented_corner(center: [f64; 3], axes: &[[f64; 3]; 3], half: [f64; 3], c: usize) -> [f64; 3] {
+    std::array::from_fn(|k| {
+        center[k]
+            + (0..3)
+                .map(|a| {
+                    let s = if c >> a & 1 == 1 { half[a] } else { -half[a] };
+                    s * axes[a][k]
+                })
+                .sum::<f64>()
+    })
+}
+
+/// The twelve edges of a box with corners `corner(c)` (bit a of `c`: the upper side of
+/// axis a): from each corner along each axis on which it is on the lower side.
+fn box_edges(corner: impl Fn(usize) -> [f64; 3]) -> [([f64; 3], [f64; 3]); 12] {
     let mut edges = [([0.0; 3], [0.0; 3]); 12];
     let mut k = 0;
     for c in 0..8usize {

@@ -75,6 +75,48 @@ pub enum Obstacle {
     },
     /// A signed-distance grid (trilinear); points outside the grid are free.
     Sdf(Arc<SdfGrid>),
+    /// A solid box turned by orthonormal `axes`: `center + sum s_k axes[k]`,
+    /// `|s_k| <= half[k]` (a rigid body's box, [`MovingObstacle`]).
+    Oriented {
+        /// Centre (m).
+        center: [f64; 3],
+        /// Orthonormal axes (world).
+        axes: [[f64; 3]; 3],
+        /// Half extents (m), > 0.
+        half: [f64; 3],
+    },
+}
+
+/// An obstacle that moves: its shape now and the rigid motion it moves with (the
+/// velocity of a point `p` on it is `velocity + angular_velocity x (p - center)`). The
+/// rigid bodies hand theirs to the scene's other systems each step
+/// ([`crate::simulation::Simulation::moving_obstacles`]); the contacts of
+/// [`VertexContacts`] take velocities relative to it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MovingObstacle {
+    /// The shape at the present pose.
+    pub shape: Obstacle,
+    /// The point the angular velocity turns about (m).
+    pub center: [f64; 3],
+    /// m/s.
+    pub velocity: [f64; 3],
+    /// rad/s (world).
+    pub angular_velocity: [f64; 3],
+}
+
+impl MovingObstacle {
+    /// The velocity of the obstacle's material at `p` (m/s).
+    #[inline]
+    pub fn velocity_at(&self, p: [f64; 3]) -> [f64; 3] {
+        let r = sub(p, self.center);
+        let w = self.angular_velocity;
+        let c = [
+            w[1] * r[2] - w[2] * r[1],
+            w[2] * r[0] - w[0] * r[2],
+            w[0] * r[1] - w[1] * r[0],
+        ];
+        [0, 1, 2].map(|k| self.velocity[k] + c[k])
+    }
 }
 
 impl Obstacle {
@@ -140,6 +182,7 @@ impl Obstacle {
             Obstacle::Box { .. } => "box",
             Obstacle::Capsule { .. } => "capsule",
             Obstacle::Sdf(_) => "sdf",
+            Obstacle::Oriented { .. } => "oriented box",
         }
     }
 
@@ -180,6 +223,18 @@ impl Obstacle {
                 finite3("b", *b)?;
                 check("radius", *radius, Positive)?;
             }
+            Obstacle::Oriented { center, axes, half } => {
+                finite3("center", *center)?;
+                half.iter().try_for_each(|&h| check("half", h, Positive))?;
+                for (k, a) in axes.iter().enumerate() {
+                    finite3("axes", *a)?;
+                    for (j, b) in axes.iter().enumerate() {
+                        let want = if j == k { 1.0 } else { 0.0 };
+                        let d = dot(*a, *b);
+                        require("axes", d, (d - want).abs() < 1e-6, "must be orthonormal")?;
+                    }
+                }
+            }
             Obstacle::Sdf(s) => {
                 let g = &s.grid;
                 let shape_ok = g.n.iter().all(|&n| n >= 2) && s.phi.len() == g.len();
@@ -208,6 +263,18 @@ impl Obstacle {
             }
             Obstacle::Box { min, max } => Some(shapes::cuboid(*min, *max)),
             Obstacle::Capsule { a, b, radius } => Some(shapes::capsule(*a, *b, *radius, 32)),
+            Obstacle::Oriented { center, axes, half } => {
+                let mut m = shapes::cuboid(half.map(|h| -h), *half);
+                let n = m.positions.len() / 3;
+                for i in 0..n {
+                    let l = [m.positions[i], m.positions[n + i], m.positions[2 * n + i]];
+                    for k in 0..3 {
+                        m.positions[k * n + i] =
+                            center[k] + axes[0][k] * l[0] + axes[1][k] * l[1] + axes[2][k] * l[2];
+                    }
+                }
+                Some(m)
+            }
             Obstacle::Plane { .. } | Obstacle::Sdf(_) => None,
         }
     }
@@ -263,6 +330,14 @@ impl Obstacle {
                 }
                 .distance_grad(p),
             ),
+            Obstacle::Oriented { center, axes, half } => {
+                let r = sub(p, *center);
+                let local = [dot(r, axes[0]), dot(r, axes[1]), dot(r, axes[2])];
+                let (d, g) = box_distance(local, *half);
+                let world =
+                    [0, 1, 2].map(|k| axes[0][k] * g[0] + axes[1][k] * g[1] + axes[2][k] * g[2]);
+                nonzero((d, world))
+            }
             Obstacle::Sdf(s) => {
                 if !s.grid.contains(p) {
                     return None;

@@ -356,7 +356,7 @@ impl Synth {
                     let t1 = ((k + 1) as f64 * h).min(d);
                     let w = 0.5 * ((PI * t0 / d).cos() - (PI * t1 / d).cos());
                     if w != 0.0 {
-                        self.pending.push((n0 + k, source, w));
+                        self.pending.push((n0.saturating_add(k), source, w));
                     }
                 }
             }
@@ -368,7 +368,7 @@ impl Synth {
                 let t = time.max(0.0);
                 let first = self.sample_at(t);
                 let last = ((t + d) * self.rate).ceil() as u64;
-                for k in first..last.max(first + 1) {
+                for k in first..last.max(first.saturating_add(1)) {
                     let (a, b) = (k as f64 * h, (k + 1) as f64 * h);
                     let w = ((t + d).min(b) - t.max(a)).max(0.0) / d;
                     if w > 0.0 {

@@ -1,7 +1,7 @@
 //! The rigid bodies' collision stage: boxes, sweep and prune, manifolds, and the match of
 //! each new contact point with last step's (for warm starting).
 
-use super::{Collider, Rigid, RigidState, RigidStepInfo, RigidWork};
+use super::{Collider, Rigid, RigidError, RigidState, RigidStepInfo, RigidWork};
 use largestep_kernels::collide::bv::Aabb;
 use largestep_kernels::collide::manifold::{
     box_box, capsule_box, capsule_capsule_manifold, convex_convex, sphere_box,
@@ -131,13 +131,18 @@ fn manifold(
 
 /// Finds the contact points of the present state into `w.contacts` (last step's kept in
 /// `w.previous` for warm starting), and reports the counts.
-pub(crate) fn collide(m: &Rigid, s: &RigidState, w: &mut RigidWork, dt: f64) -> RigidStepInfo {
+pub(crate) fn collide(
+    m: &Rigid,
+    s: &RigidState,
+    w: &mut RigidWork,
+    dt: f64,
+) -> Result<RigidStepInfo, RigidError> {
     let n = m.len();
     std::mem::swap(&mut w.contacts, &mut w.previous);
     w.contacts.clear();
     let mut info = RigidStepInfo::default();
     if !m.collides() {
-        return info;
+        return Ok(info);
     }
     // Hull points in world coordinates, for the bodies that have them.
     for i in 0..n {
@@ -157,6 +162,14 @@ pub(crate) fn collide(m: &Rigid, s: &RigidState, w: &mut RigidWork, dt: f64) -> 
     // Pairs in order, so the contacts come out sorted by pair (warm starting looks last
     // step's up by pair) without sorting the contacts themselves.
     w.pairs.sort_unstable();
+    let max = m.desc().max_pairs;
+    if w.pairs.len() > max {
+        return Err(RigidError::TooManyPairs {
+            step: s.steps + 1,
+            pairs: w.pairs.len(),
+            max,
+        });
+    }
     for &[a, b] in &w.pairs {
         let (i, j) = (a as usize, b as usize);
         if !m.is_dynamic(i) && !m.is_dynamic(j) {
@@ -213,5 +226,5 @@ pub(crate) fn collide(m: &Rigid, s: &RigidState, w: &mut RigidWork, dt: f64) -> 
             info.warm += 1;
         }
     }
-    info
+    Ok(info)
 }

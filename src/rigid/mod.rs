@@ -300,6 +300,11 @@ pub struct RigidDesc {
     /// Fraction of the position error removed per sub-step, 0..=1 (Baumgarte 0.2, split
     /// 0.8; soft correction sets its own from the contact frequency).
     pub beta: Option<f64>,
+    /// Body pairs the broad phase may pass on in a step: each holds up to four contact
+    /// points, about 2 kB with the solver's rows. A step with more (bodies started
+    /// inside one another, or shapes far larger than their spacing) is refused before
+    /// the narrow phase allocates for them.
+    pub max_pairs: usize,
 }
 
 impl Default for RigidDesc {
@@ -315,6 +320,7 @@ impl Default for RigidDesc {
             friction: 0.5,
             correction: Correction::Soft,
             beta: None,
+            max_pairs: 1 << 20,
         }
     }
 }
@@ -340,6 +346,16 @@ pub enum RigidError {
         joint: usize,
         /// Why.
         why: String,
+    },
+    /// More overlapping body pairs than [`RigidDesc::max_pairs`].
+    #[error("step {step}: {pairs} body pairs overlap, more than the {max} allowed (bodies inside one another, or shapes far larger than their spacing?)")]
+    TooManyPairs {
+        /// Step.
+        step: u64,
+        /// Pairs found.
+        pairs: usize,
+        /// The limit.
+        max: usize,
     },
     /// The state went non-finite.
     #[error("step {step}: body {body} has a non-finite {what}")]
@@ -965,10 +981,55 @@ impl Rigid {
             .collect()
     }
 
+    /// Every body but the meshes as an obstacle for other systems (cloth, FEM) at its
+    /// present pose, with its motion: spheres, capsules, and boxes as oriented boxes.
+    /// Mesh bodies are left out (they collide as hulls here; other systems would need a
+    /// distance field of them).
+    pub fn obstacles(&self, s: &RigidState) -> Vec<crate::collide::MovingObstacle> {
+        use crate::collide::{MovingObstacle, Obstacle};
+        (0..self.len())
+            .filter_map(|i| {
+                let (x, q) = (s.x[i], s.q[i]);
+                let shape = match &self.colliders[i] {
+                    Collider::Sphere(r) => Obstacle::Sphere {
+                        center: x,
+                        radius: *r,
+                    },
+                    Collider::Capsule(hh, r) => {
+                        let d = quat::rotate(q, [0.0, *hh, 0.0]);
+                        Obstacle::Capsule {
+                            a: sub(x, d),
+                            b: add(x, d),
+                            radius: *r,
+                        }
+                    }
+                    Collider::Box(h) => Obstacle::Oriented {
+                        center: x,
+                        axes: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+                            .map(|e| quat::rotate(q, e)),
+                        half: *h,
+                    },
+                    Collider::Hull(_) => return None,
+                };
+                Some(MovingObstacle {
+                    shape,
+                    center: x,
+                    velocity: s.v[i],
+                    angular_velocity: s.w[i],
+                })
+            })
+            .collect()
+    }
+
     /// The collision stage alone: the contact points of the present state (speculative
     /// ones within the margin a step of `dt` needs) into `w`, read back by
     /// [`RigidWork::contacts`]. [`Rigid::step`] runs it first.
-    pub fn find_contacts(&self, s: &RigidState, w: &mut RigidWork, dt: f64) -> RigidStepInfo {
+    pub fn find_contacts(
+        &self,
+        s: &RigidState,
+        w: &mut RigidWork,
+        dt: f64,
+    ) -> Result<RigidStepInfo, RigidError> {
         contact::collide(self, s, w, dt)
     }
 
@@ -981,7 +1042,7 @@ impl Rigid {
         w: &mut RigidWork,
         dt: f64,
     ) -> Result<RigidStepInfo, RigidError> {
-        let info = contact::collide(self, s, w, dt);
+        let info = contact::collide(self, s, w, dt)?;
         solver::step(self, s, w, dt);
         s.time += dt;
         s.steps += 1;

@@ -613,6 +613,8 @@ pub fn desc(ctx: &Context<'_>, t: &RigidTable) -> Result<(RigidDesc, Vec<String>
             friction,
             correction,
             beta: None,
+            // About 2 kB a pair (contacts and solver rows): what the memory budget holds.
+            max_pairs: ((ctx.limits.max_memory / 2048) as usize).max(1024),
         },
         warnings,
     ))
@@ -1220,6 +1222,10 @@ impl Simulation for RigidSim {
 
     fn warnings(&self) -> Vec<String> {
         self.warnings.clone()
+    }
+
+    fn moving_obstacles(&self) -> Vec<crate::collide::MovingObstacle> {
+        self.model.obstacles(&self.state)
     }
 
     fn frame_table(&self) -> Option<crate::simulation::FrameTable> {

@@ -24,8 +24,15 @@ pub struct Format {
     pub load: fn(&Path, &Limits) -> Result<Scene, SceneError>,
 }
 
-/// The domains, in the order a scene's systems are built and stepped.
+/// The domains, in the order a scene's systems are built and stepped: rigid bodies
+/// first, so that the systems they are moving obstacles for see them where they are at
+/// the end of the step.
 pub const DOMAINS: &[Domain] = &[
+    #[cfg(feature = "rigid")]
+    Domain {
+        table: "rigid",
+        build: crate::rigid::scene::build,
+    },
     #[cfg(feature = "mass-spring")]
     Domain {
         table: "mass_spring",
@@ -45,11 +52,6 @@ pub const DOMAINS: &[Domain] = &[
     Domain {
         table: "fluid",
         build: crate::fluid::scene::build,
-    },
-    #[cfg(feature = "rigid")]
-    Domain {
-        table: "rigid",
-        build: crate::rigid::scene::build,
     },
     #[cfg(feature = "modal")]
     Domain {

@@ -381,6 +381,8 @@ pub struct Runner {
     listening: bool,
     /// The per-frame tables being written (system index, writer, path).
     tables: Vec<(usize, std::io::BufWriter<std::fs::File>, PathBuf)>,
+    /// Whether one system gives moving obstacles that another takes.
+    coupled: bool,
 }
 
 /// The preview of grid frames, made as they are written: each frame's picture is
@@ -407,12 +409,14 @@ impl Runner {
     pub fn new(scene: Scene, out_dir: &Path) -> Self {
         let mut systems = scene.systems;
         let listening = systems.iter().any(|s| s.sim.listens());
+        let coupled = systems.iter().any(|s| s.sim.takes_moving_obstacles())
+            && systems.iter().any(|s| !s.sim.moving_obstacles().is_empty());
         if listening {
             for s in systems.iter_mut().filter(|s| !s.sim.listens()) {
                 s.sim.record_contact_impulses(true);
             }
         }
-        Self {
+        let mut runner = Self {
             systems,
             name: scene.name,
             duration: scene.duration,
@@ -425,7 +429,10 @@ impl Runner {
             grid_preview: None,
             listening,
             tables: Vec::new(),
-        }
+            coupled,
+        };
+        runner.hand_over_obstacles();
+        runner
     }
 
     /// Opens each system's per-frame table ([`Simulation::frame_table`]) with its header:
@@ -531,6 +538,9 @@ impl Runner {
             total.linear_iterations += info.linear_iterations;
             total.residual = total.residual.max(info.residual);
             total.solve_seconds += info.solve_seconds;
+            if self.coupled && !self.systems[k].sim.moving_obstacles().is_empty() {
+                self.hand_over_obstacles();
+            }
             if !self.listening {
                 continue;
             }
@@ -553,6 +563,29 @@ impl Runner {
             }
         }
         Ok(total)
+    }
+
+    /// Gives every system that takes moving obstacles those of the others (rigid bodies at
+    /// their poses now): at the start, and after each step of a system that has some
+    /// (stepped first, [`super::registry::DOMAINS`]), so that the others' contacts see the
+    /// bodies where they are at the end of their own step. One-way coupling.
+    fn hand_over_obstacles(&mut self) {
+        if !self.coupled {
+            return;
+        }
+        for k in 0..self.systems.len() {
+            if !self.systems[k].sim.takes_moving_obstacles() {
+                continue;
+            }
+            let others: Vec<crate::collide::MovingObstacle> = self
+                .systems
+                .iter()
+                .enumerate()
+                .filter(|(j, _)| *j != k)
+                .flat_map(|(_, s)| s.sim.moving_obstacles())
+                .collect();
+            self.systems[k].sim.set_moving_obstacles(&others);
+        }
     }
 
     /// Calls `f` with the frame's mesh: the system's own, or all systems' meshes as one

@@ -21,7 +21,9 @@
 //!    the model's contact obstacles ([`VertexContacts::resolve`]).
 
 use super::{Energy, FrameData, Simulation, Stage};
-use crate::collide::{max_penetration, Obstacle, SelfCollision, SelfStats, VertexContacts};
+use crate::collide::{
+    max_penetration, MovingObstacle, Obstacle, SelfCollision, SelfStats, VertexContacts,
+};
 use crate::integrate::{
     kinetic_energy, kinetic_energy_matrix, IntegrateError, MechSettings, MechState, MechStepper,
     Mechanical, Method, StepInfo,
@@ -323,6 +325,9 @@ pub struct MechSimulation<M: MechModel> {
     /// vertices), when the model asks for it; with what it did over the last step.
     self_collision: Option<(Box<SelfCollision>, Vec<f64>)>,
     self_stats: SelfStats,
+    /// Obstacles of other systems (rigid bodies) at their present poses, with their
+    /// motion: the contacts take them with the model's own (one-way coupling).
+    moving: Vec<MovingObstacle>,
 }
 
 /// What recording contact impulses needs (see [`MechSimulation::record_contact_impulses`]).
@@ -448,6 +453,7 @@ impl<M: MechModel> MechSimulation<M> {
             impulses: None,
             self_collision,
             self_stats: SelfStats::default(),
+            moving: Vec::new(),
         })
     }
 
@@ -575,12 +581,22 @@ impl<M: MechModel> MechSimulation<M> {
     /// contacts; then the loads' work over the step, and the check for a blow-up (a
     /// vertex moving more than ten times the model's size in the step).
     fn after_step(&mut self, h: f64) -> Result<(), IntegrateError> {
+        self.model.prescribe(
+            self.t,
+            self.state.x.as_mut_slice(),
+            self.state.v.as_mut_slice(),
+        );
+        // Moving obstacles do work on the model: what their contacts change of its energy
+        // is counted as external work (with them, the static obstacles' small losses at
+        // contact are counted there too).
+        let coupled = !self.moving.is_empty();
+        let before = if coupled { self.energy().total() } else { 0.0 };
         let (x, v) = (self.state.x.as_mut_slice(), self.state.v.as_mut_slice());
-        self.model.prescribe(self.t, x, v);
         if let Some(friction) = self.model.contact_friction() {
             let m = &*self.model;
             self.contacts.resolve(
                 m.obstacles(),
+                &self.moving,
                 m.triangles(),
                 m.fixed_vertices(),
                 m.mass(),
@@ -590,6 +606,10 @@ impl<M: MechModel> MechSimulation<M> {
                 h,
             );
         }
+        if coupled {
+            self.external_work += self.energy().total() - before;
+        }
+        let (x, v) = (self.state.x.as_mut_slice(), self.state.v.as_mut_slice());
         // Self-collision last: the obstacles' corrections are part of the motion it
         // keeps free of crossings.
         if let Some((sc, inv_mass)) = &mut self.self_collision {
@@ -928,6 +948,15 @@ impl<M: MechModel> Simulation for MechSimulation<M> {
 
     fn as_any(&self) -> &dyn std::any::Any {
         self
+    }
+
+    fn takes_moving_obstacles(&self) -> bool {
+        self.model.contact_friction().is_some()
+    }
+
+    fn set_moving_obstacles(&mut self, obstacles: &[MovingObstacle]) {
+        self.moving.clear();
+        self.moving.extend_from_slice(obstacles);
     }
 
     fn record_contact_impulses(&mut self, on: bool) {

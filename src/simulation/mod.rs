@@ -265,6 +265,25 @@ pub trait Simulation: Send {
         None
     }
 
+    /// This system's bodies as obstacles for the others, at their present poses with
+    /// their motion (rigid bodies; empty for the rest).
+    fn moving_obstacles(&self) -> Vec<crate::collide::MovingObstacle> {
+        Vec::new()
+    }
+
+    /// Whether this system's contacts take other systems' moving obstacles (models
+    /// whose contacts are [`crate::collide::VertexContacts`]: the cloth, and the FEM
+    /// when it has obstacles of its own).
+    fn takes_moving_obstacles(&self) -> bool {
+        false
+    }
+
+    /// Hands over the other systems' moving obstacles for the next step (one-way: they
+    /// feel nothing back).
+    fn set_moving_obstacles(&mut self, obstacles: &[crate::collide::MovingObstacle]) {
+        let _ = obstacles;
+    }
+
     /// The table this system writes rows to at every frame, if any.
     fn frame_table(&self) -> Option<FrameTable> {
         None
