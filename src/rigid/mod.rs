@@ -25,6 +25,25 @@
 //!    impulses (no accumulation, no warm start: Baraff's impulse response applied pass by
 //!    pass) and penalty springs (as the jello: `k depth n - c vn n` per point).
 //! 4. **Positions** by the integrator ([`RigidIntegrator`]).
+//!
+//! A ball dropped on a slab, stepped from an engine:
+//!
+//! ```
+//! use largestep::rigid::{BodyDesc, Motion, RigidDesc, Shape};
+//!
+//! let mut d = RigidDesc::default(); // gravity -9.81 along y, sequential impulses
+//! d.bodies.push(BodyDesc {
+//!     motion: Motion::Static,
+//!     ..BodyDesc::new(Shape::Box { half: [5.0, 0.5, 5.0] }, [0.0, -0.5, 0.0])
+//! });
+//! d.bodies.push(BodyDesc::new(Shape::Sphere { radius: 0.5 }, [0.0, 2.0, 0.0]));
+//! let (model, mut state, mut work) = d.build()?;
+//! for _ in 0..120 {
+//!     model.step(&mut state, &mut work, 1.0 / 60.0)?;
+//! }
+//! assert!((state.x[1][1] - 0.5).abs() < 0.01); // resting on the slab
+//! # Ok::<(), largestep::rigid::RigidError>(())
+//! ```
 
 mod contact;
 pub mod mass;
