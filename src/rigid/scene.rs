@@ -1154,7 +1154,8 @@ impl Simulation for RigidSim {
             Stage::built(
                 "rigid bodies",
                 format!(
-                    "{n} bodies ({dynamic} dynamic; {}), {} integrator",
+                    "{n} {} ({dynamic} dynamic; {}), {} integrator",
+                    if n == 1 { "body" } else { "bodies" },
                     kinds.join(", "),
                     d.integrator.name()
                 ),
