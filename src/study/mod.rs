@@ -109,6 +109,8 @@ const STUDIES: &[Study] = &[
     ("distance-fields", collide::distance_fields),
     #[cfg(feature = "rigid")]
     ("rigid-integrators", rigid::integrators),
+    #[cfg(feature = "rigid")]
+    ("rigid-contacts", rigid::contacts),
 ];
 
 /// The names of the studies built in.
