@@ -59,7 +59,7 @@ fn body_box(m: &Rigid, s: &RigidState, i: usize, grow: f64) -> Aabb {
     }
 }
 
-fn box_pose(s: &RigidState, i: usize, half: [f64; 3]) -> BoxPose {
+pub(crate) fn box_pose(s: &RigidState, i: usize, half: [f64; 3]) -> BoxPose {
     let q = s.q[i];
     BoxPose {
         center: s.x[i],
@@ -72,7 +72,7 @@ fn box_pose(s: &RigidState, i: usize, half: [f64; 3]) -> BoxPose {
     }
 }
 
-fn segment(s: &RigidState, i: usize, hh: f64) -> [[f64; 3]; 2] {
+pub(crate) fn segment(s: &RigidState, i: usize, hh: f64) -> [[f64; 3]; 2] {
     let d = quat::rotate(s.q[i], [0.0, hh, 0.0]);
     [sub(s.x[i], d), add(s.x[i], d)]
 }

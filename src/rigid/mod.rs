@@ -953,12 +953,12 @@ impl Rigid {
     /// [`Rigid::surface_triangles`] and [`Rigid::joint_segments`]).
     pub fn posed_surfaces(&self, s: &RigidState, out: &mut Vec<f64>) {
         let surface = self.surface_local.len();
-        let strings: Vec<&Joint> = self
-            .joints
-            .iter()
-            .filter(|j| matches!(j.kind, JointKind::Distance { .. }))
-            .collect();
-        let total = surface + 2 * strings.len();
+        let strings = || {
+            self.joints
+                .iter()
+                .filter(|j| matches!(j.kind, JointKind::Distance { .. }))
+        };
+        let total = surface + 2 * strings().count();
         out.clear();
         out.resize(3 * total, 0.0);
         let mut put = |k: usize, p: [f64; 3]| {
@@ -971,7 +971,7 @@ impl Rigid {
                 put(k, add(s.x[i], quat::rotate(s.q[i], self.surface_local[k])));
             }
         }
-        for (k, j) in strings.iter().enumerate() {
+        for (k, j) in strings().enumerate() {
             put(surface + 2 * k, add(s.x[j.a], quat::rotate(s.q[j.a], j.la)));
             let b = if j.b == usize::MAX {
                 j.lb
@@ -1000,44 +1000,40 @@ impl Rigid {
             .collect()
     }
 
-    /// Every body but the meshes as an obstacle for other systems (cloth, FEM) at its
-    /// present pose, with its motion: spheres, capsules, and boxes as oriented boxes.
+    /// Appends every body but the meshes to `out` as an obstacle for other systems (cloth,
+    /// FEM) at its present pose, with its motion: spheres, capsules, and boxes as oriented boxes.
     /// Mesh bodies are left out (they collide as hulls here; other systems would need a
     /// distance field of them).
-    pub fn obstacles(&self, s: &RigidState) -> Vec<crate::collide::MovingObstacle> {
+    pub fn obstacles(&self, s: &RigidState, out: &mut Vec<crate::collide::MovingObstacle>) {
         use crate::collide::{MovingObstacle, Obstacle};
-        (0..self.len())
-            .filter_map(|i| {
-                let (x, q) = (s.x[i], s.q[i]);
-                let shape = match &self.colliders[i] {
-                    Collider::Sphere(r) => Obstacle::Sphere {
-                        center: x,
-                        radius: *r,
-                    },
-                    Collider::Capsule(hh, r) => {
-                        let d = quat::rotate(q, [0.0, *hh, 0.0]);
-                        Obstacle::Capsule {
-                            a: sub(x, d),
-                            b: add(x, d),
-                            radius: *r,
-                        }
+        for i in 0..self.len() {
+            // The poses the contact stage collides them at.
+            let shape = match &self.colliders[i] {
+                Collider::Sphere(r) => Obstacle::Sphere {
+                    center: s.x[i],
+                    radius: *r,
+                },
+                Collider::Capsule(hh, r) => {
+                    let [a, b] = contact::segment(s, i, *hh);
+                    Obstacle::Capsule { a, b, radius: *r }
+                }
+                Collider::Box(h) => {
+                    let p = contact::box_pose(s, i, *h);
+                    Obstacle::Oriented {
+                        center: p.center,
+                        axes: p.axes,
+                        half: p.half,
                     }
-                    Collider::Box(h) => Obstacle::Oriented {
-                        center: x,
-                        axes: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
-                            .map(|e| quat::rotate(q, e)),
-                        half: *h,
-                    },
-                    Collider::Hull(_) => return None,
-                };
-                Some(MovingObstacle {
-                    shape,
-                    center: x,
-                    velocity: s.v[i],
-                    angular_velocity: s.w[i],
-                })
-            })
-            .collect()
+                }
+                Collider::Hull(_) => continue,
+            };
+            out.push(MovingObstacle {
+                shape,
+                center: s.x[i],
+                velocity: s.v[i],
+                angular_velocity: s.w[i],
+            });
+        }
     }
 
     /// The collision stage alone: the contact points of the present state (speculative

@@ -838,8 +838,9 @@ fn witkin(ctx: &Context<'_>, t: &RigidTable) -> Result<WitkinSim, SceneError> {
 pub struct WitkinSim {
     model: Witkin,
     state: WitkinState,
-    /// Particles, then the fixed points drawn (anchors, wire circles).
-    positions: Vec<f64>,
+    /// Particles, then the fixed points drawn (anchors, wire circles), component-major:
+    /// formed when a frame asks for them.
+    positions: std::sync::OnceLock<Vec<f64>>,
     fixed: Vec<[f64; 3]>,
     segments: Arc<[[u32; 2]]>,
     drift: f64,
@@ -878,29 +879,29 @@ impl WitkinSim {
             }
         }
         let drift = model.drift(&state.x);
-        let mut sim = WitkinSim {
+        WitkinSim {
             model,
             state,
-            positions: Vec::new(),
+            positions: std::sync::OnceLock::new(),
             fixed,
             segments: segments.into(),
             drift,
             start_drift: drift,
-        };
-        sim.refresh();
-        sim
+        }
     }
 
-    fn refresh(&mut self) {
-        let pts: Vec<[f64; 3]> = self.state.x.iter().chain(&self.fixed).copied().collect();
-        let total = pts.len();
-        self.positions.clear();
-        self.positions.resize(3 * total, 0.0);
-        for (i, p) in pts.iter().enumerate() {
-            for (a, c) in p.iter().enumerate() {
-                self.positions[a * total + i] = *c;
+    /// The frame's positions (see `positions`).
+    fn positions(&self) -> &[f64] {
+        self.positions.get_or_init(|| {
+            let total = self.state.x.len() + self.fixed.len();
+            let mut out = vec![0.0; 3 * total];
+            for (i, p) in self.state.x.iter().chain(&self.fixed).enumerate() {
+                for (a, c) in p.iter().enumerate() {
+                    out[a * total + i] = *c;
+                }
             }
-        }
+            out
+        })
     }
 
     /// The model.
@@ -929,7 +930,7 @@ impl Simulation for WitkinSim {
                 why: e.to_string(),
             })?;
         self.drift = self.drift.max(self.model.drift(&self.state.x));
-        self.refresh();
+        self.positions = std::sync::OnceLock::new();
         Ok(StepInfo {
             newton_iterations: 0,
             linear_iterations: 0,
@@ -960,7 +961,7 @@ impl Simulation for WitkinSim {
 
     fn frame(&self) -> FrameData<'_> {
         FrameData::Mesh(MeshRef {
-            positions: &self.positions,
+            positions: self.positions(),
             triangles: &[],
             segments: &self.segments,
         })
@@ -1044,9 +1045,9 @@ pub struct RigidSim {
     state: RigidState,
     work: RigidWork,
     last: RigidStepInfo,
-    /// The posed surfaces of the present state (component-major) and the distance
-    /// joints' strings.
-    positions: Vec<f64>,
+    /// The posed surfaces of the present state (component-major), formed when a frame
+    /// asks for them, and the distance joints' strings.
+    positions: std::sync::OnceLock<Vec<f64>>,
     segments: Vec<[u32; 2]>,
     warnings: Vec<String>,
     deepest: f64,
@@ -1061,13 +1062,12 @@ impl RigidSim {
             state,
             work,
             last: RigidStepInfo::default(),
-            positions: Vec::new(),
+            positions: std::sync::OnceLock::new(),
             segments: Vec::new(),
             warnings: Vec::new(),
             deepest: 0.0,
         };
         sim.segments = sim.model.joint_segments();
-        sim.model.posed_surfaces(&sim.state, &mut sim.positions);
         Ok(sim)
     }
 
@@ -1104,7 +1104,7 @@ impl Simulation for RigidSim {
             })?;
         self.last = info;
         self.deepest = info.max_depth.max(0.0);
-        self.model.posed_surfaces(&self.state, &mut self.positions);
+        self.positions = std::sync::OnceLock::new();
         Ok(StepInfo {
             newton_iterations: 0,
             linear_iterations: self.model.desc().iterations,
@@ -1134,8 +1134,13 @@ impl Simulation for RigidSim {
     }
 
     fn frame(&self) -> FrameData<'_> {
+        let positions = self.positions.get_or_init(|| {
+            let mut out = Vec::new();
+            self.model.posed_surfaces(&self.state, &mut out);
+            out
+        });
         FrameData::Mesh(MeshRef {
-            positions: &self.positions,
+            positions,
             triangles: self.model.surface_triangles(),
             segments: &self.segments,
         })
@@ -1225,8 +1230,8 @@ impl Simulation for RigidSim {
         self.warnings.clone()
     }
 
-    fn moving_obstacles(&self) -> Vec<crate::collide::MovingObstacle> {
-        self.model.obstacles(&self.state)
+    fn moving_obstacles(&self, out: &mut Vec<crate::collide::MovingObstacle>) {
+        self.model.obstacles(&self.state, out);
     }
 
     fn frame_table(&self) -> Option<crate::simulation::FrameTable> {

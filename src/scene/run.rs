@@ -381,8 +381,11 @@ pub struct Runner {
     listening: bool,
     /// The per-frame tables being written (system index, writer, path).
     tables: Vec<(usize, std::io::BufWriter<std::fs::File>, PathBuf)>,
-    /// Whether one system gives moving obstacles that another takes.
+    /// Whether one system gives moving obstacles that another takes; which systems give
+    /// them; and the buffer they are gathered in (kept between steps).
     coupled: bool,
+    providers: Vec<bool>,
+    moving: Vec<crate::collide::MovingObstacle>,
 }
 
 /// The preview of grid frames, made as they are written: each frame's picture is
@@ -409,8 +412,18 @@ impl Runner {
     pub fn new(scene: Scene, out_dir: &Path) -> Self {
         let mut systems = scene.systems;
         let listening = systems.iter().any(|s| s.sim.listens());
-        let coupled = systems.iter().any(|s| s.sim.takes_moving_obstacles())
-            && systems.iter().any(|s| !s.sim.moving_obstacles().is_empty());
+        // Which systems give moving obstacles, found once (a system has bodies or not).
+        let mut moving = Vec::new();
+        let providers: Vec<bool> = systems
+            .iter()
+            .map(|s| {
+                moving.clear();
+                s.sim.moving_obstacles(&mut moving);
+                !moving.is_empty()
+            })
+            .collect();
+        let coupled =
+            systems.iter().any(|s| s.sim.takes_moving_obstacles()) && providers.iter().any(|&p| p);
         if listening {
             for s in systems.iter_mut().filter(|s| !s.sim.listens()) {
                 s.sim.record_contact_impulses(true);
@@ -430,6 +443,8 @@ impl Runner {
             listening,
             tables: Vec::new(),
             coupled,
+            providers,
+            moving,
         };
         runner.hand_over_obstacles();
         runner
@@ -538,7 +553,7 @@ impl Runner {
             total.linear_iterations += info.linear_iterations;
             total.residual = total.residual.max(info.residual);
             total.solve_seconds += info.solve_seconds;
-            if self.coupled && !self.systems[k].sim.moving_obstacles().is_empty() {
+            if self.coupled && self.providers[k] {
                 self.hand_over_obstacles();
             }
             if !self.listening {
@@ -577,14 +592,13 @@ impl Runner {
             if !self.systems[k].sim.takes_moving_obstacles() {
                 continue;
             }
-            let others: Vec<crate::collide::MovingObstacle> = self
-                .systems
-                .iter()
-                .enumerate()
-                .filter(|(j, _)| *j != k)
-                .flat_map(|(_, s)| s.sim.moving_obstacles())
-                .collect();
-            self.systems[k].sim.set_moving_obstacles(&others);
+            self.moving.clear();
+            for (j, s) in self.systems.iter().enumerate() {
+                if j != k && self.providers[j] {
+                    s.sim.moving_obstacles(&mut self.moving);
+                }
+            }
+            self.systems[k].sim.set_moving_obstacles(&self.moving);
         }
     }
 

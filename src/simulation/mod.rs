@@ -265,10 +265,10 @@ pub trait Simulation: Send {
         None
     }
 
-    /// This system's bodies as obstacles for the others, at their present poses with
-    /// their motion (rigid bodies; empty for the rest).
-    fn moving_obstacles(&self) -> Vec<crate::collide::MovingObstacle> {
-        Vec::new()
+    /// Appends this system's bodies as obstacles for the others to `out`, at their
+    /// present poses with their motion (rigid bodies; nothing for the rest).
+    fn moving_obstacles(&self, out: &mut Vec<crate::collide::MovingObstacle>) {
+        let _ = out;
     }
 
     /// Whether this system's contacts take other systems' moving obstacles (models

@@ -25,6 +25,35 @@ struct Point {
     momentum_change: f64,
 }
 
+/// One log-log curve per name: the points `keep` gives it, through `f`, those with
+/// positive coordinates.
+fn curves_by<P>(
+    names: &[&str],
+    points: &[P],
+    keep: impl Fn(&P, &str) -> bool,
+    f: &dyn Fn(&P) -> (f64, f64),
+) -> Vec<(usize, Curve)> {
+    names
+        .iter()
+        .enumerate()
+        .map(|(k, name)| {
+            (
+                k,
+                Curve {
+                    label: (*name).into(),
+                    points: points
+                        .iter()
+                        .filter(|p| keep(p, name))
+                        .map(f)
+                        .filter(|(x, y)| *x > 0.0 && *y > 0.0 && y.is_finite())
+                        .collect(),
+                    dashed: false,
+                },
+            )
+        })
+        .collect()
+}
+
 const DURATION: f64 = 4.0;
 const SPIN: [f64; 3] = [0.0, 5.0, 0.05];
 
@@ -109,26 +138,9 @@ pub(super) fn integrators(
         }
         progress.tick(m.name());
     }
-    let curves = |f: &dyn Fn(&Point) -> (f64, f64)| -> Vec<(usize, Curve)> {
-        methods
-            .iter()
-            .enumerate()
-            .map(|(k, m)| {
-                (
-                    k,
-                    Curve {
-                        label: m.name().into(),
-                        points: points
-                            .iter()
-                            .filter(|p| p.integrator == m.name())
-                            .map(f)
-                            .filter(|(x, y)| *x > 0.0 && *y > 0.0 && y.is_finite())
-                            .collect(),
-                        dashed: false,
-                    },
-                )
-            })
-            .collect()
+    let names: Vec<&str> = methods.iter().map(|m| m.name()).collect();
+    let curves = |f: &dyn Fn(&Point) -> (f64, f64)| {
+        curves_by(&names, &points, |p, name| p.integrator == name, f)
     };
     let panels = vec![
         Panel {
@@ -304,26 +316,10 @@ pub(super) fn contacts(
         }
         progress.tick(name);
     }
-    let curves = |f: &dyn Fn(&StackPoint) -> (f64, f64)| -> Vec<(usize, Curve)> {
-        variants
-            .iter()
-            .enumerate()
-            .map(|(k, (name, _, _))| {
-                (
-                    k,
-                    Curve {
-                        label: (*name).into(),
-                        points: points
-                            .iter()
-                            .filter(|p| p.solver == *name && p.stood)
-                            .map(f)
-                            .filter(|(x, y)| *x > 0.0 && *y > 0.0 && y.is_finite())
-                            .collect(),
-                        dashed: false,
-                    },
-                )
-            })
-            .collect()
+    let names: Vec<&str> = variants.iter().map(|v| v.0).collect();
+    // Only the stacks that stood are drawn.
+    let curves = |f: &dyn Fn(&StackPoint) -> (f64, f64)| {
+        curves_by(&names, &points, |p, name| p.solver == name && p.stood, f)
     };
     let panels = vec![
         Panel {
