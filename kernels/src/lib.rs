@@ -27,6 +27,7 @@ pub mod modal;
 pub mod par;
 pub mod quat;
 pub mod render;
+pub mod rotation;
 pub mod sparse;
 pub mod v3;
 pub mod vec;
