@@ -13,6 +13,8 @@ pub mod plot;
 pub mod render;
 pub mod shapes;
 
+#[cfg(feature = "anim")]
+pub mod anim;
 #[cfg(feature = "cloth")]
 pub mod cloth;
 pub mod collide;

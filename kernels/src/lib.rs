@@ -16,6 +16,7 @@
 //! - Parallel drivers (suffix `_par`) split work into fixed ranges decided by the data,
 //!   never by the number of threads, so their results are bitwise independent of it.
 
+pub mod anim;
 pub mod cloth;
 pub mod collide;
 pub mod fem;

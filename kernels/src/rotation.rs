@@ -118,11 +118,7 @@ pub fn matrix_to_euler(order: EulerOrder, r: [[f64; 3]; 3]) -> [f64; 3] {
         if sb < GIMBAL {
             return locked(b);
         }
-        [
-            r[j][i].atan2(-s * r[k][i]),
-            b,
-            r[i][j].atan2(s * r[i][k]),
-        ]
+        [r[j][i].atan2(-s * r[k][i]), b, r[i][j].atan2(s * r[i][k])]
     } else {
         // R[i][k] = s sin b; row i is (cos b cos c, -s cos b sin c, s sin b); column k is
         // (s sin b, -s sin a cos b, cos a cos b) on axes (i, j, k).
@@ -304,7 +300,12 @@ mod tests {
             for &b in poles {
                 let q = from_euler(order, [0.4, b, -1.1]);
                 let e = to_euler(order, q);
-                assert_eq!(e[2], 0.0, "{} at the pole puts the turn into a", order.name());
+                assert_eq!(
+                    e[2],
+                    0.0,
+                    "{} at the pole puts the turn into a",
+                    order.name()
+                );
                 let back = quat::to_matrix(from_euler(order, e));
                 assert!(close_m(back, quat::to_matrix(q), 1e-7), "{}", order.name());
             }

@@ -184,11 +184,37 @@ enum Command {
         #[arg(long)]
         voxel: Option<f64>,
     },
+    /// Character animation: motion capture and skeletons.
+    #[cfg(feature = "anim")]
+    Anim {
+        #[command(subcommand)]
+        command: AnimCommand,
+    },
     /// Measure this machine's memory bandwidth (triad) and peak f64 FMA rate.
     Machine {
         /// Size of each triad array in MiB.
         #[arg(long, default_value_t = largestep::machine::DEFAULT_TRIAD_MIB)]
         triad_mib: usize,
+    },
+}
+
+/// What `largestep anim` does.
+#[cfg(feature = "anim")]
+#[derive(Subcommand)]
+enum AnimCommand {
+    /// Forward kinematics of a BVH clip: the world position of every joint (End Sites
+    /// included, named `<parent>_end`) at one frame, in the file's own units and joint
+    /// order, as {"frame": K, "joints": [{"name": ..., "position": [x, y, z]}, ...]}:
+    /// to the --json file, else to standard output.
+    Fk {
+        /// The clip (.bvh).
+        file: PathBuf,
+        /// The frame, from 0.
+        #[arg(long, default_value_t = 0)]
+        frame: usize,
+        /// Write the JSON to this file (and a table to standard output).
+        #[arg(long)]
+        json: Option<PathBuf>,
     },
 }
 
@@ -406,6 +432,10 @@ fn main() -> ExitCode {
             };
             modes(&mesh, &options, json, out, &limits)
         }
+        #[cfg(feature = "anim")]
+        Command::Anim { command } => match command {
+            AnimCommand::Fk { file, frame, json } => anim_fk(&file, frame, json, &limits),
+        },
         Command::Machine { triad_mib } => {
             let l = largestep::machine::measure(triad_mib);
             println!("threads          {}", l.threads);
@@ -774,6 +804,75 @@ fn study(name: &str, out: &std::path::Path, quick: bool) -> ExitCode {
 
 /// `largestep modes`: the table, and the JSON and VTK files asked for.
 #[cfg(feature = "modal")]
+/// `largestep anim fk`.
+#[cfg(feature = "anim")]
+fn anim_fk(
+    file: &std::path::Path,
+    frame: usize,
+    json: Option<PathBuf>,
+    limits: &Limits,
+) -> ExitCode {
+    use std::io::Write;
+    let positions = largestep::anim::bvh::Bvh::read(file, limits.max_file_bytes)
+        .map_err(|e| e.to_string())
+        .and_then(|bvh| {
+            let p = bvh
+                .positions(frame)
+                .map_err(|e| format!("{}: {e}", file.display()))?;
+            Ok((bvh, p))
+        });
+    let (bvh, positions) = match positions {
+        Ok(p) => p,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    let joints: Vec<_> = bvh
+        .joints
+        .iter()
+        .zip(&positions)
+        .map(|(j, p)| serde_json::json!({"name": j.name, "position": p}))
+        .collect();
+    let value = serde_json::json!({"frame": frame, "joints": joints});
+    let Some(path) = json else {
+        let mut out = std::io::stdout().lock();
+        let written = serde_json::to_writer_pretty(&mut out, &value)
+            .map_err(std::io::Error::from)
+            .and_then(|()| writeln!(out));
+        return match written {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("error: standard output: {e}");
+                ExitCode::from(1)
+            }
+        };
+    };
+    let written = largestep::io::write_atomically(&path, |w| {
+        serde_json::to_writer_pretty(&mut *w, &value)?;
+        writeln!(w)
+    });
+    if let Err(e) = written {
+        eprintln!("error: {}: {e}", path.display());
+        return ExitCode::from(1);
+    }
+    println!(
+        "{}: {} joints, frame {frame} of {} ({} s per frame)",
+        file.display(),
+        positions.len(),
+        bvh.frames(),
+        bvh.frame_time
+    );
+    for (j, p) in bvh.joints.iter().zip(&positions) {
+        println!(
+            "{:<32} {:>12.4} {:>12.4} {:>12.4}",
+            j.name, p[0], p[1], p[2]
+        );
+    }
+    println!("json           {}", path.display());
+    ExitCode::SUCCESS
+}
+
 fn modes(
     mesh: &std::path::Path,
     options: &largestep::modal::ModesOptions,

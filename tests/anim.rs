@@ -1,0 +1,356 @@
+//! Character animation: BVH motion capture read and written, skeletons, forward
+//! kinematics against an independent implementation, pose blending, bad input.
+
+use largestep::anim::bvh::Bvh;
+use largestep::anim::{add_layer, additive_delta, blend, JointDesc, Pose, SkeletonDesc};
+use largestep::kernels::quat;
+use std::path::PathBuf;
+
+fn clip_path() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/mocap/mixamo-freebvh.bvh")
+}
+
+fn clip() -> Bvh {
+    Bvh::read(&clip_path(), 1 << 24).unwrap()
+}
+
+fn temp_dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("largestep-anim-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+#[test]
+fn reads_the_shared_clip() {
+    let b = clip();
+    // 55 joints with channels and 15 End Sites.
+    assert_eq!(b.joints.len(), 70);
+    assert_eq!(b.joints.iter().filter(|j| j.end_site).count(), 15);
+    assert_eq!(b.channel_count(), 6 + 3 * 54);
+    assert_eq!(b.frames(), 69);
+    assert!((b.frame_time - 0.0333333).abs() < 1e-15);
+    assert_eq!(b.joints[0].name, "mixamorig:Hips");
+    assert!(b.joints[0].parent.is_none());
+}
+
+/// World positions against scipy's rotations (tests/reference/bvh_fk_scipy.py, an
+/// independent reading of the same file: intrinsic rotations in channel order).
+#[test]
+fn forward_kinematics_matches_an_independent_implementation() {
+    let b = clip();
+    let cases: [(usize, &str, [f64; 3]); 6] = [
+        (
+            0,
+            "mixamorig:LeftHand",
+            [26.45787044716565, 88.6909066837909, -2.275492847821453],
+        ),
+        (
+            0,
+            "mixamorig:HeadTop_End_end",
+            [-1.3799062804033086, 175.93996387291187, 11.977023581675946],
+        ),
+        (
+            0,
+            "mixamorig:RightToeBase_end",
+            [-3.2874159673457135, 0.17552118150165957, 21.312808325636446],
+        ),
+        (
+            40,
+            "mixamorig:LeftHand",
+            [-27.854970560223734, 88.07244092427965, 64.16718617472196],
+        ),
+        (
+            40,
+            "mixamorig:HeadTop_End_end",
+            [14.836914661010136, 173.24134848452115, 68.5546006488859],
+        ),
+        (
+            40,
+            "mixamorig:RightToeBase",
+            [11.221300846422677, 0.30265082937395427, 110.38602946489574],
+        ),
+    ];
+    for (frame, name, want) in cases {
+        let p = b.positions(frame).unwrap();
+        let j = b.joints.iter().position(|j| j.name == name).unwrap();
+        for c in 0..3 {
+            assert!(
+                (p[j][c] - want[c]).abs() < 1e-9,
+                "{name} at frame {frame}: {:?} vs {want:?}",
+                p[j]
+            );
+        }
+    }
+}
+
+/// Read, write, read gives the identical clip; tabs or spaces and CRLF read the same.
+#[test]
+fn bvh_read_write_read_is_identical() {
+    let a = clip();
+    let mut text = Vec::new();
+    a.write(&mut text).unwrap();
+    let text = String::from_utf8(text).unwrap();
+    let b = Bvh::parse(&text, "written.bvh").unwrap();
+    assert_eq!(a, b);
+    let spaced = text.replace('\t', "  ").replace('\n', "\r\n");
+    assert_eq!(Bvh::parse(&spaced, "spaced.bvh").unwrap(), a);
+}
+
+/// Any channel order per joint; position channels on a non-root joint; braces on the
+/// joint's line.
+#[test]
+fn channel_orders_and_layouts() {
+    let text = "HIERARCHY\nROOT a {\n OFFSET 1 2 3\n CHANNELS 6 Xrotation Zposition Yrotation Xposition Zrotation Yposition\n JOINT b\n {\n  OFFSET 0 1 0\n  CHANNELS 4 Yrotation Xposition Xrotation Zrotation\n  End Site\n  {\n   OFFSET 0 2 0\n  }\n }\n}\nMOTION\nFrames: 1\nFrame Time: 0.5\n90 1 0 2 0 3 0 0.5 0 0\n";
+    let b = Bvh::parse(text, "t.bvh").unwrap();
+    assert_eq!(b.joints[2].name, "b_end");
+    let p = b.positions(0).unwrap();
+    // Root: translation (1+2, 2+3, 3+1), rotated 90 degrees about x.
+    let close = |a: [f64; 3], b: [f64; 3]| (0..3).all(|c| (a[c] - b[c]).abs() < 1e-12);
+    assert!(close(p[0], [3.0, 5.0, 4.0]), "{:?}", p[0]);
+    // b: offset (0.5, 1, 0) in the root frame, turned by Rx(90): (0.5, 0, 1).
+    assert!(close(p[1], [3.5, 5.0, 5.0]), "{:?}", p[1]);
+    // b's end: (0, 2, 0) under Rx(90) -> (0, 0, 2).
+    assert!(close(p[2], [3.5, 5.0, 7.0]), "{:?}", p[2]);
+}
+
+fn expect_error(text: &str, line: usize, words: &str) {
+    match Bvh::parse(text, "bad.bvh") {
+        Ok(_) => panic!("accepted: {text}"),
+        Err(e) => {
+            let s = e.to_string();
+            assert_eq!(e.line, line, "{s}");
+            assert!(s.starts_with("bad.bvh:"), "{s}");
+            assert!(s.contains(words), "{s} lacks '{words}'");
+        }
+    }
+}
+
+const GOOD: &str = "HIERARCHY\nROOT r\n{\n\tOFFSET 0 0 0\n\tCHANNELS 3 Zrotation Yrotation Xrotation\n\tEnd Site\n\t{\n\t\tOFFSET 0 1 0\n\t}\n}\nMOTION\nFrames: 2\nFrame Time: 0.1\n1 2 3\n4 5 6\n";
+
+#[test]
+fn bad_files_are_named_by_line() {
+    assert!(Bvh::parse(GOOD, "good.bvh").is_ok());
+    expect_error(
+        &GOOD.replace("4 5 6", "4 5"),
+        15,
+        "has 2 values; the hierarchy has 3 channels",
+    );
+    expect_error(&GOOD.replace("1 2 3", "1 2 3 7"), 14, "has 4 values");
+    expect_error(
+        &GOOD.replace("4 5 6\n", ""),
+        14,
+        "2 frames declared, 1 motion lines found",
+    );
+    expect_error(
+        &format!("{GOOD}7 8 9\n"),
+        16,
+        "more motion lines than the 2 frames",
+    );
+    expect_error(
+        &GOOD.replace("Zrotation Yrotation", "Wrotation Yrotation"),
+        5,
+        "unknown channel 'Wrotation'",
+    );
+    expect_error(
+        &GOOD.replace("Zrotation Yrotation", "Yrotation Yrotation"),
+        5,
+        "appears twice",
+    );
+    expect_error(
+        &GOOD.replace("CHANNELS 3", "CHANNELS 4"),
+        5,
+        "CHANNELS says 4 but names 3",
+    );
+    expect_error(
+        &GOOD.replace("0.1", "0"),
+        13,
+        "not a positive number of seconds",
+    );
+    expect_error(&GOOD.replace("0.1", "nan"), 13, "not a positive number");
+    expect_error(
+        &GOOD.replace("4 5 6", "4 x 6"),
+        15,
+        "'x' is not a finite number",
+    );
+    expect_error(
+        &GOOD.replace("Frames: 2", "Frames: 99999999999999"),
+        12,
+        "more values than the file can hold",
+    );
+    expect_error(&GOOD.replace("\tOFFSET 0 1 0\n", ""), 8, "has no OFFSET");
+    expect_error(
+        &GOOD.replace("OFFSET 0 1 0", "OFFSET 0 1"),
+        8,
+        "OFFSET needs three numbers",
+    );
+    expect_error(&GOOD.replace("}\nMOTION", "MOTION"), 10, "not closed");
+    expect_error(&GOOD.replace("MOTION\n", ""), 11, "MOTION line missing");
+}
+
+/// Random edits of a valid file never panic: each gives a clip or a located error.
+#[test]
+fn mangled_files_never_panic() {
+    use proptest::prelude::*;
+    let base = GOOD.to_string();
+    let mut runner = proptest::test_runner::TestRunner::new(ProptestConfig::with_cases(512));
+    runner
+        .run(
+            &(
+                0usize..GOOD.len(),
+                0usize..8,
+                prop::sample::select(vec![
+                    "",
+                    "}",
+                    "{",
+                    "-",
+                    "1e999",
+                    "\n",
+                    "End Site",
+                    "JOINT j",
+                    "CHANNELS 9",
+                ]),
+            ),
+            |(at, cut, insert)| {
+                let mut s = base.clone();
+                let at = (0..=at).rev().find(|&i| s.is_char_boundary(i)).unwrap();
+                let end = (at + cut).min(s.len());
+                s.replace_range(at..end, insert);
+                match Bvh::parse(&s, "m.bvh") {
+                    Ok(b) => {
+                        for k in 0..b.frames() {
+                            let _ = b.positions(k);
+                        }
+                    }
+                    Err(e) => prop_assert!(e.line > 0 || e.message.contains("ROOT"), "{e}"),
+                }
+                Ok(())
+            },
+        )
+        .unwrap();
+}
+
+fn two_bone_skeleton() -> SkeletonDesc {
+    SkeletonDesc {
+        joints: vec![
+            JointDesc::new("root", None, [0.0, 0.0, 0.0]),
+            JointDesc::new("elbow", Some(0), [1.0, 0.0, 0.0]),
+            JointDesc::new("hand", Some(1), [1.0, 0.0, 0.0]),
+        ],
+    }
+}
+
+#[test]
+fn skeleton_build_names_the_bad_joint() {
+    let mut d = two_bone_skeleton();
+    d.joints[2].parent = Some(2);
+    let e = d.build().unwrap_err();
+    assert_eq!(e.index, 2);
+    assert!(e.to_string().contains("joint 2 (hand)"), "{e}");
+    let mut d = two_bone_skeleton();
+    d.joints[1].name = "root".into();
+    assert!(d
+        .build()
+        .unwrap_err()
+        .to_string()
+        .contains("same name as joint 0"));
+    let mut d = two_bone_skeleton();
+    d.joints[1].translation[0] = f64::NAN;
+    assert!(d.build().is_err());
+}
+
+/// Blending two poses halfway turns the elbow by the mean angle; an additive layer of
+/// the difference, at full weight, takes the first pose to the second.
+#[test]
+fn blending_and_additive_layers() {
+    let s = two_bone_skeleton().build().unwrap();
+    let mut a = s.rest().clone();
+    let mut b = s.rest().clone();
+    let z = |t: f64| quat::exp([0.0, 0.0, t]);
+    a.set(1, [1.0, 0.0, 0.0], z(0.2), [1.0; 3]);
+    // The same rotation in the other hemisphere: blending must not cancel it.
+    let q = z(1.0).map(|c| -c);
+    b.set(1, [1.0, 0.0, 0.0], q, [1.0; 3]);
+    let mut out = Pose::identity(3);
+    blend(&mut out, &[(&a, 1.0), (&b, 1.0)], s.rest());
+    let angle = quat::log(out.rotation(1))[2];
+    assert!((angle - 0.6).abs() < 1e-12, "{angle}");
+    // Weights 3:1 give NLERP at t = 1/4 (between 0.2 and 1.0, not linear in angle).
+    blend(&mut out, &[(&a, 3.0), (&b, 1.0)], s.rest());
+    let angle = quat::log(out.rotation(1))[2];
+    assert!(angle > 0.35 && angle < 0.45, "{angle}");
+    // No weight: the rest pose.
+    blend(&mut out, &[(&a, 0.0)], s.rest());
+    assert_eq!(&out, s.rest());
+    let d = additive_delta(&b, &a);
+    let mut c = a.clone();
+    add_layer(&mut c, &d, 1.0);
+    let (qc, qb) = (c.rotation(1), b.rotation(1));
+    let dot: f64 = (0..4).map(|k| qc[k] * qb[k]).sum();
+    assert!(dot.abs() > 1.0 - 1e-14);
+    // Model positions: the hand at the elbow plus one unit turned by 1 rad.
+    let mut model = Vec::new();
+    s.model(&c, &mut model);
+    let hand = [model[2][3], model[2][7], model[2][11]];
+    assert!((hand[0] - (1.0 + 1f64.cos())).abs() < 1e-12 && (hand[1] - 1f64.sin()).abs() < 1e-12);
+}
+
+/// `largestep anim fk FILE --frame K --json FILE`: the contract's JSON shape, in file
+/// order with End Sites named `<parent>_end`; JSON on standard output without --json;
+/// a frame out of range exits with 2 and says how many there are.
+#[cfg(feature = "cli")]
+#[test]
+fn anim_fk_command_writes_the_contract() {
+    let exe = env!("CARGO_BIN_EXE_largestep");
+    let dir = temp_dir("fk");
+    let json = dir.join("fk.json");
+    let out = std::process::Command::new(exe)
+        .args(["anim", "fk"])
+        .arg(clip_path())
+        .args(["--frame", "40", "--json"])
+        .arg(&json)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let keys: Vec<_> = v.as_object().unwrap().keys().cloned().collect();
+    assert_eq!(keys, ["frame", "joints"]);
+    assert_eq!(v["frame"], 40);
+    let joints = v["joints"].as_array().unwrap();
+    assert_eq!(joints.len(), 70);
+    let b = clip();
+    for (j, bj) in joints.iter().zip(&b.joints) {
+        assert_eq!(j.as_object().unwrap().len(), 2);
+        assert_eq!(j["name"], bj.name.as_str());
+        assert_eq!(j["position"].as_array().unwrap().len(), 3);
+    }
+    assert_eq!(joints[7]["name"], "mixamorig:HeadTop_End_end");
+    let hand = joints
+        .iter()
+        .find(|j| j["name"] == "mixamorig:LeftHand")
+        .unwrap();
+    assert!((hand["position"][0].as_f64().unwrap() + 27.854970560223734).abs() < 1e-9);
+
+    let stdout = std::process::Command::new(exe)
+        .args(["anim", "fk"])
+        .arg(clip_path())
+        .output()
+        .unwrap();
+    assert!(stdout.status.success());
+    let v: serde_json::Value = serde_json::from_slice(&stdout.stdout).unwrap();
+    assert_eq!(v["frame"], 0);
+
+    let bad = std::process::Command::new(exe)
+        .args(["anim", "fk"])
+        .arg(clip_path())
+        .args(["--frame", "69"])
+        .output()
+        .unwrap();
+    assert_eq!(bad.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("the clip has 69 frames"));
+}
