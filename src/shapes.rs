@@ -250,3 +250,45 @@ fn clip(poly: &[[f64; 3]], m: [f64; 3], e: f64) -> Vec<[f64; 3]> {
     }
     out
 }
+
+/// A closed tube along +x from the origin: `length`, `radius`, `rings >= 2` rings of
+/// `sectors >= 3` vertices, and a centre vertex closing each end. Wound outward. The
+/// candy-wrapper test of skinning twists it.
+pub fn tube(length: f64, radius: f64, rings: usize, sectors: usize) -> Mesh {
+    let (rings, sectors) = (rings.max(2), sectors.max(3));
+    let mut p = Vec::with_capacity(rings * sectors + 2);
+    for r in 0..rings {
+        let x = length * r as f64 / (rings - 1) as f64;
+        for s in 0..sectors {
+            let ph = std::f64::consts::TAU * s as f64 / sectors as f64;
+            p.push([x, radius * ph.cos(), radius * ph.sin()]);
+        }
+    }
+    let (c0, c1) = (p.len() as u32, p.len() as u32 + 1);
+    p.push([0.0; 3]);
+    p.push([length, 0.0, 0.0]);
+    let at = |r: usize, s: usize| (r * sectors + s % sectors) as u32;
+    let mut t = Vec::with_capacity(2 * rings * sectors);
+    for r in 0..rings - 1 {
+        for s in 0..sectors {
+            t.push([at(r, s), at(r, s + 1), at(r + 1, s + 1)]);
+            t.push([at(r, s), at(r + 1, s + 1), at(r + 1, s)]);
+        }
+    }
+    for s in 0..sectors {
+        t.push([c0, at(0, s + 1), at(0, s)]);
+        t.push([c1, at(rings - 1, s), at(rings - 1, s + 1)]);
+    }
+    mesh(&p, t, Vec::new())
+}
+
+/// The volume a closed, outward-wound triangle surface encloses (divergence theorem:
+/// the sum of the signed tetrahedra from the origin to each triangle).
+pub fn enclosed_volume(m: &Mesh) -> f64 {
+    let n = m.positions.len() / 3;
+    let v = |i: u32| largestep_kernels::get3(&m.positions, n, i as usize);
+    m.triangles
+        .iter()
+        .map(|t| largestep_kernels::v3::dot(v(t[0]), cross(v(t[1]), v(t[2]))) / 6.0)
+        .sum()
+}

@@ -2,6 +2,7 @@
 //! kinematics against an independent implementation, pose blending, bad input.
 
 use largestep::anim::bvh::Bvh;
+use largestep::anim::skin::{SkinDesc, SkinMethod, SkinWork};
 use largestep::anim::{add_layer, additive_delta, blend, JointDesc, Pose, SkeletonDesc};
 use largestep::kernels::quat;
 use std::path::PathBuf;
@@ -353,4 +354,110 @@ fn anim_fk_command_writes_the_contract() {
         .unwrap();
     assert_eq!(bad.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&bad.stderr).contains("the clip has 69 frames"));
+}
+
+/// A two-bone arm along x around a closed tube: joint 0 at the origin, joint 1 at
+/// x = 1, the weight of joint 1 rising linearly from x = 0.5 to 1.5.
+fn arm_skin(rings: usize) -> (largestep::anim::Skeleton, largestep::io::Mesh, SkinDesc) {
+    let skeleton = SkeletonDesc {
+        joints: vec![
+            JointDesc::new("upper", None, [0.0; 3]),
+            JointDesc::new("lower", Some(0), [1.0, 0.0, 0.0]),
+        ],
+    }
+    .build()
+    .unwrap();
+    let mesh = largestep::shapes::tube(2.0, 0.2, rings, 24);
+    let n = mesh.positions.len() / 3;
+    let mut bind = Vec::new();
+    skeleton.model(skeleton.rest(), &mut bind);
+    let weights = (0..n)
+        .map(|v| {
+            let w = ((mesh.positions[v] - 0.5) / 1.0).clamp(0.0, 1.0);
+            [1.0 - w, w, 0.0, 0.0]
+        })
+        .collect();
+    let desc = SkinDesc {
+        positions: mesh.positions.clone(),
+        normals: Vec::new(),
+        joints: vec![[0, 1, 0, 0]; n],
+        weights,
+        bind,
+    };
+    (skeleton, mesh, desc)
+}
+
+/// The bind pose skins to the rest mesh (to f32 rounding of the rest positions).
+#[test]
+fn bind_pose_skins_to_the_rest_mesh() {
+    let (skeleton, mesh, desc) = arm_skin(41);
+    let skin = desc.build().unwrap();
+    let mut model = Vec::new();
+    skeleton.model(skeleton.rest(), &mut model);
+    let mut work = SkinWork::default();
+    for method in [SkinMethod::Linear, SkinMethod::DualQuaternion] {
+        skin.deform(method, &model, &mut work);
+        for (a, b) in work.positions.iter().zip(&mesh.positions) {
+            let exact = *b as f32;
+            assert!(
+                (a - exact).abs() <= f32::EPSILON * exact.abs().max(1.0),
+                "{method:?}: {a} vs {b}"
+            );
+        }
+    }
+}
+
+/// The candy wrapper: twisting the lower bone by 180 degrees collapses linear blend
+/// skinning's tube at the joint (the blended matrix loses rank), while dual quaternions
+/// keep the volume within a few percent.
+#[test]
+fn dual_quaternions_keep_the_volume_of_a_twisted_tube() {
+    let (skeleton, mesh, desc) = arm_skin(81);
+    let skin = desc.build().unwrap();
+    let rest_volume = largestep::shapes::enclosed_volume(&mesh);
+    // A 24-sided prism of circumradius 0.2 and length 2.
+    let prism = 12.0 * 0.04 * (std::f64::consts::TAU / 24.0).sin() * 2.0;
+    assert!((rest_volume - prism).abs() < 1e-12 * prism, "{rest_volume} vs {prism}");
+    let mut pose = skeleton.rest().clone();
+    pose.set(
+        1,
+        [1.0, 0.0, 0.0],
+        quat::exp([std::f64::consts::PI * 0.999, 0.0, 0.0]),
+        [1.0; 3],
+    );
+    let mut model = Vec::new();
+    skeleton.model(&pose, &mut model);
+    let mut work = SkinWork::default();
+    let mut volume = |method| {
+        skin.deform(method, &model, &mut work);
+        let mut m = mesh.clone();
+        m.positions = work.positions.iter().map(|&x| x as f64).collect();
+        largestep::shapes::enclosed_volume(&m) / rest_volume
+    };
+    let lbs = volume(SkinMethod::Linear);
+    let dqs = volume(SkinMethod::DualQuaternion);
+    eprintln!("volume kept under a 180 degree twist: LBS {lbs:.4}, DQS {dqs:.4}");
+    assert!(lbs < 0.75, "LBS keeps {lbs} of the volume");
+    assert!((dqs - 1.0).abs() < 0.05, "DQS keeps {dqs} of the volume");
+}
+
+/// Bad skins are refused naming the vertex.
+#[test]
+fn bad_skins_name_the_vertex() {
+    let (_, _, desc) = arm_skin(5);
+    let mut d = desc.clone();
+    // Vertex 80 lies on the ring at x = 1.5, all on joint 1; a zero-weight slot may
+    // name any joint, a weighted one may not.
+    d.joints[80] = [7, 5, 0, 0];
+    let e = d.build().err().unwrap().to_string();
+    assert!(e.starts_with("vertex 80: influence 1 names joint 5"), "{e}");
+    let mut d = desc.clone();
+    d.weights[3] = [0.0; 4];
+    assert!(d.build().err().unwrap().to_string().contains("vertex 3"));
+    let mut d = desc.clone();
+    d.weights[2][0] = f64::NAN;
+    assert!(d.build().err().unwrap().to_string().contains("vertex 2"));
+    let mut d = desc;
+    d.positions.pop();
+    assert!(d.build().is_err());
 }

@@ -29,6 +29,7 @@ pub mod par;
 pub mod quat;
 pub mod render;
 pub mod rotation;
+pub mod skin;
 pub mod sparse;
 pub mod v3;
 pub mod vec;

@@ -45,25 +45,26 @@ where
     tree(0, nchunks, f)
 }
 
-/// A mutable buffer from which parallel tasks take **disjoint** sub-slices.
+/// A mutable buffer (of `f64` unless said) from which parallel tasks take **disjoint**
+/// sub-slices.
 ///
 /// This is how a driver lets chunk `c` write to `x[range]`, `x[n + range]` and
 /// `x[2n + range]` of a component-major buffer at once, which `par_chunks_mut` cannot
 /// express. The safety contract is on [`Disjoint::slice`].
-pub struct Disjoint<'a> {
-    ptr: *mut f64,
+pub struct Disjoint<'a, T = f64> {
+    ptr: *mut T,
     len: usize,
-    _borrow: PhantomData<&'a mut [f64]>,
+    _borrow: PhantomData<&'a mut [T]>,
 }
 
 // SAFETY: a `Disjoint` is a `&mut [f64]` split between tasks; sending or sharing it is
 // sound as long as the sub-slices handed out do not overlap (contract of `slice`).
-unsafe impl Send for Disjoint<'_> {}
-unsafe impl Sync for Disjoint<'_> {}
+unsafe impl<T: Send> Send for Disjoint<'_, T> {}
+unsafe impl<T: Send> Sync for Disjoint<'_, T> {}
 
-impl<'a> Disjoint<'a> {
+impl<'a, T> Disjoint<'a, T> {
     /// Wraps a mutable buffer; the buffer stays borrowed for `'a`.
-    pub fn new(buf: &'a mut [f64]) -> Self {
+    pub fn new(buf: &'a mut [T]) -> Self {
         Self {
             ptr: buf.as_mut_ptr(),
             len: buf.len(),
@@ -90,7 +91,7 @@ impl<'a> Disjoint<'a> {
     /// overlap. Panics (safely) if `range` is out of bounds.
     #[allow(clippy::mut_from_ref)]
     #[inline]
-    pub unsafe fn slice(&self, range: Range<usize>) -> &'a mut [f64] {
+    pub unsafe fn slice(&self, range: Range<usize>) -> &'a mut [T] {
         assert!(range.start <= range.end && range.end <= self.len);
         // SAFETY: in bounds (checked above); exclusivity is the caller's contract.
         unsafe { core::slice::from_raw_parts_mut(self.ptr.add(range.start), range.len()) }
@@ -102,7 +103,7 @@ impl<'a> Disjoint<'a> {
     /// # Safety
     /// As for [`Disjoint::slice`]: vertex ranges taken concurrently must not overlap.
     #[inline]
-    pub unsafe fn components(&self, n: usize, r: Range<usize>) -> [&'a mut [f64]; 3] {
+    pub unsafe fn components(&self, n: usize, r: Range<usize>) -> [&'a mut [T]; 3] {
         assert!(self.len == 3 * n);
         assert!(r.start <= r.end && r.end <= n, "vertex range {r:?} of {n}");
         // SAFETY: the three ranges are disjoint from each other (r.end <= n, asserted); the caller
@@ -120,7 +121,7 @@ impl<'a> Disjoint<'a> {
 /// The three component slices of a component-major buffer of `n` 3-vectors, for the
 /// vertex range `r`.
 #[inline]
-pub fn components(v: &[f64], n: usize, r: Range<usize>) -> [&[f64]; 3] {
+pub fn components<T>(v: &[T], n: usize, r: Range<usize>) -> [&[T]; 3] {
     assert!(v.len() == 3 * n);
     [
         &v[r.clone()],

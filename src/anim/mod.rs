@@ -11,8 +11,10 @@
 //!   one hemisphere, as ozz's `BlendingJob`), and [`add_layer`] puts an additive pose (a
 //!   difference from the rest, [`additive_delta`]) on top.
 //! - [`bvh`] reads and writes motion capture (BVH); its clip becomes poses per frame.
+//! - [`skin`] deforms a bound mesh by linear blend or dual quaternion skinning.
 
 pub mod bvh;
+pub mod skin;
 
 pub use largestep_kernels::anim::{Affine, AFFINE_IDENTITY, NO_PARENT};
 use largestep_kernels::quat::{self, Quat};
