@@ -417,7 +417,10 @@ fn dual_quaternions_keep_the_volume_of_a_twisted_tube() {
     let rest_volume = largestep::shapes::enclosed_volume(&mesh);
     // A 24-sided prism of circumradius 0.2 and length 2.
     let prism = 12.0 * 0.04 * (std::f64::consts::TAU / 24.0).sin() * 2.0;
-    assert!((rest_volume - prism).abs() < 1e-12 * prism, "{rest_volume} vs {prism}");
+    assert!(
+        (rest_volume - prism).abs() < 1e-12 * prism,
+        "{rest_volume} vs {prism}"
+    );
     let mut pose = skeleton.rest().clone();
     pose.set(
         1,
@@ -460,4 +463,52 @@ fn bad_skins_name_the_vertex() {
     let mut d = desc;
     d.positions.pop();
     assert!(d.build().is_err());
+}
+
+/// A clip sampled at a frame's time gives that frame; between frames the hand moves
+/// between its two positions; times out of range clamp, or wrap when looping.
+#[test]
+fn clip_sampling() {
+    let b = clip();
+    let c = largestep::anim::clip::Clip::from_bvh(&b);
+    assert_eq!(c.frames(), 69);
+    let s = b.skeleton().build().unwrap();
+    let mut pose = Pose::identity(s.len());
+    let mut model = Vec::new();
+    let hand = s.find("mixamorig:LeftHand").unwrap();
+    let at = |pose: &Pose, model: &mut Vec<_>| {
+        s.model(pose, model);
+        let m: &largestep::anim::Affine = &model[hand];
+        [m[3], m[7], m[11]]
+    };
+    for k in [0, 17, 68] {
+        c.sample(k as f64 * c.frame_time(), false, &mut pose);
+        let p = at(&pose, &mut model);
+        let want = b.positions(k).unwrap()[hand];
+        assert!((0..3).all(|i| (p[i] - want[i]).abs() < 1e-9), "frame {k}");
+    }
+    c.sample(10.5 * c.frame_time(), false, &mut pose);
+    let mid = at(&pose, &mut model);
+    let (p10, p11) = (
+        b.positions(10).unwrap()[hand],
+        b.positions(11).unwrap()[hand],
+    );
+    let gap = (0..3)
+        .map(|i| (p11[i] - p10[i]).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    let off = (0..3)
+        .map(|i| (mid[i] - 0.5 * (p10[i] + p11[i])).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    assert!(off < 0.05 * gap + 1e-9, "{off} vs gap {gap}");
+    c.sample(1e9, false, &mut pose);
+    let end = at(&pose, &mut model);
+    let last = b.positions(68).unwrap()[hand];
+    assert!((0..3).all(|i| (end[i] - last[i]).abs() < 1e-9));
+    c.sample(c.duration() + 2.0 * c.frame_time(), true, &mut pose);
+    let wrapped = at(&pose, &mut model);
+    let second = b.positions(2).unwrap()[hand];
+    assert!((0..3).all(|i| (wrapped[i] - second[i]).abs() < 1e-6));
+    c.sample(f64::NAN, true, &mut pose);
 }

@@ -11,9 +11,11 @@
 //!   one hemisphere, as ozz's `BlendingJob`), and [`add_layer`] puts an additive pose (a
 //!   difference from the rest, [`additive_delta`]) on top.
 //! - [`bvh`] reads and writes motion capture (BVH); its clip becomes poses per frame.
+//! - [`clip::Clip`] holds a fixed-rate clip and samples it at any time.
 //! - [`skin`] deforms a bound mesh by linear blend or dual quaternion skinning.
 
 pub mod bvh;
+pub mod clip;
 pub mod skin;
 
 pub use largestep_kernels::anim::{Affine, AFFINE_IDENTITY, NO_PARENT};
