@@ -512,3 +512,203 @@ fn clip_sampling() {
     assert!((0..3).all(|i| (wrapped[i] - second[i]).abs() < 1e-6));
     c.sample(f64::NAN, true, &mut pose);
 }
+
+mod ik {
+    use super::*;
+    use largestep::anim::ik::{Effector, Ik, IkJoint, IkMethod};
+
+    /// Bones along x of the given lengths, each joint a child of the one before.
+    fn arm(lengths: &[f64]) -> largestep::anim::Skeleton {
+        let mut joints = vec![JointDesc::new("j0", None, [0.0; 3])];
+        for (i, l) in lengths.iter().enumerate() {
+            joints.push(JointDesc::new(
+                &format!("j{}", i + 1),
+                Some(i),
+                [*l, 0.0, 0.0],
+            ));
+        }
+        SkeletonDesc { joints }.build().unwrap()
+    }
+
+    fn hand(s: &largestep::anim::Skeleton, pose: &Pose, j: usize) -> [f64; 3] {
+        let mut m = Vec::new();
+        s.model(pose, &mut m);
+        [m[j][3], m[j][7], m[j][11]]
+    }
+
+    /// A two-link planar arm (hinges about z, links 1 and 0.8) reaches a target with
+    /// every method, at the closed-form angles of the elbow-up solution it starts near.
+    #[test]
+    fn two_link_arm_matches_the_closed_form() {
+        let s = arm(&[1.0, 0.8]);
+        let (l1, l2) = (1.0f64, 0.8f64);
+        let target = [1.1, 0.9, 0.0];
+        let (x, y) = (target[0], target[1]);
+        let d = (x * x + y * y - l1 * l1 - l2 * l2) / (2.0 * l1 * l2);
+        let t2 = d.acos();
+        let t1 = y.atan2(x) - (l2 * t2.sin()).atan2(l1 + l2 * t2.cos());
+        for method in IkMethod::all(0.05) {
+            let mut ik = Ik::new(
+                &s,
+                vec![IkJoint::free(0, &[2]), IkJoint::free(1, &[2])],
+                method,
+            )
+            .unwrap();
+            ik.tolerance = 1e-9;
+            ik.max_iterations = 2000;
+            let mut pose = s.rest().clone();
+            let mut angles = [0.2, 0.6];
+            let r = ik
+                .solve(&s, &mut pose, &mut angles, &[Effector { joint: 2, target }])
+                .unwrap();
+            assert!(r.reached[0], "{}: {r:?}", method.name());
+            assert!(
+                (angles[0] - t1).abs() < 1e-6 && (angles[1] - t2).abs() < 1e-6,
+                "{}: {angles:?} vs {t1} {t2}",
+                method.name()
+            );
+            let h = hand(&s, &pose, 2);
+            assert!((0..3).all(|c| (h[c] - target[c]).abs() < 1e-8));
+            eprintln!("{}: {} iterations", method.name(), r.iterations);
+        }
+    }
+
+    /// Damped least squares on a target beyond reach settles at the closest pose (the
+    /// arm straight toward it), reports it unreached, and stops instead of oscillating.
+    #[test]
+    fn damped_least_squares_settles_on_unreachable_targets() {
+        let s = arm(&[1.0, 1.0, 1.0]);
+        let joints = (0..3).map(|j| IkJoint::free(j, &[0, 1, 2])).collect();
+        let mut ik = Ik::new(&s, joints, IkMethod::DampedLeastSquares { lambda: 0.1 }).unwrap();
+        ik.max_iterations = 500;
+        let target = [2.0, 3.0, 1.0];
+        let mut pose = s.rest().clone();
+        let mut angles = [0.1; 9];
+        let r = ik
+            .solve(&s, &mut pose, &mut angles, &[Effector { joint: 3, target }])
+            .unwrap();
+        let reach = (4.0f64 + 9.0 + 1.0).sqrt() - 3.0;
+        assert!(!r.reached[0]);
+        assert!((r.distances[0] - reach).abs() < 1e-4, "{r:?} vs {reach}");
+        assert!(r.iterations < 500, "it stopped by itself: {r:?}");
+        // One more solve from there moves nothing.
+        let before = angles;
+        let r2 = ik
+            .solve(&s, &mut pose, &mut angles, &[Effector { joint: 3, target }])
+            .unwrap();
+        assert!((r2.distances[0] - r.distances[0]).abs() < 1e-6);
+        assert!(before
+            .iter()
+            .zip(&angles)
+            .all(|(a, b)| (a - b).abs() < 1e-2));
+    }
+
+    /// Limits hold: an elbow allowed 0 to 0.5 rad stops at 0.5 when the target asks
+    /// for more; two effectors on a forked skeleton are reached together.
+    #[test]
+    fn limits_and_several_effectors() {
+        let s = arm(&[1.0, 1.0]);
+        let mut elbow = IkJoint::free(1, &[2]);
+        elbow.limits = vec![(0.0, 0.5)];
+        let ik = Ik::new(
+            &s,
+            vec![IkJoint::free(0, &[2]), elbow],
+            IkMethod::DampedLeastSquares { lambda: 0.01 },
+        )
+        .unwrap();
+        let mut pose = s.rest().clone();
+        let mut angles = [0.0, 0.1];
+        let r = ik
+            .solve(
+                &s,
+                &mut pose,
+                &mut angles,
+                &[Effector {
+                    joint: 2,
+                    target: [0.3, 0.5, 0.0],
+                }],
+            )
+            .unwrap();
+        assert!(!r.reached[0]);
+        assert!(angles[1] <= 0.5 && angles[1] >= 0.0);
+        assert!((angles[1] - 0.5).abs() < 1e-9, "{angles:?}");
+
+        let fork = SkeletonDesc {
+            joints: vec![
+                JointDesc::new("root", None, [0.0; 3]),
+                JointDesc::new("a", Some(0), [1.0, 0.0, 0.0]),
+                JointDesc::new("a_tip", Some(1), [1.0, 0.0, 0.0]),
+                JointDesc::new("b", Some(0), [0.0, 1.0, 0.0]),
+                JointDesc::new("b_tip", Some(3), [0.0, 1.0, 0.0]),
+            ],
+        }
+        .build()
+        .unwrap();
+        // The root turns too, so the two effectors pull on one shared joint.
+        let joints = [0, 1, 3]
+            .into_iter()
+            .map(|j| IkJoint::free(j, &[0, 1, 2]))
+            .collect();
+        let ik = Ik::new(&fork, joints, IkMethod::DampedLeastSquares { lambda: 0.01 }).unwrap();
+        let mut pose = fork.rest().clone();
+        let mut angles = [0.0; 9];
+        let targets = [
+            Effector {
+                joint: 2,
+                target: [0.9, 0.9, 0.7],
+            },
+            Effector {
+                joint: 4,
+                target: [-0.8, 1.1, 0.6],
+            },
+        ];
+        let r = ik.solve(&fork, &mut pose, &mut angles, &targets).unwrap();
+        assert!(r.reached.iter().all(|&x| x), "{r:?}");
+    }
+
+    /// Bad chains are refused naming the joint.
+    #[test]
+    fn bad_chains_name_the_joint() {
+        let s = arm(&[1.0, 0.0, 1.0]);
+        let e = Ik::new(
+            &s,
+            vec![IkJoint::free(0, &[2]), IkJoint::free(2, &[2])],
+            IkMethod::Transpose,
+        )
+        .unwrap_err();
+        assert!(
+            e.to_string().contains("joint 2 (j2): zero-length bone"),
+            "{e}"
+        );
+        let e = Ik::new(&s, vec![IkJoint::free(0, &[2, 2])], IkMethod::Transpose).unwrap_err();
+        assert!(e.to_string().contains("not distinct"), "{e}");
+        let e = Ik::new(&s, vec![IkJoint::free(9, &[2])], IkMethod::Transpose).unwrap_err();
+        assert!(e.to_string().contains("joint 9"), "{e}");
+        let ik = Ik::new(&s, vec![IkJoint::free(1, &[2])], IkMethod::Ccd).unwrap();
+        let mut pose = s.rest().clone();
+        let e = ik
+            .solve(
+                &s,
+                &mut pose,
+                &mut [0.0],
+                &[Effector {
+                    joint: 0,
+                    target: [1.0; 3],
+                }],
+            )
+            .unwrap_err();
+        assert!(e.to_string().contains("does not hang below"), "{e}");
+        let e = ik
+            .solve(
+                &s,
+                &mut pose,
+                &mut [0.0],
+                &[Effector {
+                    joint: 3,
+                    target: [f64::NAN; 3],
+                }],
+            )
+            .unwrap_err();
+        assert!(e.to_string().contains("not finite"), "{e}");
+    }
+}

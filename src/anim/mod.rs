@@ -12,10 +12,13 @@
 //!   difference from the rest, [`additive_delta`]) on top.
 //! - [`bvh`] reads and writes motion capture (BVH); its clip becomes poses per frame.
 //! - [`clip::Clip`] holds a fixed-rate clip and samples it at any time.
+//! - [`ik`] solves inverse kinematics (Jacobian transpose, pseudoinverse, damped least
+//!   squares, CCD, FABRIK).
 //! - [`skin`] deforms a bound mesh by linear blend or dual quaternion skinning.
 
 pub mod bvh;
 pub mod clip;
+pub mod ik;
 pub mod skin;
 
 pub use largestep_kernels::anim::{Affine, AFFINE_IDENTITY, NO_PARENT};
