@@ -32,6 +32,9 @@ rigid-cradle scenes/rigid-cradle.toml 640x360 animation.gif
 rigid-t-handle scenes/rigid-t-handle.toml 640x360 animation.gif
 rigid-chain scenes/rigid-chain.toml 640x360 animation.gif
 rigid-cloth scenes/rigid-cloth.toml 1280x720 contact-sheet.png
+anim-clip scenes/anim-clip.toml 640x360 animation.gif
+anim-twist scenes/anim-twist.toml 1280x720 contact-sheet.png
+anim-reach scenes/anim-reach.toml 1280x720 contact-sheet.png
 LIST
 # The twisted bar: fem-twist (corotational, behind) and fem-twist-linear (linear, in
 # front, z + 0.25 m) run apart and drawn in one picture: each frame of the two runs

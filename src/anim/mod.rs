@@ -19,6 +19,7 @@
 pub mod bvh;
 pub mod clip;
 pub mod ik;
+pub mod scene;
 pub mod skin;
 
 pub use largestep_kernels::anim::{Affine, AFFINE_IDENTITY, NO_PARENT};

@@ -802,8 +802,6 @@ fn study(name: &str, out: &std::path::Path, quick: bool) -> ExitCode {
     }
 }
 
-/// `largestep modes`: the table, and the JSON and VTK files asked for.
-#[cfg(feature = "modal")]
 /// `largestep anim fk`.
 #[cfg(feature = "anim")]
 fn anim_fk(
@@ -873,6 +871,8 @@ fn anim_fk(
     ExitCode::SUCCESS
 }
 
+/// `largestep modes`: the table, and the JSON and VTK files asked for.
+#[cfg(feature = "modal")]
 fn modes(
     mesh: &std::path::Path,
     options: &largestep::modal::ModesOptions,

@@ -53,6 +53,11 @@ pub const DOMAINS: &[Domain] = &[
         table: "fluid",
         build: crate::fluid::scene::build,
     },
+    #[cfg(feature = "anim")]
+    Domain {
+        table: "anim",
+        build: crate::anim::scene::build,
+    },
     #[cfg(feature = "modal")]
     Domain {
         table: "sound",
