@@ -751,3 +751,268 @@ fn animation_scenes_run() {
         }
     }
 }
+
+mod keyframes {
+    use largestep::anim::keyframe::*;
+    use largestep::kernels::quat;
+
+    fn track(kind: Interpolation, times: &[f64], values: &[f64]) -> ScalarTrack {
+        ScalarTrack::new(
+            times
+                .iter()
+                .zip(values)
+                .map(|(&t, &v)| Key::new(t, [v], kind))
+                .collect(),
+        )
+        .unwrap()
+    }
+
+    fn at(tr: &ScalarTrack, t: f64) -> f64 {
+        tr.sample(t, &mut Cursor::default())[0]
+    }
+
+    /// Slope by central differences.
+    fn slope(tr: &ScalarTrack, t: f64) -> f64 {
+        let h = 1e-6;
+        (at(tr, t + h) - at(tr, t - h)) / (2.0 * h)
+    }
+
+    #[test]
+    fn every_kind_passes_through_its_keys() {
+        let (times, values) = ([0.0, 0.7, 1.5, 3.0], [1.0, -2.0, 0.5, 4.0]);
+        for kind in [
+            Interpolation::Step,
+            Interpolation::Linear,
+            Interpolation::Hermite,
+            Interpolation::CatmullRom,
+            Interpolation::Bezier,
+            Interpolation::Tcb,
+        ] {
+            let tr = track(kind, &times, &values);
+            for (t, v) in times.iter().zip(&values) {
+                assert!((at(&tr, *t) - v).abs() < 1e-12, "{kind:?} at {t}");
+            }
+            // Held outside the keys.
+            assert_eq!(at(&tr, -5.0), 1.0);
+            assert_eq!(at(&tr, 50.0), 4.0);
+        }
+        let step = track(Interpolation::Step, &times, &values);
+        assert_eq!(at(&step, 0.69), 1.0);
+        let lin = track(Interpolation::Linear, &times, &values);
+        assert!((at(&lin, 0.35) + 0.5).abs() < 1e-12);
+    }
+
+    /// Catmull-Rom is C1 across keys with the non-uniform slope; flat Hermite tangents
+    /// give zero slope at the keys; user tangents are met.
+    #[test]
+    fn hermite_tangents() {
+        let (times, values) = ([0.0, 0.7, 1.5, 3.0], [1.0, -2.0, 0.5, 4.0]);
+        let cr = track(Interpolation::CatmullRom, &times, &values);
+        for i in 1..3 {
+            let (l, r) = (slope(&cr, times[i] - 1e-4), slope(&cr, times[i] + 1e-4));
+            let want = (values[i + 1] - values[i - 1]) / (times[i + 1] - times[i - 1]);
+            assert!(
+                (l - want).abs() < 1e-2 && (r - want).abs() < 1e-2,
+                "key {i}: {l} {r} {want}"
+            );
+        }
+        let mut keys: Vec<_> = times
+            .iter()
+            .zip(&values)
+            .map(|(&t, &v)| Key::new(t, [v], Interpolation::Hermite))
+            .collect();
+        for k in keys.iter_mut() {
+            k.tangent = Tangent::Flat;
+        }
+        keys[1].tangent = Tangent::User([3.0], [-1.0]);
+        let h = ScalarTrack::new(keys).unwrap();
+        assert!(slope(&h, 1.5 - 1e-5).abs() < 1e-3 && slope(&h, 1.5 + 1e-5).abs() < 1e-3);
+        assert!((slope(&h, 0.7 - 1e-5) - 3.0).abs() < 1e-3);
+        assert!((slope(&h, 0.7 + 1e-5) + 1.0).abs() < 1e-3);
+    }
+
+    /// TCB with zero tension, continuity and bias is Catmull-Rom (uneven spacing
+    /// included); tension 1 gives zero tangents, the flat Hermite curve.
+    #[test]
+    fn tcb_limits() {
+        let (times, values) = ([0.0, 0.7, 1.5, 3.0], [1.0, -2.0, 0.5, 4.0]);
+        let cr = track(Interpolation::CatmullRom, &times, &values);
+        let tcb = track(Interpolation::Tcb, &times, &values);
+        let mut keys: Vec<_> = times
+            .iter()
+            .zip(&values)
+            .map(|(&t, &v)| Key::new(t, [v], Interpolation::Tcb))
+            .collect();
+        for k in keys.iter_mut() {
+            k.tcb = [1.0, 0.0, 0.0];
+        }
+        let tense = ScalarTrack::new(keys).unwrap();
+        let mut flat: Vec<_> = times
+            .iter()
+            .zip(&values)
+            .map(|(&t, &v)| Key::new(t, [v], Interpolation::Hermite))
+            .collect();
+        for k in flat.iter_mut() {
+            k.tangent = Tangent::Flat;
+        }
+        let flat = ScalarTrack::new(flat).unwrap();
+        for k in 0..=300 {
+            let t = 3.0 * k as f64 / 300.0;
+            assert!((at(&cr, t) - at(&tcb, t)).abs() < 1e-12, "{t}");
+            assert!((at(&tense, t) - at(&flat, t)).abs() < 1e-12, "{t}");
+        }
+        // Bias 1 overshoots before a key and continuity -1 makes a corner: the
+        // left and right slopes at key 1 differ.
+        let mut keys: Vec<_> = times
+            .iter()
+            .zip(&values)
+            .map(|(&t, &v)| Key::new(t, [v], Interpolation::Tcb))
+            .collect();
+        keys[1].tcb = [0.0, -1.0, 0.0];
+        let corner = ScalarTrack::new(keys).unwrap();
+        assert!((slope(&corner, 0.7 - 1e-4) - slope(&corner, 0.7 + 1e-4)).abs() > 1.0);
+    }
+
+    /// Bezier with handles a third of the way along the Hermite tangents is the Hermite
+    /// curve; the time inversion holds for uneven handles.
+    #[test]
+    fn bezier_matches_hermite_with_third_handles() {
+        let (times, values) = ([0.0, 1.0, 2.5], [0.0, 2.0, -1.0]);
+        let slopes = [1.5, -0.5, 2.0];
+        let mut b = Vec::new();
+        let mut h = Vec::new();
+        for i in 0..3 {
+            let d_in = if i > 0 { times[i] - times[i - 1] } else { 1.0 };
+            let d_out = if i < 2 { times[i + 1] - times[i] } else { 1.0 };
+            let mut k = Key::new(times[i], [values[i]], Interpolation::Bezier);
+            k.handles = (
+                (-d_in / 3.0, [-slopes[i] * d_in / 3.0]),
+                (d_out / 3.0, [slopes[i] * d_out / 3.0]),
+            );
+            b.push(k);
+            let mut k = Key::new(times[i], [values[i]], Interpolation::Hermite);
+            k.tangent = Tangent::User([slopes[i]], [slopes[i]]);
+            h.push(k);
+        }
+        let (b, h) = (ScalarTrack::new(b).unwrap(), ScalarTrack::new(h).unwrap());
+        for k in 0..=250 {
+            let t = 2.5 * k as f64 / 250.0;
+            assert!(
+                (at(&b, t) - at(&h, t)).abs() < 1e-9,
+                "{t}: {} {}",
+                at(&b, t),
+                at(&h, t)
+            );
+        }
+    }
+
+    /// Ease: 0 and 1 kept, starting and ending at rest with full ease, and the eased
+    /// linear track reaches the midpoint value at the middle time.
+    #[test]
+    fn ease_in_and_out() {
+        assert_eq!(ease(0.0, 0.3, 0.3), 0.0);
+        assert!((ease(1.0, 0.3, 0.3) - 1.0).abs() < 1e-15);
+        assert!((ease(0.5, 0.5, 0.5) - 0.5).abs() < 1e-15);
+        let d0 = (ease(1e-6, 0.5, 0.5) - ease(0.0, 0.5, 0.5)) / 1e-6;
+        assert!(d0 < 1e-5);
+        // Monotone, and the identity without ease.
+        let mut last = 0.0;
+        for k in 0..=100 {
+            let u = k as f64 / 100.0;
+            let e = ease(u, 0.7, 0.6);
+            assert!(e >= last - 1e-15);
+            last = e;
+            assert_eq!(ease(u, 0.0, 0.0), u);
+        }
+    }
+
+    /// The cursor gives the same samples as a fresh search, forward, backward and by
+    /// jumps; baking gives the key values at the key times.
+    #[test]
+    fn cursor_and_bake() {
+        let times: Vec<f64> = (0..50)
+            .map(|k| k as f64 * 0.1 + (k % 3) as f64 * 0.01)
+            .collect();
+        let values: Vec<f64> = (0..50).map(|k| (k as f64 * 0.7).sin()).collect();
+        let tr = track(Interpolation::CatmullRom, &times, &values);
+        let mut c = Cursor::default();
+        let mut ts: Vec<f64> = (0..500).map(|k| k as f64 * 0.01).collect();
+        ts.extend((0..500).rev().map(|k| k as f64 * 0.0099));
+        ts.extend([4.7, 0.05, 2.2, 4.9, 0.0]);
+        for t in ts {
+            assert_eq!(
+                tr.sample(t, &mut c),
+                tr.sample(t, &mut Cursor::default()),
+                "{t}"
+            );
+        }
+        let lin = track(Interpolation::Linear, &[0.0, 1.0, 2.0], &[0.0, 10.0, 0.0]);
+        let mut baked = Vec::new();
+        lin.bake(4.0, &mut baked);
+        assert_eq!(baked.len(), 9);
+        assert_eq!(baked[4], [10.0]);
+        assert_eq!(baked[2], [5.0]);
+    }
+
+    /// Arc length: a path along a line with varying speed, sampled by length, moves in
+    /// equal steps.
+    #[test]
+    fn arc_length_reparameterisation() {
+        let keys = vec![
+            // Uneven speed, but never backward (each segment's tangents within
+            // Fritsch and Carlson's monotone region).
+            Key::new(0.0, [0.0, 0.0, 0.0], Interpolation::CatmullRom),
+            Key::new(0.5, [1.0, 0.0, 0.0], Interpolation::CatmullRom),
+            Key::new(2.0, [2.0, 0.0, 0.0], Interpolation::CatmullRom),
+            Key::new(3.0, [3.0, 0.0, 0.0], Interpolation::CatmullRom),
+        ];
+        let tr = VectorTrack::new(keys).unwrap();
+        let arc = ArcLength::new(&tr, 16);
+        assert!((arc.length() - 3.0).abs() < 1e-6, "{}", arc.length());
+        let mut c = Cursor::default();
+        for k in 0..=30 {
+            let s = 0.1 * k as f64;
+            let p = tr.sample(arc.time_at(s), &mut c);
+            assert!((p[0] - s).abs() < 2e-3, "{s}: {p:?}");
+        }
+    }
+
+    /// Rotation tracks: SLERP halfway between two keys, the double cover taken the
+    /// short way, SQUAD through the keys; bad keys named.
+    #[test]
+    fn rotation_tracks() {
+        let z = |a: f64| quat::exp([0.0, 0.0, a]);
+        let q1 = z(1.0).map(|c| -c);
+        let tr =
+            RotationTrack::new(&[(0.0, z(0.0)), (1.0, q1)], RotationInterpolation::Slerp).unwrap();
+        let h = tr.sample(0.5, &mut Cursor::default());
+        assert!((quat::log(h)[2] - 0.5).abs() < 1e-12);
+        let keys = [(0.0, z(0.0)), (1.0, z(0.8)), (2.0, z(1.0)), (3.0, z(2.5))];
+        let sq = RotationTrack::new(&keys, RotationInterpolation::Squad).unwrap();
+        for (t, q) in keys {
+            let s = sq.sample(t, &mut Cursor::default());
+            assert!((0..4).map(|k| s[k] * q[k]).sum::<f64>().abs() > 1.0 - 1e-12);
+        }
+        let e = RotationTrack::new(
+            &[(0.0, z(0.0)), (0.0, z(1.0))],
+            RotationInterpolation::Slerp,
+        )
+        .unwrap_err();
+        assert_eq!(e.index, 1);
+        let e = RotationTrack::new(&[(0.0, [0.0; 4])], RotationInterpolation::Slerp).unwrap_err();
+        assert!(e.to_string().starts_with("key 0: rotation is zero"));
+        let e = ScalarTrack::new(vec![
+            Key::new(1.0, [0.0], Interpolation::Linear),
+            Key::new(0.5, [0.0], Interpolation::Linear),
+        ])
+        .unwrap_err();
+        assert!(
+            e.to_string()
+                .starts_with("key 1: time 0.5 does not come after"),
+            "{e}"
+        );
+        let mut k = Key::new(0.0, [0.0], Interpolation::Tcb);
+        k.tcb = [2.0, 0.0, 0.0];
+        assert!(ScalarTrack::new(vec![k]).is_err());
+    }
+}

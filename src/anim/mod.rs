@@ -12,6 +12,8 @@
 //!   difference from the rest, [`additive_delta`]) on top.
 //! - [`bvh`] reads and writes motion capture (BVH); its clip becomes poses per frame.
 //! - [`clip::Clip`] holds a fixed-rate clip and samples it at any time.
+//! - [`keyframe`] holds keyframe channels (step, linear, Hermite, Catmull-Rom, Bezier,
+//!   TCB; SLERP and SQUAD for rotations), ease, baking and arc length.
 //! - [`ik`] solves inverse kinematics (Jacobian transpose, pseudoinverse, damped least
 //!   squares, CCD, FABRIK).
 //! - [`skin`] deforms a bound mesh by linear blend or dual quaternion skinning.
@@ -19,6 +21,7 @@
 pub mod bvh;
 pub mod clip;
 pub mod ik;
+pub mod keyframe;
 pub mod scene;
 pub mod skin;
 
