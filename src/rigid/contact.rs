@@ -158,18 +158,17 @@ pub(crate) fn collide(
         let sweep = (dot(s.v[i], s.v[i]).sqrt() + dot(s.w[i], s.w[i]).sqrt() * m.bound[i]) * dt;
         w.boxes.push(body_box(m, s, i, MARGIN * m.size[i] + sweep));
     }
-    w.sap.pairs(&w.boxes, &mut w.pairs);
-    // Pairs in order, so the contacts come out sorted by pair (warm starting looks last
-    // step's up by pair) without sorting the contacts themselves.
-    w.pairs.sort_unstable();
+    // The sweep stops past the limit, before the list outgrows memory.
     let max = m.desc().max_pairs;
-    if w.pairs.len() > max {
+    if !w.sap.pairs_at_most(&w.boxes, max, &mut w.pairs) {
         return Err(RigidError::TooManyPairs {
             step: s.steps + 1,
-            pairs: w.pairs.len(),
             max,
         });
     }
+    // Pairs in order, so the contacts come out sorted by pair (warm starting looks last
+    // step's up by pair) without sorting the contacts themselves.
+    w.pairs.sort_unstable();
     for &[a, b] in &w.pairs {
         let (i, j) = (a as usize, b as usize);
         if !m.is_dynamic(i) && !m.is_dynamic(j) {

@@ -367,12 +367,10 @@ pub enum RigidError {
         why: String,
     },
     /// More overlapping body pairs than [`RigidDesc::max_pairs`].
-    #[error("step {step}: {pairs} body pairs overlap, more than the {max} allowed (bodies inside one another, or shapes far larger than their spacing?)")]
+    #[error("step {step}: more than {max} body pairs overlap, the most allowed (bodies inside one another, or shapes far larger than their spacing?)")]
     TooManyPairs {
         /// Step.
         step: u64,
-        /// Pairs found.
-        pairs: usize,
         /// The limit.
         max: usize,
     },

@@ -192,8 +192,15 @@ impl Level {
         let interior = (0..if coarse { cells } else { 0 })
             .map(|idx| {
                 let c = [idx % n[0], (idx / n[0]) % n[1], idx / (n[0] * n[1])];
-                // An axis of one cell (2-D) has no neighbours to check along it.
-                if (0..3).any(|a| n[a] > 1 && (c[a] == 0 || c[a] + 1 >= n[a])) {
+                // An axis of one cell (2-D) has no neighbours to check along it. Only z
+                // may be that axis: the interior transfers treat one coarse slab as a
+                // plane, but take the neighbour rows along x and y to exist (a grid as
+                // long as 4097 x 8 cells coarsens y to one cell while x goes on), so a
+                // level one cell wide along x or y has no interior cells.
+                if n[0] == 1
+                    || n[1] == 1
+                    || (0..3).any(|a| n[a] > 1 && (c[a] == 0 || c[a] + 1 >= n[a]))
+                {
                     return false;
                 }
                 let span = |a: usize| if n[a] > 1 { 3 } else { 1 };

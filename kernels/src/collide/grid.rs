@@ -367,6 +367,13 @@ impl SweepAndPrune {
     /// the order from the last call is restored by insertion sort (a new count or axis
     /// starts from the identity order). Empty boxes overlap nothing.
     pub fn pairs(&mut self, boxes: &[Aabb], out: &mut Vec<[u32; 2]>) {
+        self.pairs_at_most(boxes, usize::MAX, out);
+    }
+
+    /// [`SweepAndPrune::pairs`], stopping once more than `max` pairs are found (so a
+    /// pile of boxes inside one another cannot fill memory): returns whether all were
+    /// found; when not, `out` holds `max + 1` of them.
+    pub fn pairs_at_most(&mut self, boxes: &[Aabb], max: usize, out: &mut Vec<[u32; 2]>) -> bool {
         out.clear();
         let n = boxes.len();
         let axis = spread_axis(boxes);
@@ -398,11 +405,15 @@ impl SweepAndPrune {
             self.active.retain(|&j| boxes[j as usize].max[axis] >= lo);
             for &j in &self.active {
                 if bi.overlaps(&boxes[j as usize]) {
+                    if out.len() > max {
+                        return false;
+                    }
                     out.push([i.min(j), i.max(j)]);
                 }
             }
             self.active.push(i);
         }
+        out.len() <= max
     }
 }
 
