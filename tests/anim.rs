@@ -1016,3 +1016,143 @@ mod keyframes {
         assert!(ScalarTrack::new(vec![k]).is_err());
     }
 }
+
+mod blendshapes {
+    use largestep::anim::blendshape::*;
+
+    /// A rig of `n` vertices with `k` random base shapes (and optionally a corrective of
+    /// the first two).
+    fn rig(n: usize, k: usize, corrective: bool) -> BlendshapeDesc {
+        let mut s = 12345u64;
+        let mut rnd = move || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((s >> 11) as f64 / (1u64 << 53) as f64) - 0.5
+        };
+        let neutral: Vec<f64> = (0..3 * n).map(|_| rnd()).collect();
+        let mut shapes: Vec<ShapeDesc> = (0..k)
+            .map(|i| ShapeDesc {
+                name: format!("s{i}"),
+                positions: neutral.iter().map(|b| b + 0.1 * rnd()).collect(),
+                combines: Vec::new(),
+            })
+            .collect();
+        if corrective {
+            shapes.push(ShapeDesc {
+                name: "s0+s1".into(),
+                positions: (0..3 * n).map(|_| 0.05 * rnd()).collect(),
+                combines: vec![0, 1],
+            });
+        }
+        BlendshapeDesc { neutral, shapes }
+    }
+
+    /// Weights that made a face are found again by the bounded solve; a combination
+    /// shape adds its delta at the product of its bases' weights.
+    #[test]
+    fn solve_recovers_weights_and_combinations_multiply() {
+        let r = rig(200, 8, false).build().unwrap();
+        let want = [0.3, 0.0, 1.0, 0.55, 0.9, 0.1, 0.0, 0.75];
+        let mut face = vec![0.0; 600];
+        r.evaluate(&want, &mut face);
+        let (w, sweeps) = r.solve_weights(&face, &[], 0.0).unwrap();
+        for k in 0..8 {
+            assert!(
+                (w[k] - want[k]).abs() < 1e-8,
+                "{k}: {} vs {} after {sweeps} sweeps",
+                w[k],
+                want[k]
+            );
+        }
+        // From twelve markers only (36 equations for 8 unknowns).
+        let markers: Vec<usize> = (0..12).map(|i| 13 * i).collect();
+        let (w, _) = r.solve_weights(&face, &markers, 0.0).unwrap();
+        assert!(
+            w.iter().zip(&want).all(|(a, b)| (a - b).abs() < 1e-6),
+            "{w:?}"
+        );
+
+        let d = rig(50, 3, true);
+        let r = d.build().unwrap();
+        let (mut a, mut b) = (vec![0.0; 150], vec![0.0; 150]);
+        r.evaluate(&[0.5, 0.4, 0.0, 9.0], &mut a);
+        r.evaluate(&[0.5, 0.4, 0.0, 0.0], &mut b);
+        // The corrective's own entry is ignored; its delta comes in at 0.5 x 0.4.
+        assert_eq!(a, b);
+        let mut c = vec![0.0; 150];
+        r.evaluate(&[0.5, 0.0, 0.0, 0.0], &mut c);
+        let base_only: Vec<f64> = (0..150)
+            .map(|i| d.neutral[i] + 0.5 * (d.shapes[0].positions[i] - d.neutral[i]))
+            .collect();
+        assert!(c.iter().zip(&base_only).all(|(x, y)| (x - y).abs() < 1e-15));
+        let i = 7;
+        let expect = d.neutral[i]
+            + 0.5 * (d.shapes[0].positions[i] - d.neutral[i])
+            + 0.4 * (d.shapes[1].positions[i] - d.neutral[i])
+            + 0.2 * d.shapes[3].positions[i];
+        assert!((a[i] - expect).abs() < 1e-15);
+    }
+
+    /// A face beyond the rig's range gets clamped weights; action units drive shapes.
+    #[test]
+    fn bounds_and_action_units() {
+        let r = rig(100, 4, false).build().unwrap();
+        let mut face = vec![0.0; 300];
+        r.evaluate(&[1.6, 0.2, -0.5, 0.4], &mut face);
+        let (w, _) = r.solve_weights(&face, &[], 0.0).unwrap();
+        assert!(w.iter().all(|&x| (0.0..=1.0).contains(&x)), "{w:?}");
+        assert_eq!(w[0], 1.0);
+        assert_eq!(w[2], 0.0);
+        let au = ActionUnits {
+            units: vec![
+                ("AU12".into(), vec![(0, 1.0), (1, 0.5)]),
+                ("AU26".into(), vec![(1, 1.0), (3, 0.8)]),
+            ],
+        };
+        let mut weights = vec![0.0; 4];
+        au.weights(&[0.6, 0.7], &r, &mut weights).unwrap();
+        assert!(
+            (weights[0] - 0.6).abs() < 1e-15
+                && (weights[1] - 1.0).abs() < 1e-15
+                && (weights[3] - 0.56).abs() < 1e-15
+        );
+        let bad = ActionUnits {
+            units: vec![("AU1".into(), vec![(9, 1.0)])],
+        };
+        assert!(bad
+            .weights(&[1.0], &r, &mut weights)
+            .unwrap_err()
+            .contains("AU1"));
+    }
+
+    #[test]
+    fn bad_rigs_name_the_shape() {
+        let mut d = rig(10, 3, true);
+        d.shapes[1].positions.pop();
+        assert!(d
+            .build()
+            .unwrap_err()
+            .to_string()
+            .starts_with("shape 1 (s1): 29 coordinates"));
+        let mut d = rig(10, 3, true);
+        d.shapes[3].combines = vec![0, 0];
+        assert!(d
+            .build()
+            .unwrap_err()
+            .to_string()
+            .contains("shape 3 (s0+s1)"));
+        let mut d = rig(10, 3, true);
+        d.shapes[3].combines = vec![0, 5];
+        assert!(d.build().is_err());
+        let mut d = rig(10, 3, false);
+        d.shapes[2].name = "s0".into();
+        assert!(d.build().unwrap_err().to_string().contains("name is used"));
+        let r = rig(10, 3, false).build().unwrap();
+        assert!(r
+            .solve_weights(&[0.0; 30], &[10], 0.0)
+            .unwrap_err()
+            .contains("marker vertex 10"));
+        assert!(r.solve_weights(&[0.0; 29], &[], 0.0).is_err());
+    }
+}

@@ -17,7 +17,10 @@
 //! - [`ik`] solves inverse kinematics (Jacobian transpose, pseudoinverse, damped least
 //!   squares, CCD, FABRIK).
 //! - [`skin`] deforms a bound mesh by linear blend or dual quaternion skinning.
+//! - [`blendshape`] holds delta blendshapes, corrective combinations, action units and
+//!   a bounded weight solve.
 
+pub mod blendshape;
 pub mod bvh;
 pub mod clip;
 pub mod ik;
