@@ -725,6 +725,7 @@ fn animation_scenes_run() {
         ("anim-clip", 70, 69),
         ("anim-twist", 2 * (81 * 32 + 2), 0),
         ("anim-reach", 25, 15),
+        ("anim-walk", 70, 69),
     ] {
         let scene = Scene::load(&root.join(format!("scenes/{name}.toml"))).unwrap();
         let mut sim = scene.into_simulation().unwrap();
@@ -1154,5 +1155,160 @@ mod blendshapes {
             .unwrap_err()
             .contains("marker vertex 10"));
         assert!(r.solve_weights(&[0.0; 29], &[], 0.0).is_err());
+    }
+}
+
+mod motion_graphs {
+    use super::{clip, Pose};
+    use largestep::anim::clip::Clip;
+    use largestep::anim::motion_graph::{MotionGraph, MotionGraphDesc};
+
+    fn graph() -> (largestep::anim::Skeleton, Clip, MotionGraph) {
+        let b = clip();
+        let s = b.skeleton().build().unwrap();
+        let c = Clip::from_bvh(&b);
+        let g = MotionGraph::build(
+            &s,
+            &c,
+            &MotionGraphDesc {
+                window: 6,
+                threshold: 12.0,
+                weights: Vec::new(),
+            },
+        )
+        .unwrap();
+        (s, c, g)
+    }
+
+    fn root(p: &Pose) -> [f64; 3] {
+        p.translation(0)
+    }
+
+    /// The shared clip (a walk out, a turn, a walk back) has transitions from the walk
+    /// back into the walk out (the same steps facing the other way, which the floor
+    /// alignment removes); every transition is a local minimum below the threshold; the
+    /// kept frames are strongly connected.
+    #[test]
+    fn transitions_and_the_kept_component() {
+        let (_, _, g) = graph();
+        let (d, side) = g.distances();
+        for i in 0..side {
+            assert!(d[i * side + i] < 1e-9, "a window's distance to itself");
+            for j in 0..side {
+                assert!((d[i * side + j] - d[j * side + i]).abs() < 1e-6 * (1.0 + d[i * side + j]));
+            }
+        }
+        assert!(!g.transitions().is_empty());
+        for t in g.transitions() {
+            assert!(t.distance <= 12.0 && t.from.abs_diff(t.to) >= 6);
+        }
+        eprintln!(
+            "{} transitions, {} of 69 frames kept",
+            g.transitions().len(),
+            g.kept_count()
+        );
+        assert!(g.kept_count() >= 20, "{}", g.kept_count());
+        // Strong connection: from every kept frame, every other is reached.
+        let n = 69;
+        let succ = |f: usize| {
+            let mut s: Vec<usize> = g
+                .leaving(f)
+                .iter()
+                .map(|&t| g.transitions()[t].to + g.window())
+                .collect();
+            if f + 1 < n && g.kept(f + 1) {
+                s.push(f + 1);
+            }
+            s
+        };
+        let kept: Vec<usize> = (0..n).filter(|&f| g.kept(f)).collect();
+        for &start in &kept {
+            let mut seen = vec![false; n];
+            let mut stack = vec![start];
+            while let Some(f) = stack.pop() {
+                if std::mem::replace(&mut seen[f], true) {
+                    continue;
+                }
+                stack.extend(succ(f));
+            }
+            assert!(kept.iter().all(|&f| seen[f]), "from {start}");
+        }
+    }
+
+    /// A random walk runs as long as asked without a dead end, the root never jumps
+    /// (at most twice the clip's largest step between frames), and the same seed gives
+    /// the same walk.
+    #[test]
+    fn random_walks_are_continuous_and_repeatable() {
+        let (s, c, g) = graph();
+        let mut pose = s.rest().clone();
+        let mut step: f64 = 0.0;
+        let mut last = None;
+        for f in 0..c.frames() {
+            c.sample(f as f64 * c.frame_time(), false, &mut pose);
+            let r = root(&pose);
+            if let Some(l) = last {
+                let l: [f64; 3] = l;
+                step = step.max(((r[0] - l[0]).powi(2) + (r[2] - l[2]).powi(2)).sqrt());
+            }
+            last = Some(r);
+        }
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        g.random_walk(&s, &c, 600, 7, &mut a);
+        g.random_walk(&s, &c, 600, 7, &mut b);
+        assert_eq!(a.len(), 600);
+        assert_eq!(a, b);
+        for w in a.windows(2) {
+            let (p, q) = (root(&w[0]), root(&w[1]));
+            let d = ((p[0] - q[0]).powi(2) + (p[2] - q[2]).powi(2)).sqrt();
+            assert!(d <= 2.0 * step + 1e-9, "{d} against the clip's {step}");
+            assert!(w[1].rotations.iter().all(|v| v.is_finite()));
+        }
+    }
+
+    /// Following a straight path along +z keeps the root near it, farther than the clip
+    /// alone goes (it turns back at about 93 cm).
+    #[test]
+    fn path_following_keeps_near_the_path() {
+        let (s, c, g) = graph();
+        let path = [[0.0, 0.0], [0.0, 2000.0]];
+        let mut walk = Vec::new();
+        g.follow_path(&s, &c, &path, 300, 30, &mut walk);
+        assert_eq!(walk.len(), 300);
+        let end = root(&walk[299]);
+        let off: f64 = walk.iter().map(|p| root(p)[0].abs()).fold(0.0, f64::max);
+        let mean = walk.iter().map(|p| root(p)[0].abs()).sum::<f64>() / walk.len() as f64;
+        eprintln!(
+            "path: root ends at z = {:.1}, {:.1} off the line on average, at most {:.1}",
+            end[2], mean, off
+        );
+        // One 2.3 s clip gives five transitions: the walk goes on along the line
+        // (the clip alone turns back at 93 cm), swinging off it where only the clip's
+        // turn leads on.
+        assert!(end[2] > 200.0, "{end:?}");
+        assert!(mean < 60.0, "{mean}");
+    }
+
+    #[test]
+    fn bad_graphs_are_refused() {
+        let b = clip();
+        let s = b.skeleton().build().unwrap();
+        let c = Clip::from_bvh(&b);
+        for (window, threshold) in [(1, 5.0), (100, 5.0), (5, 0.0), (5, f64::NAN)] {
+            let d = MotionGraphDesc {
+                window,
+                threshold,
+                weights: Vec::new(),
+            };
+            assert!(MotionGraph::build(&s, &c, &d).is_err());
+        }
+        let d = MotionGraphDesc {
+            window: 5,
+            threshold: 5.0,
+            weights: vec![1.0; 3],
+        };
+        assert!(MotionGraph::build(&s, &c, &d)
+            .unwrap_err()
+            .contains("3 weights for 70 joints"));
     }
 }

@@ -1013,7 +1013,8 @@ mod coupling {
 
 #[test]
 fn too_many_overlapping_pairs_are_refused_before_allocating() {
-    // Twenty spheres at one point: 190 pairs, over a limit of 50.
+    // Twenty spheres at one point: 190 pairs, over a limit of 50. The sweep stops
+    // collecting at the limit (the fuzz test holds the memory to its budget).
     let d = RigidDesc {
         bodies: (0..20)
             .map(|_| BodyDesc::new(Shape::Sphere { radius: 1.0 }, [0.0; 3]))
@@ -1023,25 +1024,5 @@ fn too_many_overlapping_pairs_are_refused_before_allocating() {
     };
     let (m, mut s, mut w) = d.build().unwrap();
     let e = m.step(&mut s, &mut w, 0.01).unwrap_err().to_string();
-    assert!(e.contains("190 body pairs") && e.contains("50"), "{e}");
-}
-
-/// Bodies all inside one another: the step stops at the pair limit with an error (the
-/// sweep stops collecting there; the fuzz test holds the memory to its budget).
-#[test]
-fn bodies_inside_one_another_stop_at_the_pair_limit() {
-    let mut d = RigidDesc::default();
-    for _ in 0..400 {
-        d.bodies.push(BodyDesc::new(
-            Shape::Box { half: [0.5; 3] },
-            [0.0, 1.0, 0.0],
-        ));
-    }
-    d.max_pairs = 1000;
-    let (m, mut s, mut w) = d.build().unwrap();
-    let e = m.step(&mut s, &mut w, 1.0 / 60.0).unwrap_err();
-    assert!(
-        e.to_string().contains("more than 1000 body pairs overlap"),
-        "{e}"
-    );
+    assert!(e.contains("more than 50 body pairs overlap"), "{e}");
 }

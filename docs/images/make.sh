@@ -35,6 +35,7 @@ rigid-cloth scenes/rigid-cloth.toml 1280x720 contact-sheet.png
 anim-clip scenes/anim-clip.toml 640x360 animation.gif
 anim-twist scenes/anim-twist.toml 1280x720 contact-sheet.png
 anim-reach scenes/anim-reach.toml 1280x720 contact-sheet.png
+anim-walk scenes/anim-walk.toml 640x360 animation.gif
 LIST
 # The twisted bar: fem-twist (corotational, behind) and fem-twist-linear (linear, in
 # front, z + 0.25 m) run apart and drawn in one picture: each frame of the two runs

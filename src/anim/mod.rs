@@ -14,6 +14,8 @@
 //! - [`clip::Clip`] holds a fixed-rate clip and samples it at any time.
 //! - [`keyframe`] holds keyframe channels (step, linear, Hermite, Catmull-Rom, Bezier,
 //!   TCB; SLERP and SQUAD for rotations), ease, baking and arc length.
+//! - [`motion_graph`] finds transitions between similar frames (a pose distance over
+//!   windows) and walks the graph they make, at random or along a path.
 //! - [`ik`] solves inverse kinematics (Jacobian transpose, pseudoinverse, damped least
 //!   squares, CCD, FABRIK).
 //! - [`skin`] deforms a bound mesh by linear blend or dual quaternion skinning.
@@ -25,6 +27,7 @@ pub mod bvh;
 pub mod clip;
 pub mod ik;
 pub mod keyframe;
+pub mod motion_graph;
 pub mod scene;
 pub mod skin;
 

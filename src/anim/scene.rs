@@ -22,11 +22,19 @@
 //!                              # reaches 1.2 m, so part of the circle is out of reach)
 //! ```
 //!
-//! A table holds exactly one of `clip`, `twist`, `reach`.
+//! [anim.walk]                  # a random walk on a motion graph built from a clip
+//! file = "../../shared/data/mocap/mixamo-freebvh.bvh"
+//! scale = 0.01
+//! window = 6                   # frames compared and blended at a transition
+//! threshold = 12.0             # largest pose distance of a transition (file units)
+//! seed = 1                     # the walk's random choices
+//!
+//! A table holds exactly one of `clip`, `twist`, `reach`, `walk`.
 
 use super::bvh::Bvh;
 use super::clip::Clip;
 use super::ik::{Effector, Ik, IkJoint, IkMethod};
+use super::motion_graph::{MotionGraph, MotionGraphDesc};
 use super::skin::{Skin, SkinDesc, SkinMethod, SkinWork};
 use super::{Affine, JointDesc, Pose, Skeleton, SkeletonDesc};
 use crate::integrate::{IntegrateError, StepInfo};
@@ -46,6 +54,23 @@ pub struct AnimTable {
     twist: Option<TwistTable>,
     #[serde(default)]
     reach: Option<ReachTable>,
+    #[serde(default)]
+    walk: Option<WalkTable>,
+}
+
+/// `[anim.walk]`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct WalkTable {
+    file: String,
+    #[serde(default)]
+    scale: Option<f64>,
+    #[serde(default)]
+    window: Option<i64>,
+    #[serde(default)]
+    threshold: Option<f64>,
+    #[serde(default)]
+    seed: Option<i64>,
 }
 
 /// `[anim.clip]`.
@@ -95,6 +120,12 @@ enum Show {
         angle: f64,
         bend: f64,
     },
+    /// A random walk on a motion graph: its poses at the clip's rate.
+    Walk {
+        poses: Vec<Pose>,
+        frame_time: f64,
+        scale: f64,
+    },
     /// One IK solver per method, with its angles and last report.
     Reach {
         solvers: Vec<(Ik, Vec<f64>, f64)>,
@@ -120,11 +151,94 @@ pub struct AnimSim {
 /// Builds the `[anim]` system.
 pub fn build(ctx: &Context<'_>) -> Result<Box<dyn Simulation>, SceneError> {
     let t: AnimTable = ctx.table()?;
-    let given = [t.clip.is_some(), t.twist.is_some(), t.reach.is_some()];
+    let given = [
+        t.clip.is_some(),
+        t.twist.is_some(),
+        t.reach.is_some(),
+        t.walk.is_some(),
+    ];
     if given.iter().filter(|&&g| g).count() != 1 {
-        return Err(ctx.error(&[], "[anim] holds exactly one of clip, twist or reach"));
+        return Err(ctx.error(
+            &[],
+            "[anim] holds exactly one of clip, twist, reach or walk",
+        ));
     }
-    let sim = if let Some(c) = &t.clip {
+    let sim = if let Some(wt) = &t.walk {
+        let at = path(&[&"walk", &"file"]);
+        let file = ctx.base.join(&wt.file);
+        let bvh = Bvh::read(&file, ctx.limits.max_file_bytes)
+            .map_err(|e| ctx.error(&at, e.to_string()))?;
+        let skeleton = bvh
+            .skeleton()
+            .build()
+            .map_err(|e| ctx.error(&at, e.to_string()))?;
+        let clip = Clip::from_bvh(&bvh);
+        let scale = match wt.scale {
+            Some(s) => ctx.positive(s, &path(&[&"walk", &"scale"]), "scale")?,
+            None => 1.0,
+        };
+        let window = wt.window.unwrap_or(6);
+        if !(2..=10_000).contains(&window) {
+            return Err(ctx.error(
+                &path(&[&"walk", &"window"]),
+                "window must be 2 to 10000 frames",
+            ));
+        }
+        let threshold = ctx.positive(
+            wt.threshold.unwrap_or(12.0),
+            &path(&[&"walk", &"threshold"]),
+            "threshold",
+        )?;
+        let desc = MotionGraphDesc {
+            window: window as usize,
+            threshold,
+            weights: Vec::new(),
+        };
+        // The distance matrix holds (frames - window + 1)^2 values twice over.
+        let side = clip.frames() as f64;
+        ctx.memory(
+            &at,
+            "the motion graph's distance matrix",
+            64.0 * side * side,
+        )?;
+        let graph = MotionGraph::build(&skeleton, &clip, &desc).map_err(|e| ctx.error(&[], e))?;
+        let frames = (ctx.duration / clip.frame_time()).ceil() as usize + 1;
+        ctx.memory(
+            &[],
+            "the walk's poses",
+            frames as f64 * skeleton.len() as f64 * 80.0,
+        )?;
+        let mut poses = Vec::new();
+        graph.random_walk(
+            &skeleton,
+            &clip,
+            frames,
+            wt.seed.unwrap_or(1) as u64,
+            &mut poses,
+        );
+        if poses.is_empty() {
+            return Err(ctx.error(
+                &[],
+                "the motion graph kept no frames (raise the threshold?)",
+            ));
+        }
+        let notes = vec![format!(
+            "motion graph: {} transitions, {} of {} frames kept",
+            graph.transitions().len(),
+            graph.kept_count(),
+            clip.frames()
+        )];
+        AnimSim::new(
+            skeleton,
+            Show::Walk {
+                poses,
+                frame_time: clip.frame_time(),
+                scale,
+            },
+            ctx.duration,
+            notes,
+        )
+    } else if let Some(c) = &t.clip {
         let at = path(&[&"clip", &"file"]);
         let file = ctx.base.join(&c.file);
         let bvh = Bvh::read(&file, ctx.limits.max_file_bytes)
@@ -328,6 +442,15 @@ impl AnimSim {
                 clip.sample(self.time, *looping, &mut self.pose);
                 scale = *sc;
             }
+            Show::Walk {
+                poses,
+                frame_time,
+                scale: sc,
+            } => {
+                let k = ((self.time / *frame_time).round() as usize).min(poses.len() - 1);
+                self.pose.clone_from(&poses[k]);
+                scale = *sc;
+            }
             Show::Twist {
                 skin,
                 rest,
@@ -456,6 +579,14 @@ impl Simulation for AnimSim {
                 s.push(Stage::left_out("skinning", "a clip alone has no mesh"));
                 s.push(Stage::left_out("inverse kinematics", "no targets"));
             }
+            Show::Walk { poses, .. } => {
+                s.push(Stage::built(
+                    "motion graph",
+                    format!("a random walk of {} frames", poses.len()),
+                ));
+                s.push(Stage::left_out("skinning", "a skeleton alone has no mesh"));
+                s.push(Stage::left_out("inverse kinematics", "no targets"));
+            }
             Show::Twist { skin, .. } => {
                 s.push(Stage::built(
                     "skinning",
@@ -507,6 +638,7 @@ impl Simulation for AnimSim {
     fn method(&self) -> String {
         match &self.show {
             Show::Clip { .. } => "clip playback".into(),
+            Show::Walk { .. } => "motion graph random walk".into(),
             Show::Twist { .. } => "skinning (LBS and DQS)".into(),
             Show::Reach { .. } => "inverse kinematics".into(),
         }
