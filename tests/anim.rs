@@ -1312,3 +1312,84 @@ mod motion_graphs {
             .contains("3 weights for 70 joints"));
     }
 }
+
+/// Retargeting the clip onto a skeleton twice its size, its joints named without the
+/// `mixamorig:` prefix, gives every joint at twice the source position; a target whose
+/// rest pose lifts an arm still reaches the same arm directions; names that are not
+/// there are errors.
+#[test]
+fn retargeting_by_joint_names() {
+    use largestep::anim::retarget::Retarget;
+    let b = clip();
+    let source = b.skeleton().build().unwrap();
+    let mut desc = b.skeleton();
+    for j in desc.joints.iter_mut() {
+        j.name = j.name.trim_start_matches("mixamorig:").to_string();
+        j.translation = j.translation.map(|v| 2.0 * v);
+    }
+    let target = desc.build().unwrap();
+    let r = Retarget::new(&source, &target, &[]).unwrap();
+    assert_eq!(r.paired(), 70);
+    assert!((r.scale() - 2.0).abs() < 1e-12);
+    let mut pose = source.rest().clone();
+    let mut out = target.rest().clone();
+    let (mut ms, mut mt) = (Vec::new(), Vec::new());
+    for k in [0, 40, 68] {
+        b.pose(k, &mut pose);
+        r.apply(&source, &pose, &target, &mut out);
+        source.model(&pose, &mut ms);
+        target.model(&out, &mut mt);
+        for j in 0..70 {
+            for c in [3, 7, 11] {
+                assert!(
+                    (mt[j][c] - 2.0 * ms[j][c]).abs() < 1e-9,
+                    "frame {k} joint {j}"
+                );
+            }
+        }
+    }
+    // A target whose left arm rests turned 40 degrees down: its bones still point
+    // where the source's do.
+    let mut desc = b.skeleton();
+    let arm = desc
+        .joints
+        .iter()
+        .position(|j| j.name == "mixamorig:LeftArm")
+        .unwrap();
+    let fore = desc
+        .joints
+        .iter()
+        .position(|j| j.name == "mixamorig:LeftForeArm")
+        .unwrap();
+    desc.joints[arm].rotation = quat::exp([0.0, 0.0, -0.7]);
+    let turned = desc.build().unwrap();
+    let r = Retarget::new(&source, &turned, &[]).unwrap();
+    b.pose(40, &mut pose);
+    r.apply(&source, &pose, &turned, &mut out);
+    source.model(&pose, &mut ms);
+    turned.model(&out, &mut mt);
+    let dir = |m: &Vec<largestep::anim::Affine>| {
+        let d = [0, 1, 2].map(|c| m[fore][4 * c + 3] - m[arm][4 * c + 3]);
+        let l = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        d.map(|v| v / l)
+    };
+    let (a, c) = (dir(&ms), dir(&mt));
+    // Carried in world space, the same world turn acts on both rest directions: the
+    // angle between the bones is the angle between their rest directions.
+    let angle = |u: [f64; 3], v: [f64; 3]| {
+        (u[0] * v[0] + u[1] * v[1] + u[2] * v[2])
+            .clamp(-1.0, 1.0)
+            .acos()
+    };
+    source.model(source.rest(), &mut ms);
+    turned.model(turned.rest(), &mut mt);
+    let rest_angle = angle(dir(&ms), dir(&mt));
+    assert!(rest_angle > 0.5, "{rest_angle}");
+    assert!(
+        (angle(a, c) - rest_angle).abs() < 1e-9,
+        "{} vs {rest_angle}",
+        angle(a, c)
+    );
+    let e = Retarget::new(&source, &target, &[("mixamorig:Hips", "Pelvis")]).unwrap_err();
+    assert!(e.to_string().contains("Pelvis"), "{e}");
+}

@@ -16,6 +16,7 @@
 //!   TCB; SLERP and SQUAD for rotations), ease, baking and arc length.
 //! - [`motion_graph`] finds transitions between similar frames (a pose distance over
 //!   windows) and walks the graph they make, at random or along a path.
+//! - [`retarget`] carries poses between skeletons by joint names.
 //! - [`ik`] solves inverse kinematics (Jacobian transpose, pseudoinverse, damped least
 //!   squares, CCD, FABRIK).
 //! - [`skin`] deforms a bound mesh by linear blend or dual quaternion skinning.
@@ -28,6 +29,7 @@ pub mod clip;
 pub mod ik;
 pub mod keyframe;
 pub mod motion_graph;
+pub mod retarget;
 pub mod scene;
 pub mod skin;
 
