@@ -1393,3 +1393,162 @@ fn retargeting_by_joint_names() {
     let e = Retarget::new(&source, &target, &[("mixamorig:Hips", "Pelvis")]).unwrap_err();
     assert!(e.to_string().contains("Pelvis"), "{e}");
 }
+
+mod acclaim {
+    use largestep::anim::asf::{Amc, Asf};
+    use largestep::anim::Pose;
+    use largestep::kernels::quat;
+    use largestep::kernels::rotation::axis_quat;
+
+    const ASF: &str = "# a three-bone arm
+:version 1.10
+:name test
+:units
+  mass 1.0
+  length 1.0
+  angle deg
+:documentation
+  made by hand
+:root
+   order TX TY TZ RX RY RZ
+   axis XYZ
+   position 0 0 0
+   orientation 0 0 0
+:bonedata
+  begin
+     id 1
+     name upper
+     direction 1 0 0
+     length 2.0
+     axis 0 0 30 XYZ
+     dof rx ry rz
+     limits (-180.0 180.0)
+            (-180.0 180.0)
+            (-180.0 180.0)
+  end
+  begin
+     id 2
+     name lower
+     direction 0.6 0.8 0
+     length 1.5
+     axis 10 -20 5 XYZ
+     dof rx rz
+     limits (-180.0 180.0)
+            (-180.0 180.0)
+  end
+  begin
+     id 3
+     name other
+     direction 0 0 1
+     length 1.0
+     axis 0 0 0 XYZ
+  end
+:hierarchy
+  begin
+    root upper other
+    upper lower
+  end
+";
+
+    const AMC: &str = ":FULLY-SPECIFIED
+:DEGREES
+1
+root 1 2 3 10 20 30
+upper 15 -25 40
+lower 35 -50
+2
+root 0 0 0 0 0 0
+upper 0 0 0
+lower 0 0
+";
+
+    /// Rotations about fixed axes, first applied first (the Acclaim reading), in degrees.
+    fn fixed(axes: &[usize], deg: &[f64]) -> quat::Quat {
+        let mut q = quat::IDENTITY;
+        for (&a, &d) in axes.iter().zip(deg) {
+            q = quat::mul(axis_quat(a, d.to_radians()), q);
+        }
+        q
+    }
+
+    /// The skeleton puts every bone's end where the Acclaim formula does
+    /// (W = W_parent C M C^-1, end = start + length W direction), worked out here
+    /// directly from the file's numbers.
+    #[test]
+    fn acclaim_skeleton_matches_the_formula() {
+        let asf = Asf::parse(ASF, "t.asf").unwrap();
+        let amc = Amc::parse(AMC, &asf, "t.amc").unwrap();
+        assert_eq!(amc.frames.len(), 2);
+        let skel = asf.skeleton().build().unwrap();
+        // root, upper, lower, other, and the ends of lower and other.
+        assert_eq!(skel.len(), 6);
+        let mut pose = Pose::identity(skel.len());
+        amc.pose(&asf, 0, &mut pose);
+        let mut model = Vec::new();
+        skel.model(&pose, &mut model);
+        let at = |name: &str| {
+            let j = skel.find(name).unwrap();
+            [model[j][3], model[j][7], model[j][11]]
+        };
+        let conj = |c: quat::Quat, m: quat::Quat| quat::mul(quat::mul(c, m), quat::conj(c));
+        let w_root = conj(quat::IDENTITY, fixed(&[0, 1, 2], &[10.0, 20.0, 30.0]));
+        let root = [1.0, 2.0, 3.0];
+        let c_up = fixed(&[0, 1, 2], &[0.0, 0.0, 30.0]);
+        let w_up = quat::mul(w_root, conj(c_up, fixed(&[0, 1, 2], &[15.0, -25.0, 40.0])));
+        let up_end: [f64; 3] =
+            std::array::from_fn(|c| root[c] + 2.0 * quat::rotate(w_up, [1.0, 0.0, 0.0])[c]);
+        let c_lo = fixed(&[0, 1, 2], &[10.0, -20.0, 5.0]);
+        let w_lo = quat::mul(w_up, conj(c_lo, fixed(&[0, 2], &[35.0, -50.0])));
+        let lo_end: [f64; 3] =
+            std::array::from_fn(|c| up_end[c] + 1.5 * quat::rotate(w_lo, [0.6, 0.8, 0.0])[c]);
+        let other_end: [f64; 3] =
+            std::array::from_fn(|c| root[c] + quat::rotate(w_root, [0.0, 0.0, 1.0])[c]);
+        let close = |a: [f64; 3], b: [f64; 3]| (0..3).all(|c| (a[c] - b[c]).abs() < 1e-12);
+        assert!(close(at("root"), root));
+        assert!(
+            close(at("upper"), root),
+            "bones start at their parent's end"
+        );
+        assert!(close(at("lower"), up_end), "{:?} {:?}", at("lower"), up_end);
+        assert!(
+            close(at("lower_end"), lo_end),
+            "{:?} {:?}",
+            at("lower_end"),
+            lo_end
+        );
+        assert!(close(at("other_end"), other_end));
+        // The zero frame is the rest: the bones along their directions.
+        amc.pose(&asf, 1, &mut pose);
+        skel.model(&pose, &mut model);
+        let j = skel.find("lower_end").unwrap();
+        assert!(close(
+            [model[j][3], model[j][7], model[j][11]],
+            [2.9, 1.2, 0.0]
+        ));
+        let clip = amc.clip(&asf, 1.0 / 120.0);
+        assert_eq!(clip.frames(), 2);
+    }
+
+    #[test]
+    fn bad_acclaim_files_are_named_by_line() {
+        let e = Asf::parse(&ASF.replace("length 1.5", "length -1.5"), "t.asf").unwrap_err();
+        assert_eq!(e.line, 31, "{e}");
+        let e = Asf::parse(&ASF.replace("dof rx rz", "dof rx rw"), "t.asf").unwrap_err();
+        assert!(e.to_string().contains("'rw' is not a dof"), "{e}");
+        let e = Asf::parse(&ASF.replace("upper lower", "upper elbow"), "t.asf").unwrap_err();
+        assert!(e.to_string().contains("'elbow' is not a bone"), "{e}");
+        let e = Asf::parse(&ASF.replace("angle deg", "angle grad"), "t.asf").unwrap_err();
+        assert_eq!(e.line, 7);
+        let asf = Asf::parse(ASF, "t.asf").unwrap();
+        let e = Amc::parse(&AMC.replace("lower 35 -50", "lower 35"), &asf, "t.amc").unwrap_err();
+        assert_eq!(e.line, 6);
+        assert!(
+            e.to_string().contains("lower has 1 values; its dofs are 2"),
+            "{e}"
+        );
+        let e = Amc::parse(&AMC.replace("\n2\n", "\n3\n"), &asf, "t.amc").unwrap_err();
+        assert!(e.to_string().contains("frame 3 follows frame 1"), "{e}");
+        let e = Amc::parse(&AMC.replace("upper 15", "wrist 15"), &asf, "t.amc").unwrap_err();
+        assert!(e.to_string().contains("'wrist' is not a bone"), "{e}");
+    }
+}

@@ -24,19 +24,32 @@ impl Clip {
     /// The clip of a BVH file: every frame's local pose (see `bvh`'s reading of the
     /// channels), one entry per joint of [`Bvh::skeleton`].
     pub fn from_bvh(bvh: &Bvh) -> Clip {
-        let n = bvh.joints.len();
-        let frames = bvh.frames();
+        let mut pose = Pose::identity(bvh.joints.len());
+        let poses: Vec<Pose> = (0..bvh.frames())
+            .map(|k| {
+                bvh.pose(k, &mut pose);
+                pose.clone()
+            })
+            .collect();
+        let mut clip = Clip::from_poses(bvh.frame_time, &poses);
+        clip.joints = bvh.joints.len();
+        clip
+    }
+
+    /// A clip of the given local poses (all of one skeleton), one per frame, at
+    /// `frame_time` seconds per frame (> 0). Panics if the poses differ in size.
+    pub fn from_poses(frame_time: f64, poses: &[Pose]) -> Clip {
+        let n = poses.first().map_or(0, |p| p.len());
         let mut clip = Clip {
             joints: n,
-            frame_time: bvh.frame_time,
-            translations: Vec::with_capacity(3 * n * frames),
-            rotations: Vec::with_capacity(4 * n * frames),
+            frame_time,
+            translations: Vec::with_capacity(3 * n * poses.len()),
+            rotations: Vec::with_capacity(4 * n * poses.len()),
         };
-        let mut pose = Pose::identity(n);
-        for k in 0..frames {
-            bvh.pose(k, &mut pose);
-            clip.translations.extend_from_slice(&pose.translations);
-            clip.rotations.extend_from_slice(&pose.rotations);
+        for p in poses {
+            assert_eq!(p.len(), n, "every pose has the same joints");
+            clip.translations.extend_from_slice(&p.translations);
+            clip.rotations.extend_from_slice(&p.rotations);
         }
         clip
     }

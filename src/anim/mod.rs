@@ -11,6 +11,7 @@
 //!   one hemisphere, as ozz's `BlendingJob`), and [`add_layer`] puts an additive pose (a
 //!   difference from the rest, [`additive_delta`]) on top.
 //! - [`bvh`] reads and writes motion capture (BVH); its clip becomes poses per frame.
+//! - [`asf`] reads Acclaim skeletons and motion (ASF/AMC).
 //! - [`clip::Clip`] holds a fixed-rate clip and samples it at any time.
 //! - [`keyframe`] holds keyframe channels (step, linear, Hermite, Catmull-Rom, Bezier,
 //!   TCB; SLERP and SQUAD for rotations), ease, baking and arc length.
@@ -23,6 +24,7 @@
 //! - [`blendshape`] holds delta blendshapes, corrective combinations, action units and
 //!   a bounded weight solve.
 
+pub mod asf;
 pub mod blendshape;
 pub mod bvh;
 pub mod clip;
