@@ -1552,3 +1552,283 @@ lower 0 0
         assert!(e.to_string().contains("'wrist' is not a bone"), "{e}");
     }
 }
+
+mod gltf_assets {
+    use super::{temp_dir, Pose};
+    use largestep::anim::asset::{write_glb, Asset, AssetMesh};
+    use largestep::anim::blendshape::{BlendshapeDesc, ShapeDesc};
+    use largestep::anim::clip::Clip;
+    use largestep::anim::skin::SkinDesc;
+    use largestep::anim::{JointDesc, SkeletonDesc};
+    use largestep::kernels::quat;
+
+    /// A two-bone arm around a tube, skinned, with two morph targets and a three-frame
+    /// clip.
+    fn arm() -> (
+        largestep::anim::Skeleton,
+        AssetMesh,
+        SkinDesc,
+        BlendshapeDesc,
+        Clip,
+    ) {
+        let s = SkeletonDesc {
+            joints: vec![
+                JointDesc::new("upper", None, [0.0, 1.0, 0.0]),
+                JointDesc::new("lower", Some(0), [1.0, 0.0, 0.0]),
+            ],
+        }
+        .build()
+        .unwrap();
+        let tube = largestep::shapes::tube(2.0, 0.2, 9, 8);
+        let n = tube.positions.len() / 3;
+        let mut bind = Vec::new();
+        s.model(s.rest(), &mut bind);
+        let skin = SkinDesc {
+            positions: tube.positions.clone(),
+            normals: Vec::new(),
+            joints: vec![[0, 1, 0, 0]; n],
+            weights: (0..n)
+                .map(|v| {
+                    let w = (tube.positions[v] - 0.5).clamp(0.0, 1.0);
+                    [1.0 - w, w, 0.0, 0.0]
+                })
+                .collect(),
+            bind,
+        };
+        let morphs = BlendshapeDesc {
+            neutral: tube.positions.clone(),
+            shapes: (0..2)
+                .map(|k| ShapeDesc {
+                    name: format!("target{k}"),
+                    positions: tube
+                        .positions
+                        .iter()
+                        .enumerate()
+                        .map(|(i, p)| p + 0.01 * ((i * (k + 3)) % 7) as f64)
+                        .collect(),
+                    combines: Vec::new(),
+                })
+                .collect(),
+        };
+        let poses: Vec<Pose> = (0..3)
+            .map(|f| {
+                let mut p = s.rest().clone();
+                p.set(
+                    1,
+                    [1.0, 0.1 * f as f64, 0.0],
+                    quat::exp([0.5 * f as f64, 0.0, 0.2]),
+                    [1.0; 3],
+                );
+                p
+            })
+            .collect();
+        let clip = Clip::from_poses(0.5, &poses);
+        let mesh = AssetMesh {
+            positions: tube.positions.clone(),
+            normals: Vec::new(),
+            triangles: tube.triangles.to_vec(),
+        };
+        (s, mesh, skin, morphs, clip)
+    }
+
+    /// Written as .glb and read back: the same skeleton, mesh, influences, bind
+    /// transforms, morph targets and clip, to f32 rounding.
+    #[test]
+    fn glb_round_trip() {
+        let (s, mesh, skin, morphs, clip) = arm();
+        let dir = temp_dir("gltf");
+        let path = dir.join("arm.glb");
+        let mut f = std::fs::File::create(&path).unwrap();
+        write_glb(
+            &mut f,
+            &s,
+            Some(&mesh),
+            Some(&skin),
+            Some(&morphs),
+            Some(("wave", &clip)),
+        )
+        .unwrap();
+        drop(f);
+        let a = Asset::read(&path, 1 << 24, 2.0).unwrap();
+        assert_eq!(a.skeleton.joints.len(), 2);
+        assert_eq!(a.skeleton.joints[1].name, "lower");
+        assert_eq!(a.skeleton.joints[1].parent, Some(0));
+        assert!((a.skeleton.joints[0].translation[1] - 1.0).abs() < 1e-7);
+        let m = a.mesh.as_ref().unwrap();
+        assert_eq!(m.triangles, mesh.triangles);
+        assert!(m
+            .positions
+            .iter()
+            .zip(&mesh.positions)
+            .all(|(x, y)| (x - y).abs() < 1e-6));
+        let sk = a.skin.as_ref().unwrap();
+        assert_eq!(sk.joints, skin.joints);
+        assert!(sk
+            .weights
+            .iter()
+            .flatten()
+            .zip(skin.weights.iter().flatten())
+            .all(|(x, y)| (x - y).abs() < 1e-7));
+        for (b0, b1) in sk.bind.iter().zip(&skin.bind) {
+            assert!(
+                b0.iter().zip(b1).all(|(x, y)| (x - y).abs() < 1e-6),
+                "{b0:?} {b1:?}"
+            );
+        }
+        let mo = a.morphs.as_ref().unwrap();
+        assert_eq!(mo.shapes.len(), 2);
+        for (x, y) in mo.shapes[1]
+            .positions
+            .iter()
+            .zip(&morphs.shapes[1].positions)
+        {
+            assert!((x - y).abs() < 1e-6);
+        }
+        assert_eq!(a.clips.len(), 1);
+        assert_eq!(a.clips[0].0, "wave");
+        let c = &a.clips[0].1;
+        assert_eq!(c.frames(), 3);
+        let (mut p, mut q) = (Pose::identity(2), Pose::identity(2));
+        for f in 0..3 {
+            c.sample(f as f64 * 0.5, false, &mut p);
+            clip.sample(f as f64 * 0.5, false, &mut q);
+            assert!(
+                p.translations
+                    .iter()
+                    .zip(&q.translations)
+                    .all(|(x, y)| (x - y).abs() < 1e-6),
+                "frame {f}"
+            );
+            let dot: f64 = (0..4).map(|k| p.rotation(1)[k] * q.rotation(1)[k]).sum();
+            assert!(dot.abs() > 1.0 - 1e-10, "frame {f}");
+        }
+    }
+
+    /// Bad assets are errors naming what is wrong: not glTF, a missing buffer file, a
+    /// data URI, an accessor past its buffer, an index past the vertices.
+    #[test]
+    fn bad_assets_are_refused() {
+        let dir = temp_dir("gltf-bad");
+        let write = |name: &str, text: &str| {
+            let p = dir.join(name);
+            std::fs::write(&p, text).unwrap();
+            p
+        };
+        let e = Asset::read(&write("junk.gltf", "{ not json"), 1 << 20, 30.0).unwrap_err();
+        assert!(e.to_string().contains("not a valid glTF"), "{e}");
+        let head = r#"{"asset":{"version":"2.0"},"buffers":[{"uri":"BUF","byteLength":36}],"bufferViews":[{"buffer":0,"byteOffset":0,"byteLength":VIEW}],"accessors":[{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]},{"bufferView":0,"byteOffset":12,"componentType":5125,"count":3,"type":"SCALAR"}],"meshes":[{"primitives":[{"attributes":{"POSITION":0},"indices":1}]}]}"#;
+        let e = Asset::read(
+            &write(
+                "missing.gltf",
+                &head.replace("BUF", "nowhere.bin").replace("VIEW", "36"),
+            ),
+            1 << 20,
+            30.0,
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("buffer 0 (nowhere.bin)"), "{e}");
+        let e = Asset::read(
+            &write(
+                "data.gltf",
+                &head
+                    .replace("BUF", "data:application/octet-stream;base64,AAAA")
+                    .replace("VIEW", "36"),
+            ),
+            1 << 20,
+            30.0,
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("data URI"), "{e}");
+        let bin: Vec<u8> = [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+            .iter()
+            .flat_map(|x| x.to_le_bytes())
+            .collect();
+        std::fs::write(dir.join("tri.bin"), &bin).unwrap();
+        let e = Asset::read(
+            &write(
+                "short.gltf",
+                &head.replace("BUF", "tri.bin").replace("VIEW", "24"),
+            ),
+            1 << 20,
+            30.0,
+        )
+        .unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("accessor 0 runs past the end of buffer view 0"),
+            "{e}"
+        );
+        // Indices read from the positions' bytes from the second point: 1.0 as a u32 is
+        // 1065353216.
+        let e = Asset::read(
+            &write(
+                "index.gltf",
+                &head.replace("BUF", "tri.bin").replace("VIEW", "36"),
+            ),
+            1 << 20,
+            30.0,
+        )
+        .unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("index 1065353216 past the mesh's 3 vertices"),
+            "{e}"
+        );
+    }
+}
+
+/// Mangled .glb files (bytes of the JSON changed at random) give an asset or an
+/// error, never a panic.
+#[test]
+fn mangled_glb_files_never_panic() {
+    use largestep::anim::asset::{write_glb, Asset, AssetMesh};
+    let s = SkeletonDesc {
+        joints: vec![
+            JointDesc::new("a", None, [0.0; 3]),
+            JointDesc::new("b", Some(0), [1.0, 0.0, 0.0]),
+        ],
+    }
+    .build()
+    .unwrap();
+    let mesh = AssetMesh {
+        positions: vec![0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+        normals: Vec::new(),
+        triangles: vec![[0, 1, 2]],
+    };
+    let mut bind = Vec::new();
+    s.model(s.rest(), &mut bind);
+    let skin = SkinDesc {
+        positions: mesh.positions.clone(),
+        normals: Vec::new(),
+        joints: vec![[0, 1, 0, 0]; 3],
+        weights: vec![[0.5, 0.5, 0.0, 0.0]; 3],
+        bind,
+    };
+    let clip = largestep::anim::clip::Clip::from_poses(0.1, &[s.rest().clone(), s.rest().clone()]);
+    let mut glb = Vec::new();
+    write_glb(
+        &mut glb,
+        &s,
+        Some(&mesh),
+        Some(&skin),
+        None,
+        Some(("c", &clip)),
+    )
+    .unwrap();
+    let dir = temp_dir("glb-fuzz");
+    let json_len = u32::from_le_bytes(glb[12..16].try_into().unwrap()) as usize;
+    let mut x = 0x1234_5678_9abc_def1u64;
+    for case in 0..300 {
+        let mut m = glb.clone();
+        for _ in 0..1 + case % 4 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            let at = 20 + (x as usize) % json_len;
+            m[at] = b"0123456789-,:[]{}\"e."[(x >> 32) as usize % 20];
+        }
+        let p = dir.join("m.glb");
+        std::fs::write(&p, &m).unwrap();
+        let _ = Asset::read(&p, 1 << 20, 30.0);
+    }
+}

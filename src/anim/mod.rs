@@ -11,6 +11,7 @@
 //!   one hemisphere, as ozz's `BlendingJob`), and [`add_layer`] puts an additive pose (a
 //!   difference from the rest, [`additive_delta`]) on top.
 //! - [`bvh`] reads and writes motion capture (BVH); its clip becomes poses per frame.
+//! - [`asset`] reads and writes glTF 2.0 (skeleton, skinned mesh, morph targets, clips).
 //! - [`asf`] reads Acclaim skeletons and motion (ASF/AMC).
 //! - [`clip::Clip`] holds a fixed-rate clip and samples it at any time.
 //! - [`keyframe`] holds keyframe channels (step, linear, Hermite, Catmull-Rom, Bezier,
@@ -25,6 +26,7 @@
 //!   a bounded weight solve.
 
 pub mod asf;
+pub mod asset;
 pub mod blendshape;
 pub mod bvh;
 pub mod clip;
