@@ -133,7 +133,7 @@ enum Command {
     Study {
         /// Which study (integrators, jello-stability, jello-accuracy, cloth-accuracy, cloth-stability,
         /// fem-accuracy, fem-stability, modes, fluids, poisson, cavity, distance-fields,
-        /// rigid-integrators, rigid-contacts).
+        /// rigid-integrators, rigid-contacts, anim-ik, anim-sampling).
         name: String,
         /// Output folder for the report (default: out/studies; `--out docs/studies`
         /// regenerates the committed reports).

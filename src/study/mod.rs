@@ -11,6 +11,8 @@ mod fem;
 mod fluid;
 #[cfg(feature = "fluid")]
 pub use fluid::poisson_problem;
+#[cfg(feature = "anim")]
+mod anim;
 mod integrators;
 #[cfg(feature = "mass-spring")]
 mod jello;
@@ -111,6 +113,10 @@ const STUDIES: &[Study] = &[
     ("rigid-integrators", rigid::integrators),
     #[cfg(feature = "rigid")]
     ("rigid-contacts", rigid::contacts),
+    #[cfg(feature = "anim")]
+    ("anim-ik", anim::ik),
+    #[cfg(feature = "anim")]
+    ("anim-sampling", anim::sampling),
 ];
 
 /// The names of the studies built in.
