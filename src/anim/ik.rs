@@ -531,31 +531,10 @@ impl Ik {
         let mut chain: Vec<usize> = self.above[eff.joint].clone(); // tip first
         chain.sort_by_key(|&c| std::cmp::Reverse(self.joints[c].joint));
         for c in chain {
-            let ij = &self.joints[c];
-            let m = &model[ij.joint];
-            let p = point(m);
-            let (Some((_, u)), Some((_, v))) = (
-                length_and_unit(sub(point(&model[eff.joint]), p)),
-                length_and_unit(sub(eff.target, p)),
-            ) else {
-                continue;
-            };
-            let turn = arc(u, v);
-            let world = quat::mul(turn, quat::from_matrix(rows(m)));
-            let parent = skeleton
-                .parent(ij.joint)
-                .map_or(quat::IDENTITY, |pj| quat::from_matrix(rows(&model[pj])));
-            let k = ij.axes.len();
-            self.angles_for(
-                skeleton,
-                c,
-                parent,
-                world,
-                &mut angles[offsets[c]..offsets[c] + k],
+            let from = point(&model[eff.joint]);
+            self.aim(
+                skeleton, pose, angles, model, c, offsets[c], from, eff.target,
             );
-            self.clamp(angles);
-            self.apply(skeleton, angles, pose);
-            skeleton.model(pose, model);
         }
     }
 
@@ -593,36 +572,57 @@ impl Ik {
         }
         // Turn each joint so its bone (toward the next point) points at its new place.
         for (i, &c) in chain.iter().enumerate() {
-            let ij = &self.joints[c];
-            let m = &model[ij.joint];
-            let p = point(m);
             let next = if i + 1 < chain.len() {
                 self.joints[chain[i + 1]].joint
             } else {
                 eff.joint
             };
-            let (Some((_, u)), Some((_, v))) = (
-                length_and_unit(sub(point(&model[next]), p)),
-                length_and_unit(sub(pts[i + 1], p)),
-            ) else {
-                continue;
-            };
-            let world = quat::mul(arc(u, v), quat::from_matrix(rows(m)));
-            let parent = skeleton
-                .parent(ij.joint)
-                .map_or(quat::IDENTITY, |pj| quat::from_matrix(rows(&model[pj])));
-            let k = ij.axes.len();
-            self.angles_for(
+            let from = point(&model[next]);
+            self.aim(
                 skeleton,
+                pose,
+                angles,
+                model,
                 c,
-                parent,
-                world,
-                &mut angles[offsets[c]..offsets[c] + k],
+                offsets[c],
+                from,
+                pts[i + 1],
             );
-            self.clamp(angles);
-            self.apply(skeleton, angles, pose);
-            skeleton.model(pose, model);
         }
+    }
+
+    /// Turns chain joint `c` (angles from `offset`) by the shortest arc about its
+    /// position that carries the point `from` toward `to`, with its angles read back
+    /// and clamped, and poses the skeleton again (CCD's and FABRIK's step).
+    #[allow(clippy::too_many_arguments)]
+    fn aim(
+        &self,
+        skeleton: &Skeleton,
+        pose: &mut Pose,
+        angles: &mut [f64],
+        model: &mut Vec<Affine>,
+        c: usize,
+        offset: usize,
+        from: [f64; 3],
+        to: [f64; 3],
+    ) {
+        let ij = &self.joints[c];
+        let m = &model[ij.joint];
+        let p = point(m);
+        let (Some((_, u)), Some((_, v))) =
+            (length_and_unit(sub(from, p)), length_and_unit(sub(to, p)))
+        else {
+            return;
+        };
+        let world = quat::mul(arc(u, v), quat::from_matrix(rows(m)));
+        let parent = skeleton
+            .parent(ij.joint)
+            .map_or(quat::IDENTITY, |pj| quat::from_matrix(rows(&model[pj])));
+        let k = ij.axes.len();
+        self.angles_for(skeleton, c, parent, world, &mut angles[offset..offset + k]);
+        self.clamp(angles);
+        self.apply(skeleton, angles, pose);
+        skeleton.model(pose, model);
     }
 }
 

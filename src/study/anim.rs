@@ -11,7 +11,7 @@
 //!   track against the rate and against the memory the baked keys take (a sample's
 //!   time, in the report, does not depend on the rate).
 
-use super::{write_file, write_plot_and_numbers, Progress, StudyError};
+use super::{curves_by, write_file, write_plot_and_numbers, Progress, StudyError};
 use crate::anim::ik::{Effector, Ik, IkJoint, IkMethod};
 use crate::anim::keyframe::{Cursor, RotationInterpolation, RotationTrack};
 use crate::anim::{JointDesc, Skeleton, SkeletonDesc};
@@ -168,26 +168,8 @@ pub(super) fn ik(out: &Path, quick: bool, progress: &Progress<'_>) -> Result<Str
         progress.tick(m.name());
     }
     let names: Vec<&str> = methods.iter().map(|m| m.name()).collect();
-    let curves = |f: &dyn Fn(&IkPoint) -> (f64, f64)| -> Vec<(usize, Curve)> {
-        names
-            .iter()
-            .enumerate()
-            .map(|(k, name)| {
-                (
-                    k,
-                    Curve {
-                        label: (*name).into(),
-                        points: points
-                            .iter()
-                            .filter(|p| p.method == *name)
-                            .map(f)
-                            .filter(|(x, y)| *x > 0.0 && *y > 0.0 && y.is_finite())
-                            .collect(),
-                        dashed: false,
-                    },
-                )
-            })
-            .collect()
+    let curves = |f: &dyn Fn(&IkPoint) -> (f64, f64)| {
+        curves_by(&names, &points, |p, name| p.method == name, f)
     };
     let panels = vec![
         Panel {

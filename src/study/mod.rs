@@ -161,6 +161,36 @@ pub(crate) fn write_plot_and_numbers(
     write_file(&out.join(format!("{name}.json")), &json)
 }
 
+/// One log-log curve per name: the points `keep` gives it, through `f`, those with
+/// positive coordinates.
+#[cfg(any(feature = "rigid", feature = "anim"))]
+pub(crate) fn curves_by<P>(
+    names: &[&str],
+    points: &[P],
+    keep: impl Fn(&P, &str) -> bool,
+    f: &dyn Fn(&P) -> (f64, f64),
+) -> Vec<(usize, crate::plot::Curve)> {
+    names
+        .iter()
+        .enumerate()
+        .map(|(k, name)| {
+            (
+                k,
+                crate::plot::Curve {
+                    label: (*name).into(),
+                    points: points
+                        .iter()
+                        .filter(|p| keep(p, name))
+                        .map(f)
+                        .filter(|(x, y)| *x > 0.0 && *y > 0.0 && y.is_finite())
+                        .collect(),
+                    dashed: false,
+                },
+            )
+        })
+        .collect()
+}
+
 pub(crate) fn write_file(path: &Path, text: &str) -> Result<(), StudyError> {
     crate::io::write_atomically(path, |w| w.write_all(text.as_bytes())).map_err(|e| {
         StudyError::Write {

@@ -3,9 +3,9 @@
 //! integrator over a range of steps: the orientation error against run time, and how each
 //! method treats the energy and the angular momentum.
 
-use super::{write_file, write_plot_and_numbers, Progress, StudyError};
+use super::{curves_by, write_file, write_plot_and_numbers, Progress, StudyError};
 use crate::kernels::quat;
-use crate::plot::{Curve, Panel, Scale};
+use crate::plot::{Panel, Scale};
 use crate::rigid::{BodyDesc, RigidDesc, RigidIntegrator, Shape};
 use serde::Serialize;
 use std::fmt::Write as _;
@@ -23,35 +23,6 @@ struct Point {
     energy_change: f64,
     /// Change of the angular momentum vector relative to its length, `|ΔL| / |L|`.
     momentum_change: f64,
-}
-
-/// One log-log curve per name: the points `keep` gives it, through `f`, those with
-/// positive coordinates.
-fn curves_by<P>(
-    names: &[&str],
-    points: &[P],
-    keep: impl Fn(&P, &str) -> bool,
-    f: &dyn Fn(&P) -> (f64, f64),
-) -> Vec<(usize, Curve)> {
-    names
-        .iter()
-        .enumerate()
-        .map(|(k, name)| {
-            (
-                k,
-                Curve {
-                    label: (*name).into(),
-                    points: points
-                        .iter()
-                        .filter(|p| keep(p, name))
-                        .map(f)
-                        .filter(|(x, y)| *x > 0.0 && *y > 0.0 && y.is_finite())
-                        .collect(),
-                    dashed: false,
-                },
-            )
-        })
-        .collect()
 }
 
 const DURATION: f64 = 4.0;
