@@ -1705,7 +1705,8 @@ mod gltf_assets {
     }
 
     /// Bad assets are errors naming what is wrong: not glTF, a missing buffer file, a
-    /// data URI, an accessor past its buffer, an index past the vertices.
+    /// data URI too short for its buffer, an accessor past its buffer, an index past the
+    /// vertices; and a data URI that holds its buffer is read.
     #[test]
     fn bad_assets_are_refused() {
         let dir = temp_dir("gltf-bad");
@@ -1738,7 +1739,25 @@ mod gltf_assets {
             30.0,
         )
         .unwrap_err();
-        assert!(e.to_string().contains("data URI"), "{e}");
+        assert!(
+            e.to_string()
+                .contains("buffer 0 holds 3 bytes, the file says 36"),
+            "{e}"
+        );
+        // A data URI that holds the triangle (positions, then indices 0, 1, 2).
+        let tri = "data:application/octet-stream;base64,AAAAAAAAAAAAAAAAAACAPwAAAAAAAAAAAAAAAAAAgD8AAAAAAAAAAAEAAAACAAAA";
+        let ok = head
+            .replace("BUF", tri)
+            .replace("\"byteLength\":36}]", "\"byteLength\":48}]")
+            .replace("VIEW", "48")
+            .replace("\"byteOffset\":12,", "\"byteOffset\":36,");
+        let a = Asset::read(&write("embedded.gltf", &ok), 1 << 20, 30.0).unwrap();
+        let m = a.mesh.unwrap();
+        assert_eq!(m.triangles, vec![[0, 1, 2]]);
+        assert_eq!(
+            m.positions,
+            vec![0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]
+        );
         let bin: Vec<u8> = [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]
             .iter()
             .flat_map(|x| x.to_le_bytes())

@@ -3,7 +3,7 @@
 //! influences, morph targets as blendshapes, and animations as clips.
 //!
 //! **Reading.** `.glb` files, and `.gltf` files whose buffers are external files beside
-//! them (read through the bounded reader); data URIs are refused by name. Every accessor
+//! them (within the input limit) or base64 data URIs. Every accessor
 //! read is checked first against its buffer view and buffer (offset, stride, count), so
 //! a file with missing buffers or ranges past their ends is an error naming the
 //! accessor, never a panic; mesh indices and joint indices are checked against their
@@ -168,10 +168,17 @@ impl Asset {
                     ))
                 })?,
                 gltf::buffer::Source::Uri(uri) if uri.starts_with("data:") => {
-                    return Err(err(format!(
-                        "buffer {} is a data URI; export as .glb or with separate .bin files",
-                        b.index()
-                    )))
+                    // data:[<type>];base64,<data> (the text is within the file's bound).
+                    let data = uri.split_once(";base64,").map(|(_, d)| d).ok_or_else(|| {
+                        err(format!(
+                            "buffer {} is a data URI that is not base64",
+                            b.index()
+                        ))
+                    })?;
+                    use base64::Engine as _;
+                    base64::engine::general_purpose::STANDARD
+                        .decode(data)
+                        .map_err(|e| err(format!("buffer {}: bad base64 data: {e}", b.index())))?
                 }
                 gltf::buffer::Source::Uri(uri) => {
                     let file = path.parent().unwrap_or(Path::new("")).join(uri);
