@@ -1273,7 +1273,7 @@ mod motion_graphs {
         let (s, c, g) = graph();
         let path = [[0.0, 0.0], [0.0, 2000.0]];
         let mut walk = Vec::new();
-        g.follow_path(&s, &c, &path, 300, 30, &mut walk);
+        g.follow_path(&s, &c, &path, 300, 90, &mut walk);
         assert_eq!(walk.len(), 300);
         let end = root(&walk[299]);
         let off: f64 = walk.iter().map(|p| root(p)[0].abs()).fold(0.0, f64::max);
@@ -1284,7 +1284,8 @@ mod motion_graphs {
         );
         // One 2.3 s clip gives five transitions: the walk goes on along the line
         // (the clip alone turns back at 93 cm), swinging off it where only the clip's
-        // turn leads on.
+        // turn leads on. A horizon of 90 frames (3 s) sees past the turn; the greedy
+        // one-choice look-ahead this replaced reached 252 cm, 51 cm off on average.
         assert!(end[2] > 200.0, "{end:?}");
         assert!(mean < 60.0, "{mean}");
     }

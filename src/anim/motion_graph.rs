@@ -19,9 +19,10 @@
 //! **Graph.** Nodes are frames; edges the clip's own `f -> f+1` and the transitions
 //! `i -> j+k`. It is pruned to its largest strongly connected component (Tarjan), so a
 //! walk never reaches a dead end. A random walk picks uniformly among a node's edges
-//! (a seeded generator: the same seed, the same walk); path following looks ahead over
-//! every choice within a horizon and takes the one whose root ends nearest the point
-//! of the path the walk should have reached by then.
+//! (a seeded generator: the same seed, the same walk); path following chooses at each
+//! frame by branch and bound over the walks of the next `horizon` frames with up to two
+//! transitions: a walk's cost is the sum over its frames of the squared floor distance
+//! from the root to the path's point at the arc length travelled.
 
 use super::clip::Clip;
 use super::{blend, Pose, Skeleton};
@@ -407,10 +408,8 @@ impl MotionGraph {
     }
 
     /// A walk of `frames` output frames that follows the floor path `path` (x, z points,
-    /// the file's units): at every frame with a choice, each choice is played ahead for
-    /// `horizon` frames (the clip's own frames after it) and the one whose root ends
-    /// nearest the path's point at the arc length the root has travelled by then is
-    /// taken.
+    /// the file's units): at every frame with a choice, the choice that begins the
+    /// cheapest walk of `horizon` frames (see the module docs) is taken.
     pub fn follow_path(
         &self,
         skeleton: &Skeleton,
@@ -450,38 +449,30 @@ impl MotionGraph {
         };
         let mut travelled = 0.0;
         let mut last: Option<[f64; 3]> = None;
+        let ahead = Ahead {
+            graph: self,
+            roots: &roots,
+            path_at: &path_at,
+        };
         let mut choose = |f: usize, c: &[Option<usize>], place: [f64; 3]| -> usize {
             // Distance covered so far, from the root's floor positions.
             let here = floor_apply(place, roots[f]);
             if let Some(l) = last {
-                travelled += ((here[0] - l[0]).powi(2) + (here[2] - l[2]).powi(2)).sqrt();
+                travelled += floor_distance(here, l);
             }
             last = Some(here);
             let mut best = (f64::INFINITY, 0);
-            for (i, ch) in c.iter().enumerate() {
-                // Play the choice, then the clip's own frames, for `horizon` frames.
-                let (mut g, mut pl, mut n) = (f, place, 0);
-                if let Some(t) = ch {
-                    let t = self.transitions[*t];
-                    pl = floor_compose(place, t.align);
-                    g = t.to + self.window;
-                    n += self.window;
-                } else {
-                    g += 1;
-                    n += 1;
-                }
-                let mut prev = here;
-                let mut run = travelled;
-                let mut end = floor_apply(pl, roots[g.min(self.frames - 1)]);
-                while n < horizon && g + 1 < self.frames {
-                    g += 1;
-                    n += 1;
-                    end = floor_apply(pl, roots[g]);
-                    run += ((end[0] - prev[0]).powi(2) + (end[2] - prev[2]).powi(2)).sqrt();
-                    prev = end;
-                }
-                let goal = path_at(run);
-                let cost = (end[0] - goal[0]).powi(2) + (end[2] - goal[1]).powi(2);
+            for (i, &ch) in c.iter().enumerate() {
+                let cost = ahead.option(
+                    f,
+                    ch,
+                    place,
+                    travelled,
+                    here,
+                    horizon,
+                    LOOK_AHEAD_TRANSITIONS,
+                    best.0,
+                );
                 if cost < best.0 {
                     best = (cost, i);
                 }
@@ -489,6 +480,82 @@ impl MotionGraph {
             best.1
         };
         self.play(skeleton, clip, start, frames, out, &mut choose);
+    }
+}
+
+/// How many transitions a path-following look-ahead may take within its horizon.
+const LOOK_AHEAD_TRANSITIONS: usize = 2;
+
+/// Floor distance of two points (x, z).
+fn floor_distance(a: [f64; 3], b: [f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+/// Path following's branch-and-bound look-ahead: the cost of a walk is the sum over its
+/// frames of the squared floor distance from the root to the path's point at the arc
+/// length the root has travelled.
+struct Ahead<'a> {
+    graph: &'a MotionGraph,
+    /// The clip's root positions per frame.
+    roots: &'a [[f64; 3]],
+    path_at: &'a dyn Fn(f64) -> [f64; 2],
+}
+
+impl Ahead<'_> {
+    /// The least cost of taking `choice` at frame `f` (the root at `prev` after `run`
+    /// travelled, the floor transform `place`) and going on for `left` frames in all,
+    /// with at most `depth` transitions; branches whose cost reaches `bound` are cut.
+    #[allow(clippy::too_many_arguments)]
+    fn option(
+        &self,
+        f: usize,
+        choice: Option<usize>,
+        place: [f64; 3],
+        run: f64,
+        prev: [f64; 3],
+        left: usize,
+        depth: usize,
+        bound: f64,
+    ) -> f64 {
+        let g = self.graph;
+        // The frames the choice plays (a transition's blend approximated by its target
+        // frames), where the walk goes on, and its floor transform then.
+        let (first, count, place, next, depth) = match choice {
+            None => (f, 1, place, f + 1, depth),
+            Some(t) => {
+                if depth == 0 {
+                    return f64::INFINITY;
+                }
+                let t = g.transitions[t];
+                let to_place = floor_compose(place, t.align);
+                (t.to, g.window, to_place, t.to + g.window, depth - 1)
+            }
+        };
+        let (mut cost, mut run, mut prev) = (0.0, run, prev);
+        let n = count.min(left);
+        for k in 0..n {
+            let q = floor_apply(place, self.roots[first + k]);
+            run += floor_distance(q, prev);
+            prev = q;
+            let goal = (self.path_at)(run);
+            cost += (q[0] - goal[0]).powi(2) + (q[2] - goal[1]).powi(2);
+            if cost >= bound {
+                return f64::INFINITY;
+            }
+        }
+        if left == n {
+            return cost;
+        }
+        let mut best = bound - cost;
+        for ch in g.choices(next) {
+            let c = self.option(next, ch, place, run, prev, left - n, depth, best);
+            best = best.min(c);
+        }
+        if best.is_finite() && best < bound - cost {
+            cost + best
+        } else {
+            f64::INFINITY
+        }
     }
 }
 
