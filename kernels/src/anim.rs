@@ -62,6 +62,23 @@ pub fn affine_point(a: &Affine, p: [f64; 3]) -> [f64; 3] {
     [0, 1, 2].map(|r| a[4 * r] * p[0] + a[4 * r + 1] * p[1] + a[4 * r + 2] * p[2] + a[4 * r + 3])
 }
 
+/// Translation, rotation and scale of an affine transform `[R diag(s) | t]`: the scales
+/// are the lengths of the 3x3 part's columns, the rotation that of the columns
+/// normalised (exact for rotations with positive scales; a zero column is left as is).
+pub fn affine_decompose(a: &Affine) -> ([f64; 3], Quat, [f64; 3]) {
+    let mut r = [[a[0], a[1], a[2]], [a[4], a[5], a[6]], [a[8], a[9], a[10]]];
+    let mut s = [0.0; 3];
+    for (c, sc) in s.iter_mut().enumerate() {
+        *sc = (r[0][c] * r[0][c] + r[1][c] * r[1][c] + r[2][c] * r[2][c]).sqrt();
+        if *sc > 0.0 {
+            for row in r.iter_mut() {
+                row[c] /= *sc;
+            }
+        }
+    }
+    ([a[3], a[7], a[11]], quat::from_matrix(r), s)
+}
+
 /// The inverse of a rigid or scaled-rigid affine transform (any invertible one: the 3x3
 /// part is inverted by its adjugate). A singular transform gives the identity.
 pub fn affine_inverse(a: &Affine) -> Affine {

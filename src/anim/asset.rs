@@ -26,7 +26,9 @@ use super::keyframe::{
 use super::skin::SkinDesc;
 use super::{Affine, JointDesc, Pose, Skeleton, SkeletonDesc};
 use crate::io::ReadError;
-use largestep_kernels::anim::{affine_from_trs, affine_inverse, affine_mul, AFFINE_IDENTITY};
+use largestep_kernels::anim::{
+    affine_decompose, affine_from_trs, affine_inverse, affine_mul, AFFINE_IDENTITY,
+};
 use largestep_kernels::quat;
 use std::path::Path;
 
@@ -69,22 +71,6 @@ fn node_affine(n: &gltf::Node) -> Affine {
         [r[3] as f64, r[0] as f64, r[1] as f64, r[2] as f64],
         s.map(|v| v as f64),
     )
-}
-
-/// Translation, rotation, scale of an affine transform (rotation from the columns
-/// normalised; exact for rotations with positive scales).
-fn decompose(a: &Affine) -> ([f64; 3], quat::Quat, [f64; 3]) {
-    let mut r = [[a[0], a[1], a[2]], [a[4], a[5], a[6]], [a[8], a[9], a[10]]];
-    let mut s = [0.0; 3];
-    for (c, sc) in s.iter_mut().enumerate() {
-        *sc = (r[0][c] * r[0][c] + r[1][c] * r[1][c] + r[2][c] * r[2][c]).sqrt();
-        if *sc > 0.0 {
-            for row in r.iter_mut() {
-                row[c] /= *sc;
-            }
-        }
-    }
-    ([a[3], a[7], a[11]], quat::from_matrix(r), s)
 }
 
 /// Checks that accessor `a` lies inside its data: count at least 1, the view and buffer
@@ -259,7 +245,7 @@ impl Asset {
                 local = affine_mul(&node_affine(&nodes[p]), &local);
                 up = parent_node[p];
             }
-            let (t, r, s) = decompose(&local);
+            let (t, r, s) = affine_decompose(&local);
             let name = n
                 .name()
                 .map_or_else(|| format!("node{}", n.index()), str::to_string);

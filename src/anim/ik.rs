@@ -34,6 +34,7 @@
 //! gain less than a thousandth of the tolerance (the closest pose reached).
 
 use super::{Affine, JointError, Pose, Skeleton};
+use largestep_kernels::anim::affine_decompose;
 use largestep_kernels::quat::{self, Quat};
 use largestep_kernels::rotation::{self, EulerOrder};
 use largestep_kernels::v3::{add, cross, dot, length_and_unit, scale, sub};
@@ -127,9 +128,10 @@ pub struct IkReport {
 #[derive(Clone, Debug)]
 pub struct Ik {
     joints: Vec<IkJoint>,
-    /// For every skeleton joint, the chain joints above it or at it (bit per chain
-    /// joint would do; chains are short).
+    /// For every skeleton joint, the chain joints above it or at it, root first.
     above: Vec<Vec<usize>>,
+    /// The first angle index of each chain joint.
+    offsets: Vec<usize>,
     /// The method.
     pub method: IkMethod,
     /// Iterations at most.
@@ -201,6 +203,7 @@ impl Ik {
                 }
                 k = skeleton.parent(x);
             }
+            a.reverse();
         }
         // Zero-length bones: a chain joint (or any joint) below a chain joint at the
         // same place as its parent.
@@ -222,9 +225,19 @@ impl Ik {
                 "damped least squares needs a positive damping".into(),
             ));
         }
+        let mut at = 0;
+        let offsets = joints
+            .iter()
+            .map(|ij| {
+                let o = at;
+                at += ij.axes.len();
+                o
+            })
+            .collect();
         Ok(Ik {
             joints,
             above,
+            offsets,
             method,
             max_iterations: 200,
             tolerance: 1e-6,
@@ -505,19 +518,6 @@ impl Ik {
         }
     }
 
-    /// The first angle index of each chain joint.
-    fn offsets(&self) -> Vec<usize> {
-        let mut at = 0;
-        self.joints
-            .iter()
-            .map(|ij| {
-                let o = at;
-                at += ij.axes.len();
-                o
-            })
-            .collect()
-    }
-
     /// One CCD sweep, tip to root.
     fn ccd_sweep(
         &self,
@@ -527,14 +527,9 @@ impl Ik {
         eff: &Effector,
         model: &mut Vec<Affine>,
     ) {
-        let offsets = self.offsets();
-        let mut chain: Vec<usize> = self.above[eff.joint].clone(); // tip first
-        chain.sort_by_key(|&c| std::cmp::Reverse(self.joints[c].joint));
-        for c in chain {
+        for &c in self.above[eff.joint].iter().rev() {
             let from = point(&model[eff.joint]);
-            self.aim(
-                skeleton, pose, angles, model, c, offsets[c], from, eff.target,
-            );
+            self.aim(skeleton, pose, angles, model, c, from, eff.target);
         }
     }
 
@@ -548,10 +543,8 @@ impl Ik {
         eff: &Effector,
         model: &mut Vec<Affine>,
     ) {
-        let offsets = self.offsets();
         // The serial chain from the root-most chain joint to the effector.
-        let mut chain: Vec<usize> = self.above[eff.joint].clone();
-        chain.sort_by_key(|&c| self.joints[c].joint);
+        let chain = &self.above[eff.joint];
         let mut pts: Vec<[f64; 3]> = chain
             .iter()
             .map(|&c| point(&model[self.joints[c].joint]))
@@ -578,20 +571,11 @@ impl Ik {
                 eff.joint
             };
             let from = point(&model[next]);
-            self.aim(
-                skeleton,
-                pose,
-                angles,
-                model,
-                c,
-                offsets[c],
-                from,
-                pts[i + 1],
-            );
+            self.aim(skeleton, pose, angles, model, c, from, pts[i + 1]);
         }
     }
 
-    /// Turns chain joint `c` (angles from `offset`) by the shortest arc about its
+    /// Turns chain joint `c` by the shortest arc about its
     /// position that carries the point `from` toward `to`, with its angles read back
     /// and clamped, and poses the skeleton again (CCD's and FABRIK's step).
     #[allow(clippy::too_many_arguments)]
@@ -602,7 +586,6 @@ impl Ik {
         angles: &mut [f64],
         model: &mut Vec<Affine>,
         c: usize,
-        offset: usize,
         from: [f64; 3],
         to: [f64; 3],
     ) {
@@ -614,11 +597,11 @@ impl Ik {
         else {
             return;
         };
-        let world = quat::mul(arc(u, v), quat::from_matrix(rows(m)));
+        let world = quat::mul(arc(u, v), affine_decompose(m).1);
         let parent = skeleton
             .parent(ij.joint)
-            .map_or(quat::IDENTITY, |pj| quat::from_matrix(rows(&model[pj])));
-        let k = ij.axes.len();
+            .map_or(quat::IDENTITY, |pj| affine_decompose(&model[pj]).1);
+        let (offset, k) = (self.offsets[c], ij.axes.len());
         self.angles_for(skeleton, c, parent, world, &mut angles[offset..offset + k]);
         self.clamp(angles);
         self.apply(skeleton, angles, pose);
@@ -629,11 +612,6 @@ impl Ik {
 /// The translation of an affine transform.
 fn point(m: &Affine) -> [f64; 3] {
     [m[3], m[7], m[11]]
-}
-
-/// The 3x3 part of an affine transform, rows.
-fn rows(m: &Affine) -> [[f64; 3]; 3] {
-    [[m[0], m[1], m[2]], [m[4], m[5], m[6]], [m[8], m[9], m[10]]]
 }
 
 fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {

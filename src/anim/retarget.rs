@@ -15,6 +15,7 @@
 //! pose's vertical extent), so a bigger character takes longer strides.
 
 use super::{Affine, JointError, Pose, Skeleton};
+use largestep_kernels::anim::affine_decompose;
 use largestep_kernels::quat::{self, Quat};
 
 /// A joint pairing from a source skeleton to a target skeleton.
@@ -40,21 +41,7 @@ fn bare(name: &str) -> &str {
 /// World rotations of a pose's joints (from forward kinematics, scale removed).
 fn world_rotations(skeleton: &Skeleton, pose: &Pose, model: &mut Vec<Affine>) -> Vec<Quat> {
     skeleton.model(pose, model);
-    model
-        .iter()
-        .map(|m| {
-            let mut r = [[m[0], m[1], m[2]], [m[4], m[5], m[6]], [m[8], m[9], m[10]]];
-            for c in 0..3 {
-                let l = (r[0][c] * r[0][c] + r[1][c] * r[1][c] + r[2][c] * r[2][c]).sqrt();
-                if l > 0.0 {
-                    for row in r.iter_mut() {
-                        row[c] /= l;
-                    }
-                }
-            }
-            quat::from_matrix(r)
-        })
-        .collect()
+    model.iter().map(|m| affine_decompose(m).1).collect()
 }
 
 /// The rest pose's vertical extent (y) of a skeleton.

@@ -146,6 +146,8 @@ pub struct AnimSim {
     triangles: Vec<[u32; 3]>,
     segments: Vec<[u32; 2]>,
     notes: Vec<String>,
+    /// The frame's points one after another (kept between steps).
+    points: Vec<[f64; 3]>,
 }
 
 /// Builds the `[anim]` system.
@@ -410,6 +412,7 @@ impl AnimSim {
             duration: duration.max(f64::MIN_POSITIVE),
             steps: 0,
             positions: Vec::new(),
+            points: Vec::new(),
             triangles: Vec::new(),
             segments: Vec::new(),
             notes,
@@ -430,9 +433,9 @@ impl AnimSim {
         self.triangles.clear();
         self.segments.clear();
         // Points one after another (made component-major at the end).
-        let mut points: Vec<[f64; 3]> = Vec::new();
+        let mut points = std::mem::take(&mut self.points);
+        points.clear();
         let mut scale = 1.0;
-        let mut targets = Vec::new();
         match &mut self.show {
             Show::Clip {
                 clip,
@@ -482,7 +485,6 @@ impl AnimSim {
                 }
             }
             Show::Reach { solvers, radius } => {
-                let mut notes = Vec::new();
                 for (k, (ik, angles, worst)) in solvers.iter_mut().enumerate() {
                     let target = Self::target(*radius, self.time, k);
                     let eff = [Effector {
@@ -492,14 +494,7 @@ impl AnimSim {
                     if let Ok(r) = ik.solve(&self.skeleton, &mut self.pose, angles, &eff) {
                         *worst = worst.max(r.distances[0]);
                     }
-                    notes.push(format!(
-                        "reach, {}: farthest from its target after a frame's solve {:.4} m",
-                        ik.method.name(),
-                        worst
-                    ));
-                    targets.push(target);
                 }
-                self.notes = notes;
             }
         }
         if points.is_empty() {
@@ -516,12 +511,15 @@ impl AnimSim {
                     self.segments.push([p as u32, j as u32]);
                 }
             }
-            points.extend(targets);
+            if let Show::Reach { solvers, radius } = &self.show {
+                points.extend((0..solvers.len()).map(|k| Self::target(*radius, self.time, k)));
+            }
         }
         self.positions.clear();
         for c in 0..3 {
             self.positions.extend(points.iter().map(|p| p[c]));
         }
+        self.points = points;
     }
 }
 
@@ -653,6 +651,17 @@ impl Simulation for AnimSim {
     }
 
     fn warnings(&self) -> Vec<String> {
-        self.notes.clone()
+        let Show::Reach { solvers, .. } = &self.show else {
+            return self.notes.clone();
+        };
+        solvers
+            .iter()
+            .map(|(ik, _, worst)| {
+                format!(
+                    "reach, {}: farthest from its target after a frame's solve {worst:.4} m",
+                    ik.method.name()
+                )
+            })
+            .collect()
     }
 }
