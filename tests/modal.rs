@@ -269,6 +269,32 @@ fn dense_and_sparse_paths_agree() {
     }
 }
 
+/// The sparse path splits its block solves and its orthogonalisation over two threads,
+/// the same way on one: the modes are the same bits on one thread and on two (14,823
+/// unknowns, a supernodal factor).
+#[test]
+fn sparse_modes_are_the_same_bits_on_one_and_two_threads() {
+    let (fem, rest) = bar([60, 8, 8], [1.0, 0.1, 0.1], steel(), FemMass::Consistent);
+    let k = stiffness_at_rest(&fem, &rest).unwrap();
+    let params = EigenParams {
+        count: 12,
+        dense_max: 0,
+        ..EigenParams::default()
+    };
+    let run = |threads| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| solve(&fem, &k, &[], &params).unwrap())
+    };
+    let (one, two) = (run(1), run(2));
+    assert_eq!(one.rigid, 6);
+    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&one.eigenvalues), bits(&two.eigenvalues));
+    assert_eq!(bits(&one.vectors), bits(&two.vectors));
+}
+
 /// The automatic shift scales with the material: rubber and steel give frequencies in the
 /// ratio `sqrt((E1 / rho1) / (E2 / rho2))` to 1e-8 (the problem is linear in E / rho),
 /// with six rigid modes each. A shift given at zero on a free body (singular `K`) is moved

@@ -402,7 +402,8 @@ struct ShiftInvert<'a> {
 impl<'a> ShiftInvert<'a> {
     fn new(k: &'a Bsr3, mass: Mass<'a>, fixed: Vec<bool>, scale: f64) -> Result<Self, SolveError> {
         let csc = FaerCsc::new(k.pattern(), Triangle::Lower);
-        let core = CholeskyCore::new(csc.symbolic())?;
+        // The block solves are the largest part of the time: split over two threads.
+        let core = CholeskyCore::new(csc.symbolic())?.parallel();
         Ok(Self {
             k,
             solve_seconds: 0.0,
@@ -733,10 +734,25 @@ fn largest_cluster(kept: &[(f64, Vec<f64>)]) -> usize {
     best
 }
 
-/// Removes from the `p` columns of `w` (column-major, each as long as the basis vectors)
+/// Where the long vectors' rows split in two for the threads: the same split whatever
+/// the thread count (the two halves run one after the other on one thread), so the
+/// sums over rows, partial per half and added in order, give the same bits on any
+/// number of threads. A multiple of 8 (the dot kernel's stride).
+fn row_split(n3: usize) -> usize {
+    (n3 / 2) & !7
+}
+
+/// Runs `f` on the two row halves `[0, h)` and `[h, n3)` ([`row_split`]), side by side.
+fn on_halves<R: Send>(n3: usize, f: impl Fn(std::ops::Range<usize>) -> R + Sync) -> (R, R) {
+    let h = row_split(n3);
+    rayon::join(|| f(0..h), || f(h..n3))
+}
+
+/// Removes from the `p` columns of `w` (column-major, `n3` rows, as the basis vectors)
 /// their M-components along the first `cols` basis vectors `q` (with `mq = M q`):
-/// classical Gram-Schmidt twice, as two matrix products per pass. `record(r, c, x)`
-/// receives each coefficient (basis vector r, column c), both passes.
+/// classical Gram-Schmidt twice, as two matrix products per pass, each over the two row
+/// halves on two threads ([`on_halves`]). `record(r, c, x)` receives each coefficient
+/// (basis vector r, column c), both passes.
 fn reorthogonalise(
     q: &[f64],
     mq: &[f64],
@@ -752,35 +768,48 @@ fn reorthogonalise(
     let n3 = w.len() / p;
     let qm = MatRef::from_column_major_slice(&q[..cols * n3], n3, cols);
     let mqm = MatRef::from_column_major_slice(&mq[..cols * n3], n3, cols);
-    coef.resize(cols * p, 0.0);
+    // The coefficients, then the second half's partial sums.
+    coef.resize(2 * cols * p, 0.0);
     for _ in 0..2 {
-        matmul(
-            MatMut::from_column_major_slice_mut(&mut coef[..], cols, p),
-            Accum::Replace,
-            mqm.transpose(),
-            MatRef::from_column_major_slice(w, n3, p),
-            1.0,
-            Par::Seq,
-        );
+        {
+            let (first, second) = coef.split_at_mut(cols * p);
+            let wm = MatRef::from_column_major_slice(w, n3, p);
+            let part = |out: &mut [f64], rows: std::ops::Range<usize>| {
+                matmul(
+                    MatMut::from_column_major_slice_mut(out, cols, p),
+                    Accum::Replace,
+                    mqm.subrows(rows.start, rows.len()).transpose(),
+                    wm.subrows(rows.start, rows.len()),
+                    1.0,
+                    Par::Seq,
+                )
+            };
+            let h = row_split(n3);
+            rayon::join(|| part(first, 0..h), || part(second, h..n3));
+            for (a, b) in first.iter_mut().zip(second.iter()) {
+                *a += b;
+            }
+        }
         for c in 0..p {
             for r in 0..cols {
                 record(r, c, coef[c * cols + r]);
             }
         }
-        matmul(
-            MatMut::from_column_major_slice_mut(w, n3, p),
-            Accum::Add,
-            qm,
-            MatRef::from_column_major_slice(coef, cols, p),
-            -1.0,
-            Par::Seq,
-        );
+        let h = row_split(n3);
+        let (top, bottom) = MatMut::from_column_major_slice_mut(w, n3, p).split_at_row_mut(h);
+        let cm = MatRef::from_column_major_slice(&coef[..cols * p], cols, p);
+        let update = |part: MatMut<'_, f64>, r0: usize| {
+            let rows = part.nrows();
+            matmul(part, Accum::Add, qm.subrows(r0, rows), cm, -1.0, Par::Seq)
+        };
+        rayon::join(|| update(top, 0), || update(bottom, h));
     }
 }
 
 /// M-orthonormalises the `p` columns of `w` (with `mw = M w`, updated alike) by Cholesky
 /// QR twice: `w = V B`, V into `w`, B (upper triangular, `p x p`) returned; `None` when
-/// the columns are (nearly) dependent.
+/// the columns are (nearly) dependent. The Gram matrix's dot products and the column
+/// updates run over the two row halves on two threads ([`on_halves`]).
 // Small dense algebra on p x p blocks reads plainest with indices.
 #[allow(clippy::needless_range_loop)]
 fn m_orthonormalise(
@@ -795,12 +824,18 @@ fn m_orthonormalise(
     }
     for _ in 0..2 {
         // G = W^T M W and its Cholesky factor R (upper): G = R^T R.
-        let mut g = [[0.0; BLOCK]; BLOCK];
-        for i in 0..p {
-            for j in i..p {
-                g[i][j] = dot(&w[i * n3..(i + 1) * n3], &mw[j * n3..(j + 1) * n3]);
+        let gram = |rows: std::ops::Range<usize>| {
+            let mut g = [[0.0; BLOCK]; BLOCK];
+            for i in 0..p {
+                for j in i..p {
+                    g[i][j] = dot(&w[i * n3..][rows.clone()], &mw[j * n3..][rows.clone()]);
+                }
             }
-        }
+            g
+        };
+        let (g0, g1) = on_halves(n3, gram);
+        let g: [[f64; BLOCK]; BLOCK] =
+            std::array::from_fn(|i| std::array::from_fn(|j| g0[i][j] + g1[i][j]));
         let scale = (0..p).map(|i| g[i][i]).fold(0.0f64, f64::max);
         let mut r = [[0.0; BLOCK]; BLOCK];
         for j in 0..p {
@@ -820,19 +855,28 @@ fn m_orthonormalise(
                 r[j][i] = x / r[j][j];
             }
         }
-        // W <- W R^-1 column by column (and M W alike).
-        for c in 0..p {
-            for k in 0..c {
-                let f = r[k][c];
-                let (done, rest) = w.split_at_mut(c * n3);
-                axpy(&mut rest[..n3], -f, &done[k * n3..(k + 1) * n3]);
-                let (done, rest) = mw.split_at_mut(c * n3);
-                axpy(&mut rest[..n3], -f, &done[k * n3..(k + 1) * n3]);
+        // W <- W R^-1 column by column (and M W alike), each row half on its own
+        // thread: the columns cut at the split into a top and a bottom part.
+        let h = row_split(n3);
+        let (mut top, mut bottom): (Vec<&mut [f64]>, Vec<&mut [f64]>) = w[..p * n3]
+            .chunks_mut(n3)
+            .chain(mw[..p * n3].chunks_mut(n3))
+            .map(|col| col.split_at_mut(h))
+            .unzip();
+        let solve = |cols: &mut [&mut [f64]]| {
+            // Columns 0..p are W's, p..2p M W's.
+            for base in [0, p] {
+                for c in 0..p {
+                    let (done, rest) = cols[base..base + p].split_at_mut(c);
+                    for k in 0..c {
+                        axpy(rest[0], -r[k][c], done[k]);
+                    }
+                    let inv = 1.0 / r[c][c];
+                    rest[0].iter_mut().for_each(|v| *v *= inv);
+                }
             }
-            let inv = 1.0 / r[c][c];
-            w[c * n3..(c + 1) * n3].iter_mut().for_each(|v| *v *= inv);
-            mw[c * n3..(c + 1) * n3].iter_mut().for_each(|v| *v *= inv);
-        }
+        };
+        rayon::join(|| solve(&mut top), || solve(&mut bottom));
         // B <- R B.
         let mut nb = [[0.0; BLOCK]; BLOCK];
         for i in 0..p {
