@@ -55,7 +55,7 @@ done
 cp "$both/preview/contact-sheet.png" docs/images/fem-twist.png
 # The sound scenes' spectrograms (`largestep run` draws spectrogram.png beside
 # sound.wav).
-for s in sound-bar sound-bowl sound-nut; do
+for s in sound-bar sound-bowl sound-nut sound-rigid-bar; do
   echo "$s: scenes/$s.toml"
   "$ls" run "scenes/$s.toml" --out "$work/$s" >/dev/null
   cp "$work/$s/spectrogram.png" "docs/images/$s-spectrogram.png"

@@ -1,6 +1,8 @@
 //! The `[sound]` scene table: the modal sound of a tetrahedral mesh, struck by scripted
 //! hits and, with `contacts = true`, by the contact impulses of the scene's other systems
-//! (a FEM body dropped on the floor, made of the same mesh).
+//! (a FEM body dropped on the floor, made of the same mesh; or, with `body = k`, rigid
+//! body k of a `[rigid]` system, whose contact points go to the nearest surface vertex of
+//! the sound's mesh, given in the body's shape frame).
 //!
 //! Building it runs the modal analysis ([`super::analyse_desc`]: linear elasticity at
 //! rest, the lowest `modes` non-rigid modes) and sets up the resonator bank
@@ -20,6 +22,7 @@
 //! max_frequency = 20000.0       # Hz: modes above are culled
 //! quiet = 1e-4                  # modes quieter than this fraction of the loudest: culled
 //! contacts = false              # true: the other systems' contact impulses strike it
+//! # body = 0                    # contacts from [rigid]: the index of the body that rings
 //! contact_time = 1e-4           # s: the half-sine each contact impulse is spread over
 //! [sound.beam]                  # or [sound.mesh], as [fem.beam] and [fem.mesh]
 //! cells = [40, 4, 4]
@@ -79,6 +82,9 @@ pub struct SoundTable {
     pub quiet: Option<f64>,
     #[serde(default)]
     pub contacts: bool,
+    /// With `contacts`, from a rigid system: the index of the body that rings.
+    #[serde(default)]
+    pub body: Option<i64>,
     #[serde(default)]
     pub contact_time: Option<f64>,
     #[serde(default)]
@@ -129,10 +135,20 @@ pub struct ModalSound {
     /// vertices where that is not zero.
     prev: Vec<[f64; 3]>,
     pushed: Vec<u32>,
+    /// The rigid body whose contacts strike it (`body`), the surface vertices they go
+    /// to, the mesh's diagonal (m) and the step's impulses per vertex.
+    body: Option<u32>,
+    surface: Vec<u32>,
+    diagonal: f64,
+    gathered: Vec<(u32, [f64; 3])>,
     /// The DC blocker's state (last input and output) and pole.
     dc: (f64, f64),
     dc_pole: f64,
 }
+
+/// A rigid body's contact point farther than this fraction of the sound mesh's diagonal
+/// from its surface means the mesh is not the body's shape ([`ModalSound`] with `body`).
+pub const MATCH_FRACTION: f64 = 0.05;
 
 /// Corner of the DC blocker on the rendered sound (Hz): below hearing, far below any mode
 /// a body that rings has.
@@ -157,6 +173,102 @@ impl ModalSound {
     /// Contact impulses heard so far, and their sum (N s, in the mesh's rest frame).
     pub fn heard(&self) -> (u64, [f64; 3]) {
         (self.heard, self.heard_impulse)
+    }
+
+    /// Strikes the modes with one step's `(vertex, impulse)` contacts (N s, rest frame),
+    /// from `time` (s), `dt` long.
+    fn hear(&mut self, time: f64, dt: f64, impulses: &[(u32, [f64; 3])]) -> Result<(), String> {
+        let n = self.synth.vertex_count();
+        // A contact that keeps pushing as it pushed the step before is a steady push (a
+        // body resting on the floor): that part goes in as a constant force over the
+        // step, so consecutive steps join into a steady input; only what exceeds it is an
+        // impact, a half-sine of the contact time. (As half-sines every step, a resting
+        // body buzzed at the step rate: a comb at 1, 2, 3 kHz with dt = 1 ms.)
+        if self.prev.len() != n {
+            self.prev = vec![[0.0; 3]; n];
+        }
+        for &(v, j) in impulses {
+            self.heard += 1;
+            for (sum, jc) in self.heard_impulse.iter_mut().zip(j) {
+                *sum += jc;
+            }
+            let vi = v as usize;
+            if vi >= n {
+                return Err(format!("vertex {v} out of range ({n} vertices)"));
+            }
+            let p = self.prev[vi];
+            let len = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+            let steady: [f64; 3] = if len > 0.0 {
+                let along = (j[0] * p[0] + j[1] * p[1] + j[2] * p[2]) / len;
+                let keep = along.clamp(0.0, len) / len;
+                p.map(|c| c * keep)
+            } else {
+                [0.0; 3]
+            };
+            let impact: [f64; 3] = std::array::from_fn(|c| j[c] - steady[c]);
+            if steady != [0.0; 3] {
+                self.synth.strike(time, vi, steady, Pulse::Box(dt))?;
+            }
+            if impact != [0.0; 3] {
+                self.strikes += 1;
+                self.synth
+                    .strike(time, vi, impact, Pulse::HalfSine(self.contact_time))?;
+            }
+        }
+        // Vertices that stopped touching push no more.
+        for &v in &self.pushed {
+            self.prev[v as usize] = [0.0; 3];
+        }
+        self.pushed.clear();
+        for &(v, j) in impulses {
+            self.prev[v as usize] = j;
+            if j != [0.0; 3] {
+                self.pushed.push(v);
+            }
+        }
+        Ok(())
+    }
+
+    /// Body `k`'s contact impulses of `impulses` onto the nearest surface vertex of the
+    /// sound's mesh (which is in the body's shape frame), summed per vertex into `out`. A
+    /// contact point farther from the surface than [`MATCH_FRACTION`] of the mesh's
+    /// diagonal means the mesh is not the body's shape: an error saying where.
+    fn gather(
+        &mut self,
+        k: u32,
+        impulses: &ContactImpulses,
+        out: &mut Vec<(u32, [f64; 3])>,
+    ) -> Result<(), String> {
+        out.clear();
+        for bi in impulses.points.iter().filter(|b| b.body == k) {
+            let d2 = |v: u32| {
+                let r = &self.analysis.rest;
+                let n = r.len() / 3;
+                (0..3)
+                    .map(|c| (r[c * n + v as usize] - bi.point[c]).powi(2))
+                    .sum::<f64>()
+            };
+            let Some(v) = self
+                .surface
+                .iter()
+                .copied()
+                .min_by(|&a, &b| d2(a).total_cmp(&d2(b)))
+            else {
+                return Err("the sound's mesh has no surface".into());
+            };
+            let far = d2(v).sqrt();
+            if far > MATCH_FRACTION * self.diagonal {
+                return Err(format!(
+                    "body {k}'s contact at {:?} m (its shape frame) lies {far:.3e} m from the sound's mesh (diagonal {:.3e} m): give [sound] the body's shape in its own frame (a box centred on the origin: [sound.beam] origin = -size / 2; a mesh: the same file and scale)",
+                    bi.point, self.diagonal
+                ));
+            }
+            match out.iter_mut().find(|(u, _)| *u == v) {
+                Some((_, j)) => (0..3).for_each(|c| j[c] += bi.impulse[c]),
+                None => out.push((v, bi.impulse)),
+            }
+        }
+        Ok(())
     }
 }
 
@@ -358,6 +470,29 @@ pub fn build(ctx: &Context<'_>) -> Result<Box<dyn Simulation>, SceneError> {
             "nothing strikes it: give [[sound.hit]] entries or contacts = true",
         ));
     }
+    let body = match t.body {
+        None => None,
+        Some(_) if !t.contacts => {
+            return Err(ctx.error(
+                &at(&[&"body"]),
+                "`body` picks whose contacts strike it: give contacts = true too",
+            ))
+        }
+        Some(k) => Some(
+            u32::try_from(ctx.index(k, &at(&[&"body"]), "body")?)
+                .map_err(|_| ctx.error(&at(&[&"body"]), format!("body {k} is out of range")))?,
+        ),
+    };
+    let diagonal = {
+        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+        for p in &positions {
+            for c in 0..3 {
+                lo[c] = lo[c].min(p[c]);
+                hi[c] = hi[c].max(p[c]);
+            }
+        }
+        (0..3).map(|c| (hi[c] - lo[c]).powi(2)).sum::<f64>().sqrt()
+    };
     let cull = if t.contacts {
         Cull::Anywhere(&surface)
     } else {
@@ -391,6 +526,10 @@ pub fn build(ctx: &Context<'_>) -> Result<Box<dyn Simulation>, SceneError> {
         clipped: false,
         prev: Vec::new(),
         pushed: Vec::new(),
+        body,
+        diagonal,
+        surface,
+        gathered: Vec::new(),
         dc: (0.0, 0.0),
         dc_pole: (-2.0 * std::f64::consts::PI * DC_CORNER_HZ / rate as f64).exp(),
     }))
@@ -542,65 +681,36 @@ impl Simulation for ModalSound {
 
     fn listen(&mut self, impulses: &ContactImpulses) -> Result<(), String> {
         let n = self.synth.vertex_count();
-        if impulses.vertex_count != n {
-            return Err(format!(
-                "it has {} vertices and the sound's mesh {n}: give [sound] the same mesh",
-                impulses.vertex_count
-            ));
-        }
-        // A contact that keeps pushing as it pushed the step before is a steady push (a
-        // body resting on the floor): that part goes in as a constant force over the
-        // step, so consecutive steps join into a steady input; only what exceeds it is an
-        // impact, a half-sine of the contact time. (As half-sines every step, a resting
-        // body buzzed at the step rate: a comb at 1, 2, 3 kHz with dt = 1 ms.)
-        if self.prev.len() != n {
-            self.prev = vec![[0.0; 3]; n];
-        }
-        for &(v, j) in &impulses.impulses {
-            self.heard += 1;
-            for (sum, jc) in self.heard_impulse.iter_mut().zip(j) {
-                *sum += jc;
+        match (self.body, impulses.bodies) {
+            // A system of vertices: the body itself, on the same mesh.
+            (None, 0) => {
+                if impulses.vertex_count != n {
+                    return Err(format!(
+                        "it has {} vertices and the sound's mesh {n}: give [sound] the same mesh",
+                        impulses.vertex_count
+                    ));
+                }
+                self.hear(impulses.time, impulses.dt, &impulses.impulses)
             }
-            let vi = v as usize;
-            if vi >= n {
-                return Err(format!("vertex {v} out of range ({n} vertices)"));
-            }
-            let p = self.prev[vi];
-            let len = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
-            let steady: [f64; 3] = if len > 0.0 {
-                let along = (j[0] * p[0] + j[1] * p[1] + j[2] * p[2]) / len;
-                let keep = along.clamp(0.0, len) / len;
-                p.map(|c| c * keep)
-            } else {
-                [0.0; 3]
-            };
-            let impact: [f64; 3] = std::array::from_fn(|c| j[c] - steady[c]);
-            if steady != [0.0; 3] {
-                self.synth
-                    .strike(impulses.time, vi, steady, Pulse::Box(impulses.dt))?;
-            }
-            if impact != [0.0; 3] {
-                self.strikes += 1;
-                self.synth.strike(
-                    impulses.time,
-                    vi,
-                    impact,
-                    Pulse::HalfSine(self.contact_time),
-                )?;
+            (None, _) => Err(
+                "its contacts are rigid bodies': give [sound] `body`, the index of the body that rings".into(),
+            ),
+            // Another system's vertices do not strike a rigid body's sound.
+            (Some(_), 0) => Ok(()),
+            (Some(k), bodies) => {
+                if k as usize >= bodies {
+                    return Err(format!(
+                        "[sound] body = {k} does not exist: the system has {bodies} bodies"
+                    ));
+                }
+                let mut heard = std::mem::take(&mut self.gathered);
+                let r = self
+                    .gather(k, impulses, &mut heard)
+                    .and_then(|()| self.hear(impulses.time, impulses.dt, &heard));
+                self.gathered = heard;
+                r
             }
         }
-        // Vertices that stopped touching push no more.
-        for &v in &self.pushed {
-            self.prev[v as usize] = [0.0; 3];
-        }
-        self.pushed.clear();
-        for &(v, j) in &impulses.impulses {
-            self.prev[v as usize] = j;
-            if j != [0.0; 3] {
-                self.pushed.push(v);
-            }
-        }
-        Ok(())
     }
 
     fn audio(&self) -> Option<Audio<'_>> {

@@ -66,7 +66,8 @@ use super::{
 use crate::integrate::{IntegrateError, StepInfo};
 use crate::io::{Mesh, MeshRef};
 use crate::scene::{path, Context, Key, SceneError};
-use crate::simulation::{Energy, FrameData, Simulation, Stage};
+use crate::simulation::{BodyImpulse, ContactImpulses, Energy, FrameData, Simulation, Stage};
+use largestep_kernels::{quat, v3};
 use serde::Deserialize;
 use std::sync::Arc;
 use std::time::Instant;
@@ -1051,6 +1052,9 @@ pub struct RigidSim {
     segments: Vec<[u32; 2]>,
     warnings: Vec<String>,
     deepest: f64,
+    /// The last step's contact impulses per body, while a listener records them
+    /// ([`Simulation::record_contact_impulses`]).
+    impulses: Option<ContactImpulses>,
 }
 
 impl RigidSim {
@@ -1066,6 +1070,7 @@ impl RigidSim {
             segments: Vec::new(),
             warnings: Vec::new(),
             deepest: 0.0,
+            impulses: None,
         };
         sim.segments = sim.model.joint_segments();
         Ok(sim)
@@ -1090,11 +1095,40 @@ impl RigidSim {
     pub fn contacts(&self) -> &[super::ContactPoint] {
         &self.work.contacts
     }
+
+    /// Fills the recorded impulses from the step just taken (from `t0`, `dt` long): each
+    /// contact's impulse on b, and its opposite on a, at the contact point, turned into
+    /// each body's shape frame at its pose after the step (the point moved by at most the
+    /// body's travel over one step, far less than a surface's feature size).
+    fn record(&mut self, t0: f64, dt: f64) {
+        let Some(out) = &mut self.impulses else {
+            return;
+        };
+        out.time = t0;
+        out.dt = dt;
+        out.points.clear();
+        let (m, s) = (&self.model, &self.state);
+        for c in &self.work.contacts {
+            if c.impulse == [0.0; 3] {
+                continue;
+            }
+            for (body, sign) in [(c.b, 1.0), (c.a, -1.0)] {
+                let (x, q) = m.shape_pose(s, body as usize);
+                let inv = quat::conj(q);
+                out.points.push(BodyImpulse {
+                    body,
+                    point: quat::rotate(inv, v3::sub(c.point, x)),
+                    impulse: quat::rotate(inv, v3::scale(c.impulse, sign)),
+                });
+            }
+        }
+    }
 }
 
 impl Simulation for RigidSim {
     fn step(&mut self, dt: f64) -> Result<StepInfo, IntegrateError> {
         let t0 = Instant::now();
+        let time = self.state.time;
         let info = self
             .model
             .step(&mut self.state, &mut self.work, dt)
@@ -1105,6 +1139,7 @@ impl Simulation for RigidSim {
         self.last = info;
         self.deepest = info.max_depth.max(0.0);
         self.positions = std::sync::OnceLock::new();
+        self.record(time, dt);
         Ok(StepInfo {
             newton_iterations: 0,
             linear_iterations: self.model.desc().iterations,
@@ -1232,6 +1267,21 @@ impl Simulation for RigidSim {
 
     fn moving_obstacles(&self, out: &mut Vec<crate::collide::MovingObstacle>) {
         self.model.obstacles(&self.state, out);
+    }
+
+    fn record_contact_impulses(&mut self, on: bool) {
+        if !on {
+            self.impulses = None;
+        } else if self.impulses.is_none() {
+            self.impulses = Some(ContactImpulses {
+                bodies: self.model.len(),
+                ..ContactImpulses::default()
+            });
+        }
+    }
+
+    fn contact_impulses(&self) -> Option<&ContactImpulses> {
+        self.impulses.as_ref()
     }
 
     fn frame_table(&self) -> Option<crate::simulation::FrameTable> {

@@ -185,6 +185,24 @@ pub struct ContactImpulses {
     /// rotation that best fits the body's present positions to its initial ones, so a
     /// listener holding the body's modes at rest reads them in the modes' frame.
     pub impulses: Vec<(u32, [f64; 3])>,
+    /// Rigid bodies of the system (0 for systems of vertices).
+    pub bodies: usize,
+    /// The impulses each rigid body took at its contact points over the step.
+    pub points: Vec<BodyImpulse>,
+}
+
+/// An impulse a rigid body took at a contact point over a step ([`ContactImpulses`]), in
+/// the body's shape frame: the frame its shape was described in (a box or sphere centred
+/// on its origin, a mesh in its file's coordinates times its scale), so a listener
+/// holding modes of the same shape at rest reads them in the modes' frame.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct BodyImpulse {
+    /// The body's index in its system.
+    pub body: u32,
+    /// The contact point (m, shape frame, at the body's pose after the step).
+    pub point: [f64; 3],
+    /// The impulse on the body (N s, shape frame).
+    pub impulse: [f64; 3],
 }
 
 /// Sound a system made ([`Simulation::audio`]).
