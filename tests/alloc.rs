@@ -1,5 +1,6 @@
 //! No hidden allocation: after setup and a first call, Cholesky refactorizations and
-//! solves, PCG solves and whole time steps (explicit and implicit) allocate nothing.
+//! solves, PCG solves and whole time steps (explicit and implicit) allocate nothing; the
+//! narrow phase (GJK, EPA, box SAT) allocates nothing at all.
 //!
 //! A counting global allocator sees every thread, so this binary holds one test and runs
 //! the checks in sequence, inside the rayon pool (jobs injected from outside a pool may
@@ -144,5 +145,57 @@ fn steady_state_work_does_not_allocate() {
                 }
             }
         }
+
+        // Narrow phase, from the first call: boxes overlapping (EPA) to apart (GJK),
+        // capsules and hulls overlapping and apart, and the boxes' SAT.
+        use largestep::kernels::collide::narrow::{box_box, gjk_epa, Convex};
+        let ax = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        let (c, s) = (0.8f64.cos(), 0.8f64.sin());
+        let bx = [[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]];
+        let cube: Vec<[f64; 3]> = (0..8)
+            .map(|k| [(k & 1) as f64, ((k >> 1) & 1) as f64, ((k >> 2) & 1) as f64])
+            .collect();
+        let moved: Vec<Vec<[f64; 3]>> = [0.4, 0.9, 2.5]
+            .iter()
+            .map(|&d| {
+                cube.iter()
+                    .map(|p| [p[0] + d, p[1] + 0.3 * d, p[2] - 0.2])
+                    .collect()
+            })
+            .collect();
+        let mut contacts = 0;
+        let count = allocations_during(|| {
+            for (k, off) in [0.4, 0.9, 2.5].into_iter().enumerate() {
+                let cb = [off, 0.2, 0.1];
+                let a = Convex::Box {
+                    center: [0.0; 3],
+                    axes: ax,
+                    half: [0.5; 3],
+                };
+                let b = Convex::Box {
+                    center: cb,
+                    axes: bx,
+                    half: [0.5, 0.3, 0.4],
+                };
+                contacts += gjk_epa(&a, &b).is_some() as usize;
+                let sat = box_box([0.0; 3], ax, [0.5; 3], cb, bx, [0.5, 0.3, 0.4]);
+                contacts += sat.depth.is_finite() as usize;
+                let ca = Convex::Capsule {
+                    a: [0.0; 3],
+                    b: [0.0, 1.0, 0.0],
+                    radius: 0.3,
+                };
+                let cc = Convex::Capsule {
+                    a: [off, 0.0, 0.1],
+                    b: [off, 1.0, 0.5],
+                    radius: 0.3,
+                };
+                contacts += gjk_epa(&ca, &cc).is_some() as usize;
+                contacts +=
+                    gjk_epa(&Convex::Hull(&cube), &Convex::Hull(&moved[k])).is_some() as usize;
+            }
+        });
+        assert_eq!(contacts, 12);
+        assert_eq!(count, 0, "the narrow phase allocated {count} times");
     });
 }

@@ -15,6 +15,7 @@
 
 use super::prox::{closest_on_segment, closest_on_triangle, closest_segments, norm2};
 use crate::v3::{add, cross, dot, length_and_unit, scale, sub};
+use arrayvec::ArrayVec;
 
 #[inline(always)]
 fn lerp3(w: [f64; 3], p: [[f64; 3]; 3]) -> [f64; 3] {
@@ -151,22 +152,33 @@ const REL_TOL: f64 = 1e-10;
 /// shapes is linear, so the cap bounds work on spheres and capsules).
 const MAX_ITERS: usize = 128;
 
-/// The closest point of the simplex to the origin, its barycentric weights, and the
-/// reduced simplex (the vertices with non-zero weight). `None` when the origin is inside
+/// GJK's simplex: at most four vertices with their barycentric weights, on the stack.
+type Simplex = ArrayVec<(Vert, f64), 4>;
+
+/// EPA's polytope, on the stack: every iteration adds one vertex, so at most
+/// [`MAX_ITERS`] more than the starting tetrahedron's four; a closed triangulated polytope
+/// of V vertices has 2V - 4 faces; the horizon collects at most three edges per removed
+/// face. A polytope that would outgrow these (rounding can make the visible region
+/// non-convex) stops growing, and its nearest face is the answer.
+const EPA_VERTS: usize = MAX_ITERS + 4;
+const EPA_FACES: usize = 2 * EPA_VERTS;
+const EPA_HORIZON: usize = 3 * EPA_FACES;
+
+/// Moves the simplex to the closest point to the origin: returns that point and keeps
+/// the vertices of non-zero weight with their weights. `None` when the origin is inside
 /// a tetrahedron.
-fn closest_simplex(s: &mut Vec<Vert>) -> Option<([f64; 3], Vec<f64>)> {
+fn closest_simplex(s: &mut Simplex) -> Option<[f64; 3]> {
     let o = [0.0; 3];
-    match s.len() {
-        1 => Some((s[0].w, vec![1.0])),
+    let (q, bary): ([f64; 3], [f64; 3]) = match s.len() {
+        1 => {
+            s[0].1 = 1.0;
+            return Some(s[0].0.w);
+        }
         2 => {
-            let (t, q) = closest_on_segment(o, s[0].w, s[1].w);
-            let w = vec![1.0 - t, t];
-            Some(reduce(s, q, w))
+            let (t, q) = closest_on_segment(o, s[0].0.w, s[1].0.w);
+            (q, [1.0 - t, t, 0.0])
         }
-        3 => {
-            let (q, bary) = closest_on_triangle(o, s[0].w, s[1].w, s[2].w);
-            Some(reduce(s, q, bary.to_vec()))
-        }
+        3 => closest_on_triangle(o, s[0].0.w, s[1].0.w, s[2].0.w),
         _ => {
             // A tetrahedron: inside when the origin is behind no face (each face seen
             // from the opposite vertex's side); otherwise the nearest outward face.
@@ -175,7 +187,7 @@ fn closest_simplex(s: &mut Vec<Vert>) -> Option<([f64; 3], Vec<f64>)> {
             let mut best: Option<(f64, [usize; 4])> = None;
             let mut inside = true;
             for f in faces {
-                let (p0, p1, p2, opp) = (s[f[0]].w, s[f[1]].w, s[f[2]].w, s[f[3]].w);
+                let (p0, p1, p2, opp) = (s[f[0]].0.w, s[f[1]].0.w, s[f[2]].0.w, s[f[3]].0.w);
                 let n = cross(sub(p1, p0), sub(p2, p0));
                 let so = dot(n, sub(o, p0));
                 let sd = dot(n, sub(opp, p0));
@@ -193,42 +205,39 @@ fn closest_simplex(s: &mut Vec<Vert>) -> Option<([f64; 3], Vec<f64>)> {
                 return None;
             }
             let (_, f) = best.expect("outside some face");
-            let (q, bary) = closest_on_triangle(o, s[f[0]].w, s[f[1]].w, s[f[2]].w);
-            *s = vec![s[f[0]], s[f[1]], s[f[2]]];
-            Some(reduce(s, q, bary.to_vec()))
+            let face = [s[f[0]], s[f[1]], s[f[2]]];
+            s.clear();
+            s.extend(face);
+            closest_on_triangle(o, s[0].0.w, s[1].0.w, s[2].0.w)
         }
+    };
+    // Drop the vertices of zero weight (keep one if all are).
+    let first = s[0].0;
+    let mut k = 0;
+    s.retain(|v| {
+        let w = bary[k];
+        k += 1;
+        v.1 = w;
+        w > 0.0
+    });
+    if s.is_empty() {
+        s.push((first, 1.0));
     }
-}
-
-/// Drops the simplex vertices of zero weight.
-fn reduce(s: &mut Vec<Vert>, q: [f64; 3], w: Vec<f64>) -> ([f64; 3], Vec<f64>) {
-    let mut keep_s = Vec::with_capacity(4);
-    let mut keep_w = Vec::with_capacity(4);
-    for (v, &wi) in s.iter().zip(&w) {
-        if wi > 0.0 {
-            keep_s.push(*v);
-            keep_w.push(wi);
-        }
-    }
-    if keep_s.is_empty() {
-        keep_s.push(s[0]);
-        keep_w.push(1.0);
-    }
-    *s = keep_s;
-    (q, keep_w)
+    Some(q)
 }
 
 /// The contact between two convex shapes: GJK's distance and witness points when they
 /// are apart, EPA's penetration depth and normal when they overlap. `None` only for
-/// non-finite input.
+/// non-finite input. Allocates nothing: the simplex and EPA's polytope live on the stack
+/// (about 30 KB at most).
 pub fn gjk_epa(a: &Convex, b: &Convex) -> Option<Contact> {
     let mut d = sub(b.center(), a.center());
     if norm2(d) == 0.0 {
         d = [1.0, 0.0, 0.0];
     }
-    let mut simplex: Vec<Vert> = vec![support(a, b, scale(d, -1.0))];
-    let mut v = simplex[0].w;
-    let mut weights = vec![1.0];
+    let mut simplex = Simplex::new();
+    simplex.push((support(a, b, scale(d, -1.0)), 1.0));
+    let mut v = simplex[0].0.w;
     for _ in 0..MAX_ITERS {
         if !v.iter().all(|c| c.is_finite()) {
             return None;
@@ -239,35 +248,30 @@ pub fn gjk_epa(a: &Convex, b: &Convex) -> Option<Contact> {
         }
         let w = support(a, b, scale(v, -1.0));
         // No progress towards the origin: v is the closest point of A - B.
-        if vv - dot(v, w.w) <= REL_TOL * vv || simplex.iter().any(|s| s.w == w.w) {
-            return Some(separated(&simplex, &weights, v));
+        if vv - dot(v, w.w) <= REL_TOL * vv || simplex.iter().any(|s| s.0.w == w.w) {
+            return Some(separated(&simplex, v));
         }
-        simplex.push(w);
+        simplex.push((w, 0.0));
         match closest_simplex(&mut simplex) {
-            Some((q, wts)) => {
-                v = q;
-                weights = wts;
-            }
-            None => return epa(a, b, simplex),
+            Some(q) => v = q,
+            None => return epa(a, b, &simplex),
         }
     }
     if norm2(v) > 1e-30 {
-        return Some(separated(&simplex, &weights, v));
+        return Some(separated(&simplex, v));
     }
     // The origin is on the boundary or inside: grow the simplex to a tetrahedron and
     // measure the penetration with EPA.
-    epa(a, b, simplex)
+    epa(a, b, &simplex)
 }
 
-fn separated(s: &[Vert], w: &[f64], v: [f64; 3]) -> Contact {
+fn separated(s: &Simplex, v: [f64; 3]) -> Contact {
     let pa = s
         .iter()
-        .zip(w)
-        .fold([0.0; 3], |acc, (p, &wi)| add(acc, scale(p.a, wi)));
+        .fold([0.0; 3], |acc, (p, wi)| add(acc, scale(p.a, *wi)));
     let pb = s
         .iter()
-        .zip(w)
-        .fold([0.0; 3], |acc, (p, &wi)| add(acc, scale(p.b, wi)));
+        .fold([0.0; 3], |acc, (p, wi)| add(acc, scale(p.b, *wi)));
     let dist = norm2(v).sqrt();
     // v = pa - pb points from B to A: the normal from A into B is -v.
     Contact {
@@ -281,7 +285,8 @@ fn separated(s: &[Vert], w: &[f64], v: [f64; 3]) -> Contact {
 /// EPA from a simplex holding the origin: grows it into a polytope of `A - B` until the
 /// face nearest the origin is on the boundary; that face's normal and distance are the
 /// penetration.
-fn epa(a: &Convex, b: &Convex, mut s: Vec<Vert>) -> Option<Contact> {
+fn epa(a: &Convex, b: &Convex, simplex: &Simplex) -> Option<Contact> {
+    let mut verts: ArrayVec<Vert, EPA_VERTS> = simplex.iter().map(|v| v.0).collect();
     // Grow a degenerate simplex into a tetrahedron holding the origin.
     let dirs = [
         [1.0, 0.0, 0.0],
@@ -292,9 +297,10 @@ fn epa(a: &Convex, b: &Convex, mut s: Vec<Vert>) -> Option<Contact> {
         [0.0, 0.0, -1.0],
     ];
     let mut k = 0;
-    while s.len() < 4 && k < dirs.len() {
+    while verts.len() < 4 && k < dirs.len() {
         let cand = support(a, b, dirs[k]);
         k += 1;
+        let s = &verts;
         let independent = match s.len() {
             1 => norm2(sub(cand.w, s[0].w)) > 1e-24,
             2 => norm2(cross(sub(s[1].w, s[0].w), sub(cand.w, s[0].w))) > 1e-24,
@@ -304,27 +310,25 @@ fn epa(a: &Convex, b: &Convex, mut s: Vec<Vert>) -> Option<Contact> {
             }
         };
         if independent {
-            s.push(cand);
+            verts.push(cand);
         }
     }
-    if s.len() < 4 {
+    if verts.len() < 4 {
         // A flat Minkowski difference (a degenerate shape): touching, depth 0.
-        let pa = s[0].a;
-        let pb = s[0].b;
         return Some(Contact {
             normal: [0.0, 0.0, 1.0],
             depth: 0.0,
-            point_a: pa,
-            point_b: pb,
+            point_a: verts[0].a,
+            point_b: verts[0].b,
         });
     }
     // Faces as vertex index triples, wound outward.
-    let mut verts = s;
-    let mut faces: Vec<[usize; 3]> = Vec::with_capacity(64);
+    let mut faces: ArrayVec<[usize; 3], EPA_FACES> = ArrayVec::new();
     let center = scale(verts.iter().fold([0.0; 3], |c, v| add(c, v.w)), 0.25);
     for f in [[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]] {
         faces.push(outward(&verts, f, center));
     }
+    let mut horizon: ArrayVec<[usize; 2], EPA_HORIZON> = ArrayVec::new();
     let mut best: Option<(f64, [f64; 3], [usize; 3])> = None;
     for _ in 0..MAX_ITERS {
         // The face nearest the origin.
@@ -345,28 +349,33 @@ fn epa(a: &Convex, b: &Convex, mut s: Vec<Vert>) -> Option<Contact> {
         if reach - dist <= REL_TOL * reach.abs().max(1e-12) || verts.iter().any(|v| v.w == w.w) {
             break;
         }
+        // The faces the new point sees, and their horizon; stop growing if the polytope
+        // would outgrow its arrays (see `EPA_VERTS`).
+        let sees = |f: &[usize; 3]| {
+            let (p0, p1, p2) = (verts[f[0]].w, verts[f[1]].w, verts[f[2]].w);
+            dot(cross(sub(p1, p0), sub(p2, p0)), sub(w.w, p0)) > 0.0
+        };
+        horizon.clear();
+        let mut fits = verts.len() < EPA_VERTS;
+        for f in faces.iter().filter(|f| sees(f)) {
+            for e in [[f[0], f[1]], [f[1], f[2]], [f[2], f[0]]] {
+                // An edge of two removed faces appears both ways: drop it.
+                if let Some(i) = horizon.iter().position(|h| *h == [e[1], e[0]]) {
+                    horizon.swap_remove(i);
+                } else {
+                    fits &= horizon.try_push(e).is_ok();
+                }
+            }
+        }
+        let kept = faces.iter().filter(|f| !sees(f)).count();
+        if !fits || kept + horizon.len() > EPA_FACES {
+            break;
+        }
         // Remove the faces the new point sees; stitch the horizon to it.
         let wi = verts.len();
+        faces.retain(|f| !sees(f));
         verts.push(w);
-        let mut horizon: Vec<[usize; 2]> = Vec::new();
-        faces.retain(|f| {
-            let (p0, p1, p2) = (verts[f[0]].w, verts[f[1]].w, verts[f[2]].w);
-            let nf = cross(sub(p1, p0), sub(p2, p0));
-            if dot(nf, sub(w.w, p0)) > 0.0 {
-                for e in [[f[0], f[1]], [f[1], f[2]], [f[2], f[0]]] {
-                    // An edge of two removed faces appears both ways: drop it.
-                    if let Some(i) = horizon.iter().position(|h| *h == [e[1], e[0]]) {
-                        horizon.swap_remove(i);
-                    } else {
-                        horizon.push(e);
-                    }
-                }
-                false
-            } else {
-                true
-            }
-        });
-        for e in horizon {
+        for e in &horizon {
             faces.push([e[0], e[1], wi]);
         }
     }
@@ -436,9 +445,9 @@ pub fn box_box(
     hb: [f64; 3],
 ) -> Contact {
     let t = sub(cb, ca);
-    let mut axes: Vec<[f64; 3]> = Vec::with_capacity(15);
-    axes.extend_from_slice(&ax);
-    axes.extend_from_slice(&bx);
+    let mut axes: ArrayVec<[f64; 3], 15> = ArrayVec::new();
+    axes.extend(ax);
+    axes.extend(bx);
     for u in ax {
         for v in bx {
             if let Some((_, n)) = length_and_unit(cross(u, v)) {
