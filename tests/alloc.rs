@@ -1,6 +1,7 @@
 //! No hidden allocation: after setup and a first call, Cholesky refactorizations and
 //! solves, PCG solves and whole time steps (explicit and implicit) allocate nothing; the
-//! narrow phase (GJK, EPA, box SAT) allocates nothing at all.
+//! narrow phase (GJK, EPA, box SAT) allocates nothing at all; Witkin's constrained
+//! particles allocate nothing after their first step.
 //!
 //! A counting global allocator sees every thread, so this binary holds one test and runs
 //! the checks in sequence, inside the rayon pool (jobs injected from outside a pool may
@@ -197,5 +198,56 @@ fn steady_state_work_does_not_allocate() {
         });
         assert_eq!(contacts, 12);
         assert_eq!(count, 0, "the narrow phase allocated {count} times");
+
+        // Witkin's constrained particles: a double pendulum and a bead on a wire, each
+        // integrator, three steps after the first.
+        use largestep::rigid::witkin::{
+            Constraint, Witkin, WitkinIntegrator, WitkinState, WitkinWork,
+        };
+        for integrator in [
+            WitkinIntegrator::ExplicitEuler,
+            WitkinIntegrator::SymplecticEuler,
+            WitkinIntegrator::Rk4,
+        ] {
+            let w = Witkin {
+                inv_mass: vec![1.0, 1.0, 2.0],
+                constraints: vec![
+                    Constraint::Anchor {
+                        a: 0,
+                        point: [0.0; 3],
+                        length: 1.0,
+                    },
+                    Constraint::Distance {
+                        a: 0,
+                        b: 1,
+                        length: 1.0,
+                    },
+                    Constraint::Circle {
+                        a: 2,
+                        center: [0.0, 0.0, 3.0],
+                        normal: [0.0, 0.0, 1.0],
+                        radius: 1.0,
+                    },
+                ],
+                gravity: [0.0, -9.81, 0.0],
+                ks: 10.0,
+                kd: 1.0,
+                integrator,
+            };
+            let mut s = WitkinState {
+                x: vec![[1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [1.0, 0.0, 3.0]],
+                v: vec![[0.0; 3]; 3],
+                ..WitkinState::default()
+            };
+            let mut work = WitkinWork::default();
+            w.step(&mut s, &mut work, 1e-3).unwrap();
+            let count = allocations_during(|| {
+                for _ in 0..3 {
+                    w.step(&mut s, &mut work, 1e-3).unwrap();
+                    std::hint::black_box(w.drift_with(&s.x, &mut work));
+                }
+            });
+            assert_eq!(count, 0, "Witkin ({integrator:?}) allocated {count} times");
+        }
     });
 }

@@ -480,7 +480,7 @@ fn pendulum_joint_keeps_its_length() {
 mod witkin {
     use super::{elliptic_k, rel};
     use largestep::rigid::witkin::{
-        Constraint, Witkin, WitkinError, WitkinIntegrator, WitkinState,
+        Constraint, Witkin, WitkinError, WitkinIntegrator, WitkinState, WitkinWork,
     };
 
     fn state(x: Vec<[f64; 3]>) -> WitkinState {
@@ -503,8 +503,9 @@ mod witkin {
         let mut crossings = Vec::new();
         let mut last_vx = s.v[i][0];
         let mut drift = 0.0f64;
+        let mut work = WitkinWork::default();
         while s.time < until {
-            w.step(&mut s, dt).unwrap();
+            w.step(&mut s, &mut work, dt).unwrap();
             drift = drift.max(w.drift(&s.x));
             let vx = s.v[i][0];
             // vx changes sign at the turning points: two per period.
@@ -565,8 +566,9 @@ mod witkin {
             };
             let mut s = state(vec![[1.0, 0.0, 0.0]]);
             let mut drift = 0.0f64;
+            let mut work = WitkinWork::default();
             while s.time < 10.0 {
-                w.step(&mut s, 1e-3).unwrap();
+                w.step(&mut s, &mut work, 1e-3).unwrap();
                 drift = drift.max(w.drift(&s.x));
             }
             eprintln!("pendulum, feedback ks = {ks}, kd = {kd}: drift {drift:.2e} m");
@@ -600,8 +602,9 @@ mod witkin {
         let mut s = state(vec![[1.0, 0.0, 0.0], [2.0, 0.0, 0.0]]);
         let e0 = w.kinetic_energy(&s) + w.potential_energy(&s);
         let mut drift = 0.0f64;
+        let mut work = WitkinWork::default();
         while s.time < 10.0 {
-            w.step(&mut s, 5e-4).unwrap();
+            w.step(&mut s, &mut work, 5e-4).unwrap();
             drift = drift.max(w.drift(&s.x));
         }
         let e1 = w.kinetic_energy(&s) + w.potential_energy(&s);
@@ -630,7 +633,10 @@ mod witkin {
             integrator: WitkinIntegrator::Rk4,
         };
         let mut s = state(vec![[1.0, 0.0, 0.0]]);
-        assert_eq!(w.step(&mut s, 1e-3), Err(WitkinError::Singular { step: 1 }));
+        assert_eq!(
+            w.step(&mut s, &mut WitkinWork::default(), 1e-3),
+            Err(WitkinError::Singular { step: 1 })
+        );
         let w = Witkin {
             constraints: vec![Constraint::Distance {
                 a: 0,

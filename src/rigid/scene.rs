@@ -58,7 +58,7 @@
 //! anchor_b = [0.0, 2.0, 0.0]
 //! ```
 
-use super::witkin::{Constraint, Witkin, WitkinError, WitkinIntegrator, WitkinState};
+use super::witkin::{Constraint, Witkin, WitkinError, WitkinIntegrator, WitkinState, WitkinWork};
 use super::{
     BodyDesc, Correction, JointDesc, JointKind, Motion, Rigid, RigidDesc, RigidError,
     RigidIntegrator, RigidSolver, RigidState, RigidStepInfo, RigidWork, Shape,
@@ -839,6 +839,7 @@ fn witkin(ctx: &Context<'_>, t: &RigidTable) -> Result<WitkinSim, SceneError> {
 pub struct WitkinSim {
     model: Witkin,
     state: WitkinState,
+    work: WitkinWork,
     /// Particles, then the fixed points drawn (anchors, wire circles), component-major:
     /// formed when a frame asks for them.
     positions: std::sync::OnceLock<Vec<f64>>,
@@ -883,6 +884,7 @@ impl WitkinSim {
         WitkinSim {
             model,
             state,
+            work: WitkinWork::default(),
             positions: std::sync::OnceLock::new(),
             fixed,
             segments: segments.into(),
@@ -925,12 +927,14 @@ impl Simulation for WitkinSim {
     fn step(&mut self, dt: f64) -> Result<StepInfo, IntegrateError> {
         let t0 = Instant::now();
         self.model
-            .step(&mut self.state, dt)
+            .step(&mut self.state, &mut self.work, dt)
             .map_err(|e| IntegrateError::Failed {
                 step: self.state.steps + 1,
                 why: e.to_string(),
             })?;
-        self.drift = self.drift.max(self.model.drift(&self.state.x));
+        self.drift = self
+            .drift
+            .max(self.model.drift_with(&self.state.x, &mut self.work));
         self.positions = std::sync::OnceLock::new();
         Ok(StepInfo {
             newton_iterations: 0,

@@ -145,6 +145,53 @@ pub struct WitkinState {
     pub steps: u64,
 }
 
+/// No particle: the second entry of a row that has one.
+const NONE: usize = usize::MAX;
+
+/// A row's entries (particle, 3-vector).
+fn entries(row: &[(usize, [f64; 3]); 2]) -> impl Iterator<Item = (usize, [f64; 3])> + '_ {
+    row.iter().copied().filter(|e| e.0 != NONE)
+}
+
+/// `y += s x`.
+fn add_scaled(y: &mut [[f64; 3]], x: &[[f64; 3]], s: f64) {
+    for (a, b) in y.iter_mut().zip(x) {
+        for c in 0..3 {
+            a[c] += s * b[c];
+        }
+    }
+}
+
+/// [`Witkin::step`]'s scratch, kept between steps: the rows of J and J̇, the constraint
+/// values, the dense system (its storage reused by the Cholesky factor), the rows
+/// touching each particle and the integrator's stage buffers.
+#[derive(Clone, Debug)]
+pub struct WitkinWork {
+    jac: Vec<[(usize, [f64; 3]); 2]>,
+    jdot: Vec<[(usize, [f64; 3]); 2]>,
+    c: Vec<f64>,
+    cd: Vec<f64>,
+    lhs: DMatrix<f64>,
+    rhs: DVector<f64>,
+    touching: Vec<Vec<(usize, [f64; 3])>>,
+    stages: [Vec<[f64; 3]>; 8],
+}
+
+impl Default for WitkinWork {
+    fn default() -> Self {
+        WitkinWork {
+            jac: Vec::new(),
+            jdot: Vec::new(),
+            c: Vec::new(),
+            cd: Vec::new(),
+            lhs: DMatrix::zeros(0, 0),
+            rhs: DVector::zeros(0),
+            touching: Vec::new(),
+            stages: Default::default(),
+        }
+    }
+}
+
 fn d3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
@@ -239,19 +286,35 @@ impl Witkin {
 
     /// `C` and `Ċ` at a state, one value per scalar constraint.
     pub fn values(&self, x: &[[f64; 3]], v: &[[f64; 3]]) -> (Vec<f64>, Vec<f64>) {
-        let mut c = Vec::with_capacity(self.rows());
-        let mut cd = Vec::with_capacity(self.rows());
+        let (mut c, mut cd) = (Vec::new(), Vec::new());
+        self.values_into(x, Some(v), &mut c, &mut cd);
+        (c, cd)
+    }
+
+    /// [`Witkin::values`] into `c` and `cd` (cleared first); `v` absent: `Ċ` is not
+    /// formed.
+    fn values_into(
+        &self,
+        x: &[[f64; 3]],
+        v: Option<&[[f64; 3]]>,
+        c: &mut Vec<f64>,
+        cd: &mut Vec<f64>,
+    ) {
+        c.clear();
+        cd.clear();
+        let zero = [0.0; 3];
+        let vel = |i: usize| v.map_or(zero, |v| v[i]);
         for k in &self.constraints {
             match *k {
                 Constraint::Distance { a, b, length } => {
                     let d = d3(x[a], x[b]);
                     c.push(0.5 * (dot(d, d) - length * length));
-                    cd.push(dot(d, d3(v[a], v[b])));
+                    cd.push(dot(d, d3(vel(a), vel(b))));
                 }
                 Constraint::Anchor { a, point, length } => {
                     let d = d3(x[a], point);
                     c.push(0.5 * (dot(d, d) - length * length));
-                    cd.push(dot(d, v[a]));
+                    cd.push(dot(d, vel(a)));
                 }
                 Constraint::Circle {
                     a,
@@ -261,19 +324,23 @@ impl Witkin {
                 } => {
                     let d = d3(x[a], center);
                     c.push(0.5 * (dot(d, d) - radius * radius));
-                    cd.push(dot(d, v[a]));
+                    cd.push(dot(d, vel(a)));
                     c.push(dot(d, normal));
-                    cd.push(dot(normal, v[a]));
+                    cd.push(dot(normal, vel(a)));
                 }
             }
         }
-        (c, cd)
     }
 
     /// The largest violation now, as a distance (m): `|C| / L` for the squared forms.
     pub fn drift(&self, x: &[[f64; 3]]) -> f64 {
-        let zero = vec![[0.0; 3]; x.len()];
-        let (c, _) = self.values(x, &zero);
+        let (mut c, mut cd) = (Vec::new(), Vec::new());
+        self.values_into(x, None, &mut c, &mut cd);
+        self.drift_of(&c)
+    }
+
+    /// [`Witkin::drift`] from the constraint values `c`.
+    fn drift_of(&self, c: &[f64]) -> f64 {
         let mut worst = 0.0f64;
         let mut r = 0;
         for k in &self.constraints {
@@ -297,129 +364,188 @@ impl Witkin {
         v: &[[f64; 3]],
         step: u64,
     ) -> Result<Vec<[f64; 3]>, WitkinError> {
+        let mut acc = vec![[0.0; 3]; x.len()];
+        self.accelerations_into(x, v, step, &mut WitkinWork::default(), &mut acc)?;
+        Ok(acc)
+    }
+
+    /// [`Witkin::accelerations`] into `acc`, with the scratch `w` (no allocation once
+    /// `w` has served this model).
+    fn accelerations_into(
+        &self,
+        x: &[[f64; 3]],
+        v: &[[f64; 3]],
+        step: u64,
+        w: &mut WitkinWork,
+        acc: &mut [[f64; 3]],
+    ) -> Result<(), WitkinError> {
         let n = x.len();
         let m = self.rows();
         let g = self.gravity;
         // Unconstrained accelerations W Q: gravity on every free particle.
-        let mut acc: Vec<[f64; 3]> = self
-            .inv_mass
-            .iter()
-            .map(|&w| if w > 0.0 { g } else { [0.0; 3] })
-            .collect();
-        if m == 0 {
-            return Ok(acc);
+        for (a, &wi) in acc.iter_mut().zip(&self.inv_mass) {
+            *a = if wi > 0.0 { g } else { [0.0; 3] };
         }
-        // Rows of J and J̇ as (particle, 3-vector) entries.
-        let mut jac: Vec<Vec<(usize, [f64; 3])>> = Vec::with_capacity(m);
-        let mut jdot: Vec<Vec<(usize, [f64; 3])>> = Vec::with_capacity(m);
+        if m == 0 {
+            return Ok(());
+        }
+        // Rows of J and J̇: up to two (particle, 3-vector) entries each.
+        w.jac.clear();
+        w.jdot.clear();
+        let one = |p: usize, d: [f64; 3]| [(p, d), (NONE, [0.0; 3])];
         for k in &self.constraints {
             match *k {
                 Constraint::Distance { a, b, .. } => {
                     let d = d3(x[a], x[b]);
                     let dv = d3(v[a], v[b]);
-                    jac.push(vec![(a, d), (b, d.map(|c| -c))]);
-                    jdot.push(vec![(a, dv), (b, dv.map(|c| -c))]);
+                    w.jac.push([(a, d), (b, d.map(|c| -c))]);
+                    w.jdot.push([(a, dv), (b, dv.map(|c| -c))]);
                 }
                 Constraint::Anchor { a, point, .. } => {
-                    jac.push(vec![(a, d3(x[a], point))]);
-                    jdot.push(vec![(a, v[a])]);
+                    w.jac.push(one(a, d3(x[a], point)));
+                    w.jdot.push(one(a, v[a]));
                 }
                 Constraint::Circle {
                     a, center, normal, ..
                 } => {
-                    jac.push(vec![(a, d3(x[a], center))]);
-                    jdot.push(vec![(a, v[a])]);
-                    jac.push(vec![(a, normal)]);
-                    jdot.push(vec![(a, [0.0; 3])]);
+                    w.jac.push(one(a, d3(x[a], center)));
+                    w.jdot.push(one(a, v[a]));
+                    w.jac.push(one(a, normal));
+                    w.jdot.push(one(a, [0.0; 3]));
                 }
             }
         }
-        let (c, cd) = self.values(x, v);
+        self.values_into(x, Some(v), &mut w.c, &mut w.cd);
         // J W Jᵀ and the right side.
-        let mut lhs = DMatrix::<f64>::zeros(m, m);
-        let mut rhs = DVector::<f64>::zeros(m);
+        if w.lhs.nrows() != m || w.lhs.ncols() != m {
+            w.lhs = DMatrix::zeros(m, m);
+            w.rhs = DVector::zeros(m);
+        }
+        w.lhs.fill(0.0);
         // Rows touching each particle, to form J W Jᵀ from shared particles only.
-        let mut touching: Vec<Vec<(usize, [f64; 3])>> = vec![Vec::new(); n];
-        for (r, row) in jac.iter().enumerate() {
-            for &(p, j) in row {
-                touching[p].push((r, j));
+        w.touching.resize_with(n, Vec::new);
+        w.touching.iter_mut().for_each(Vec::clear);
+        for (r, row) in w.jac.iter().enumerate() {
+            for (p, j) in entries(row) {
+                w.touching[p].push((r, j));
             }
         }
-        for (p, rows) in touching.iter().enumerate() {
-            let w = self.inv_mass[p];
-            if w == 0.0 {
+        for (p, rows) in w.touching.iter().enumerate() {
+            let wi = self.inv_mass[p];
+            if wi == 0.0 {
                 continue;
             }
             for &(r1, j1) in rows {
                 for &(r2, j2) in rows {
-                    lhs[(r1, r2)] += w * dot(j1, j2);
+                    w.lhs[(r1, r2)] += wi * dot(j1, j2);
                 }
             }
         }
         for r in 0..m {
             let mut s = 0.0;
-            for &(p, jd) in &jdot[r] {
+            for (p, jd) in entries(&w.jdot[r]) {
                 s -= dot(jd, v[p]);
             }
-            for &(p, j) in &jac[r] {
+            for (p, j) in entries(&w.jac[r]) {
                 s -= dot(j, acc[p]);
             }
-            rhs[r] = s - self.ks * c[r] - self.kd * cd[r];
+            w.rhs[r] = s - self.ks * w.c[r] - self.kd * w.cd[r];
         }
-        let lambda = lhs
-            .cholesky()
-            .map(|ch| ch.solve(&rhs))
-            .ok_or(WitkinError::Singular { step })?;
+        // Cholesky in the matrix's own storage, which comes back for the next call.
+        let lhs = std::mem::replace(&mut w.lhs, DMatrix::zeros(0, 0));
+        let ch = nalgebra::Cholesky::new(lhs).ok_or(WitkinError::Singular { step })?;
+        ch.solve_mut(&mut w.rhs);
+        w.lhs = ch.unpack();
         for r in 0..m {
-            for &(p, j) in &jac[r] {
-                let w = self.inv_mass[p];
+            for (p, j) in entries(&w.jac[r]) {
+                let wi = self.inv_mass[p];
                 for a in 0..3 {
-                    acc[p][a] += w * j[a] * lambda[r];
+                    acc[p][a] += wi * j[a] * w.rhs[r];
                 }
             }
         }
-        Ok(acc)
+        Ok(())
     }
 
-    /// Advances `s` by `dt`.
-    pub fn step(&self, s: &mut WitkinState, dt: f64) -> Result<(), WitkinError> {
+    /// The largest violation at `x` ([`Witkin::drift`]) with the scratch `w`.
+    pub fn drift_with(&self, x: &[[f64; 3]], w: &mut WitkinWork) -> f64 {
+        self.values_into(x, None, &mut w.c, &mut w.cd);
+        self.drift_of(&w.c)
+    }
+
+    /// Advances `s` by `dt`, with the scratch `w` (kept between steps: nothing is
+    /// allocated once it has served a step of this model).
+    pub fn step(
+        &self,
+        s: &mut WitkinState,
+        w: &mut WitkinWork,
+        dt: f64,
+    ) -> Result<(), WitkinError> {
         let step = s.steps + 1;
-        let axpy = |x: &[[f64; 3]], d: &[[f64; 3]], h: f64| -> Vec<[f64; 3]> {
-            x.iter()
-                .zip(d)
-                .map(|(a, b)| [a[0] + h * b[0], a[1] + h * b[1], a[2] + h * b[2]])
-                .collect()
+        let n = s.x.len();
+        let mut stages = std::mem::take(&mut w.stages);
+        for buf in stages.iter_mut() {
+            buf.resize(n, [0.0; 3]);
+        }
+        let axpy = |out: &mut [[f64; 3]], x: &[[f64; 3]], d: &[[f64; 3]], h: f64| {
+            for ((o, a), b) in out.iter_mut().zip(x).zip(d) {
+                *o = [a[0] + h * b[0], a[1] + h * b[1], a[2] + h * b[2]];
+            }
         };
-        match self.integrator {
-            WitkinIntegrator::ExplicitEuler => {
-                let a = self.accelerations(&s.x, &s.v, step)?;
-                s.x = axpy(&s.x, &s.v, dt);
-                s.v = axpy(&s.v, &a, dt);
-            }
-            WitkinIntegrator::SymplecticEuler => {
-                let a = self.accelerations(&s.x, &s.v, step)?;
-                s.v = axpy(&s.v, &a, dt);
-                s.x = axpy(&s.x, &s.v, dt);
-            }
-            WitkinIntegrator::Rk4 => {
-                let (x0, v0) = (s.x.clone(), s.v.clone());
-                let a1 = self.accelerations(&x0, &v0, step)?;
-                let (x1, v1) = (axpy(&x0, &v0, dt / 2.0), axpy(&v0, &a1, dt / 2.0));
-                let a2 = self.accelerations(&x1, &v1, step)?;
-                let (x2, v2) = (axpy(&x0, &v1, dt / 2.0), axpy(&v0, &a2, dt / 2.0));
-                let a3 = self.accelerations(&x2, &v2, step)?;
-                let (x3, v3) = (axpy(&x0, &v2, dt), axpy(&v0, &a3, dt));
-                let a4 = self.accelerations(&x3, &v3, step)?;
-                for i in 0..x0.len() {
-                    for c in 0..3 {
-                        s.x[i][c] = x0[i][c]
-                            + dt / 6.0 * (v0[i][c] + 2.0 * v1[i][c] + 2.0 * v2[i][c] + v3[i][c]);
-                        s.v[i][c] = v0[i][c]
-                            + dt / 6.0 * (a1[i][c] + 2.0 * a2[i][c] + 2.0 * a3[i][c] + a4[i][c]);
+        let result = (|| {
+            let [x0, v0, x1, v1, a1, a2, a3, a4] = &mut stages;
+            match self.integrator {
+                WitkinIntegrator::ExplicitEuler => {
+                    self.accelerations_into(&s.x, &s.v, step, w, a1)?;
+                    x0.copy_from_slice(&s.x);
+                    axpy(&mut s.x, x0, &s.v, dt);
+                    v0.copy_from_slice(&s.v);
+                    axpy(&mut s.v, v0, a1, dt);
+                }
+                WitkinIntegrator::SymplecticEuler => {
+                    self.accelerations_into(&s.x, &s.v, step, w, a1)?;
+                    v0.copy_from_slice(&s.v);
+                    axpy(&mut s.v, v0, a1, dt);
+                    x0.copy_from_slice(&s.x);
+                    axpy(&mut s.x, x0, &s.v, dt);
+                }
+                WitkinIntegrator::Rk4 => {
+                    x0.copy_from_slice(&s.x);
+                    v0.copy_from_slice(&s.v);
+                    // Each stage's state goes in (x1, v1) (v2 in a4, free until the
+                    // last stage); the sums of the stages' velocities and accelerations,
+                    // weights 1 2 2 1, collect in s.x and s.v as the stages are made.
+                    self.accelerations_into(x0, v0, step, w, a1)?;
+                    axpy(x1, x0, v0, dt / 2.0);
+                    axpy(v1, v0, a1, dt / 2.0);
+                    s.x.copy_from_slice(v0);
+                    s.v.copy_from_slice(a1);
+                    self.accelerations_into(x1, v1, step, w, a2)?;
+                    add_scaled(&mut s.x, v1, 2.0);
+                    add_scaled(&mut s.v, a2, 2.0);
+                    axpy(x1, x0, v1, dt / 2.0);
+                    axpy(a4, v0, a2, dt / 2.0); // v2
+                    self.accelerations_into(x1, a4, step, w, a3)?;
+                    add_scaled(&mut s.x, a4, 2.0);
+                    add_scaled(&mut s.v, a3, 2.0);
+                    axpy(x1, x0, a4, dt);
+                    axpy(v1, v0, a3, dt); // v3
+                    self.accelerations_into(x1, v1, step, w, a4)?;
+                    add_scaled(&mut s.x, v1, 1.0);
+                    add_scaled(&mut s.v, a4, 1.0);
+                    for i in 0..n {
+                        for c in 0..3 {
+                            let (dx, dv) = (s.x[i][c], s.v[i][c]);
+                            s.x[i][c] = x0[i][c] + dt / 6.0 * dx;
+                            s.v[i][c] = v0[i][c] + dt / 6.0 * dv;
+                        }
                     }
                 }
             }
-        }
+            Ok(())
+        })();
+        w.stages = stages;
+        result?;
         s.time += dt;
         s.steps = step;
         if let Some(i) =
