@@ -241,22 +241,11 @@ impl ModalSound {
     ) -> Result<(), String> {
         out.clear();
         for bi in impulses.points.iter().filter(|b| b.body == k) {
-            let d2 = |v: u32| {
-                let r = &self.analysis.rest;
-                let n = r.len() / 3;
-                (0..3)
-                    .map(|c| (r[c * n + v as usize] - bi.point[c]).powi(2))
-                    .sum::<f64>()
-            };
-            let Some(v) = self
-                .surface
-                .iter()
-                .copied()
-                .min_by(|&a, &b| d2(a).total_cmp(&d2(b)))
+            let Some((v, far)) =
+                nearest_surface_vertex(&self.analysis.rest, &self.surface, bi.point)
             else {
                 return Err("the sound's mesh has no surface".into());
             };
-            let far = d2(v).sqrt();
             if far > MATCH_FRACTION * self.diagonal {
                 return Err(format!(
                     "body {k}'s contact at {:?} m (its shape frame) lies {far:.3e} m from the sound's mesh (diagonal {:.3e} m): give [sound] the body's shape in its own frame (a box centred on the origin: [sound.beam] origin = -size / 2; a mesh: the same file and scale)",
@@ -270,6 +259,23 @@ impl ModalSound {
         }
         Ok(())
     }
+}
+
+/// The surface vertex of `surface` nearest `p` in the component-major `rest` positions,
+/// and its distance (m); `None` for no surface. For hits given by position and for
+/// rigid bodies' contact points.
+fn nearest_surface_vertex(rest: &[f64], surface: &[u32], p: [f64; 3]) -> Option<(u32, f64)> {
+    let n = rest.len() / 3;
+    surface
+        .iter()
+        .map(|&v| {
+            let d2: f64 = (0..3)
+                .map(|c| (rest[c * n + v as usize] - p[c]).powi(2))
+                .sum();
+            (v, d2)
+        })
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|(v, d2)| (v, d2.sqrt()))
 }
 
 /// Builds `[sound]` (see the module docs).
@@ -379,8 +385,7 @@ pub fn build(ctx: &Context<'_>) -> Result<Box<dyn Simulation>, SceneError> {
         poisson,
         density,
     };
-    let positions = mesh.positions;
-    let mut desc = FemDesc::new(positions.clone(), mesh.tets, material);
+    let mut desc = FemDesc::new(mesh.positions, mesh.tets, material);
     if veg.is_some() {
         return Err(ctx.error(
             &at(&[&"mesh", &"file"]),
@@ -419,17 +424,9 @@ pub fn build(ctx: &Context<'_>) -> Result<Box<dyn Simulation>, SceneError> {
                 if !p.iter().all(|c| c.is_finite()) {
                     return Err(ctx.error(&key("position"), "must be finite"));
                 }
-                let d2 = |i: u32| {
-                    (0..3)
-                        .map(|c| (positions[i as usize][c] - p[c]).powi(2))
-                        .sum::<f64>()
-                };
-                surface
-                    .iter()
-                    .copied()
-                    .min_by(|&a, &b| d2(a).total_cmp(&d2(b)))
+                nearest_surface_vertex(&analysis.rest, &surface, p)
                     .ok_or_else(|| ctx.error(&key("position"), "the mesh has no surface"))?
-                    as usize
+                    .0 as usize
             }
             _ => {
                 return Err(ctx.error(
@@ -483,16 +480,7 @@ pub fn build(ctx: &Context<'_>) -> Result<Box<dyn Simulation>, SceneError> {
                 .map_err(|_| ctx.error(&at(&[&"body"]), format!("body {k} is out of range")))?,
         ),
     };
-    let diagonal = {
-        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-        for p in &positions {
-            for c in 0..3 {
-                lo[c] = lo[c].min(p[c]);
-                hi[c] = hi[c].max(p[c]);
-            }
-        }
-        (0..3).map(|c| (hi[c] - lo[c]).powi(2)).sum::<f64>().sqrt()
-    };
+    let diagonal = crate::scene::diagonal(&analysis.rest);
     let cull = if t.contacts {
         Cull::Anywhere(&surface)
     } else {

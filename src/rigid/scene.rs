@@ -1118,11 +1118,10 @@ impl RigidSim {
             }
             for (body, sign) in [(c.b, 1.0), (c.a, -1.0)] {
                 let (x, q) = m.shape_pose(s, body as usize);
-                let inv = quat::conj(q);
                 out.points.push(BodyImpulse {
                     body,
-                    point: quat::rotate(inv, v3::sub(c.point, x)),
-                    impulse: quat::rotate(inv, v3::scale(c.impulse, sign)),
+                    point: quat::rotate_inv(q, v3::sub(c.point, x)),
+                    impulse: quat::rotate_inv(q, v3::scale(c.impulse, sign)),
                 });
             }
         }

@@ -22,6 +22,7 @@
 //! States advance by explicit Euler, symplectic Euler or classical Runge-Kutta; each
 //! stage solves for the multipliers at its own state.
 
+use largestep_kernels::vec;
 use nalgebra::{DMatrix, DVector};
 
 /// One constraint of a [`Witkin`] system.
@@ -153,13 +154,9 @@ fn entries(row: &[(usize, [f64; 3]); 2]) -> impl Iterator<Item = (usize, [f64; 3
     row.iter().copied().filter(|e| e.0 != NONE)
 }
 
-/// `y += s x`.
+/// `y += s x` over 3-vectors.
 fn add_scaled(y: &mut [[f64; 3]], x: &[[f64; 3]], s: f64) {
-    for (a, b) in y.iter_mut().zip(x) {
-        for c in 0..3 {
-            a[c] += s * b[c];
-        }
-    }
+    vec::axpy(y.as_flattened_mut(), s, x.as_flattened());
 }
 
 /// [`Witkin::step`]'s scratch, kept between steps: the rows of J and J̇, the constraint
@@ -334,13 +331,13 @@ impl Witkin {
 
     /// The largest violation now, as a distance (m): `|C| / L` for the squared forms.
     pub fn drift(&self, x: &[[f64; 3]]) -> f64 {
-        let (mut c, mut cd) = (Vec::new(), Vec::new());
-        self.values_into(x, None, &mut c, &mut cd);
-        self.drift_of(&c)
+        self.drift_with(x, &mut WitkinWork::default())
     }
 
-    /// [`Witkin::drift`] from the constraint values `c`.
-    fn drift_of(&self, c: &[f64]) -> f64 {
+    /// [`Witkin::drift`] with the scratch `w` (no allocation once `w` has served a step).
+    pub fn drift_with(&self, x: &[[f64; 3]], w: &mut WitkinWork) -> f64 {
+        self.values_into(x, None, &mut w.c, &mut w.cd);
+        let c = &w.c;
         let mut worst = 0.0f64;
         let mut r = 0;
         for k in &self.constraints {
@@ -467,12 +464,6 @@ impl Witkin {
         Ok(())
     }
 
-    /// The largest violation at `x` ([`Witkin::drift`]) with the scratch `w`.
-    pub fn drift_with(&self, x: &[[f64; 3]], w: &mut WitkinWork) -> f64 {
-        self.values_into(x, None, &mut w.c, &mut w.cd);
-        self.drift_of(&w.c)
-    }
-
     /// Advances `s` by `dt`, with the scratch `w` (kept between steps: nothing is
     /// allocated once it has served a step of this model).
     pub fn step(
@@ -487,10 +478,14 @@ impl Witkin {
         for buf in stages.iter_mut() {
             buf.resize(n, [0.0; 3]);
         }
+        // out = x + h d over 3-vectors.
         let axpy = |out: &mut [[f64; 3]], x: &[[f64; 3]], d: &[[f64; 3]], h: f64| {
-            for ((o, a), b) in out.iter_mut().zip(x).zip(d) {
-                *o = [a[0] + h * b[0], a[1] + h * b[1], a[2] + h * b[2]];
-            }
+            vec::waxpy(
+                out.as_flattened_mut(),
+                x.as_flattened(),
+                h,
+                d.as_flattened(),
+            )
         };
         let result = (|| {
             let [x0, v0, x1, v1, a1, a2, a3, a4] = &mut stages;

@@ -25,7 +25,7 @@ mod run;
 pub mod schema;
 pub mod shared;
 
-pub use run::{FrameFormat, FrameRecord, Output, Progress, RunError, Runner, Summary};
+pub use run::{diagonal, FrameFormat, FrameRecord, Output, Progress, RunError, Runner, Summary};
 
 use crate::integrate::{LinearSolverKind, MechSettings, Method, AUTO_CHOLESKY_MAX_DOFS};
 use crate::limits::Limits;

@@ -340,7 +340,7 @@ pub enum RunError {
 }
 
 /// The diagonal of the bounding box of component-major positions (m; 0 for none).
-fn diagonal(x: &[f64]) -> f64 {
+pub fn diagonal(x: &[f64]) -> f64 {
     let n = x.len() / 3;
     (0..3)
         .map(|c| {
