@@ -981,25 +981,75 @@ mod narrow_phase {
             e1 in prop::array::uniform3(-1f64..1.0), e2 in prop::array::uniform3(-1f64..1.0),
             r1 in 0.05f64..0.6, r2 in 0.05f64..0.6,
         ) {
-            // Apart, GJK converges to the distance (linearly on smooth shapes: 1e-5).
-            // Overlapping, EPA's polytope is inscribed in the rounded Minkowski
-            // difference: it can only underestimate the depth, by at most 0.2% of the
-            // radii here (its cap on iterations).
-            let close = |closed: f64, g: f64, r: f64| {
-                if closed < 0.0 { (closed - g).abs() < 1e-5 } else { g <= closed + 1e-9 && closed - g <= 2e-3 * r }
-            };
+            // GJK and EPA run on the cores (points, segments) with the radii as margins,
+            // so spheres and capsules get the closed forms' depth, apart or overlapping.
             let s = sphere_sphere(c1, r1, c2, r2);
             let g = gjk_epa(&Convex::Sphere { center: c1, radius: r1 }, &Convex::Sphere { center: c2, radius: r2 }).unwrap();
-            prop_assert!(close(s.depth, g.depth, r1 + r2), "sphere {} gjk {}", s.depth, g.depth);
-            // Capsules: GJK's distance when apart. Overlapping capsules are left to the
-            // closed form: EPA on their rounded, partly flat Minkowski difference stops
-            // short (a case 9% under the depth was found), and `capsule_capsule` is what
-            // the narrow phase uses for them.
+            prop_assert!((s.depth - g.depth).abs() < 1e-9, "sphere {} gjk {}", s.depth, g.depth);
             let k = capsule_capsule(c1, e1, r1, c2, e2, r2);
-            if k.depth < 0.0 {
-                let g = gjk_epa(&Convex::Capsule { a: c1, b: e1, radius: r1 }, &Convex::Capsule { a: c2, b: e2, radius: r2 }).unwrap();
-                prop_assert!(close(k.depth, g.depth, r1 + r2), "capsule {} gjk {}", k.depth, g.depth);
+            let g = gjk_epa(&Convex::Capsule { a: c1, b: e1, radius: r1 }, &Convex::Capsule { a: c2, b: e2, radius: r2 }).unwrap();
+            prop_assert!((k.depth - g.depth).abs() < 1e-9, "capsule {} gjk {}", k.depth, g.depth);
+            // The witnesses lie on the rounded surfaces, `depth` apart along the normal.
+            let gap = sub(g.point_b, g.point_a);
+            for (d, n) in gap.iter().zip(g.normal) {
+                prop_assert!((d + n * g.depth).abs() < 1e-9);
             }
+        }
+
+        #[test]
+        fn gjk_epa_of_a_sphere_and_a_box_equals_the_closed_form(
+            c in prop::array::uniform3(-1.5f64..1.5),
+            h in prop::array::uniform3(0.1f64..1.0),
+            rot in prop::array::uniform3(-3.2f64..3.2),
+            r in 0.01f64..0.8,
+        ) {
+            use largestep::kernels::collide::manifold::{sphere_box, BoxPose};
+            let q = largestep::kernels::quat::exp(rot);
+            let b = BoxPose {
+                center: [0.1, -0.2, 0.3],
+                axes: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]].map(|e| largestep::kernels::quat::rotate(q, e)),
+                half: h,
+            };
+            let g = gjk_epa(&Convex::Sphere { center: c, radius: r }, &b.convex()).unwrap();
+            let m = sphere_box(c, r, &b, f64::INFINITY).unwrap();
+            prop_assert!((g.depth - m.points[0].depth).abs() < 1e-9 * (1.0 + r), "gjk {} closed {}", g.depth, m.points[0].depth);
+        }
+
+        #[test]
+        fn gjk_distance_of_nearly_touching_boxes_equals_brute_force(
+            ha in prop::array::uniform3(0.1f64..1.0),
+            hb in prop::array::uniform3(0.1f64..1.0),
+            ra in prop::array::uniform3(-3.2f64..3.2),
+            spin in -3.2f64..3.2,
+            face in 0usize..3,
+            slide in prop::array::uniform2(-1f64..1.0),
+            log_gap in -9f64..-3.0,
+        ) {
+            // B is A turned about one of A's face normals, beyond that face by `gap`: two
+            // parallel faces, whose flat simplices once made GJK call such pairs touching
+            // or report a distance far too large.
+            use largestep::kernels::quat;
+            let gap = 10f64.powf(log_gap);
+            let qa = quat::exp(ra);
+            let e = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+            let axa = e.map(|x| quat::rotate(qa, x));
+            let mut turn = [0.0; 3];
+            turn[face] = spin;
+            let qb = quat::mul(qa, quat::exp(turn));
+            let axb = e.map(|x| quat::rotate(qb, x));
+            let n = axa[face];
+            let (u, v) = (axa[(face + 1) % 3], axa[(face + 2) % 3]);
+            let reach = ha[face] + (0..3).map(|k| hb[k] * (axb[k][0] * n[0] + axb[k][1] * n[1] + axb[k][2] * n[2]).abs()).sum::<f64>();
+            let (su, sv) = (slide[0] * ha[(face + 1) % 3], slide[1] * ha[(face + 2) % 3]);
+            let cb: [f64; 3] = std::array::from_fn(|i| n[i] * (reach + gap) + u[i] * su + v[i] * sv);
+            let corners = |c: [f64; 3], ax: [[f64; 3]; 3], h: [f64; 3]| -> Vec<[f64; 3]> {
+                (0..8).map(|m| std::array::from_fn(|i| {
+                    c[i] + (0..3).map(|k| if m >> k & 1 == 1 { h[k] } else { -h[k] } * ax[k][i]).sum::<f64>()
+                })).collect()
+            };
+            let want = brute_hulls(&corners([0.0; 3], axa, ha), &corners(cb, axb, hb));
+            let c = gjk_epa(&Convex::Box { center: [0.0; 3], axes: axa, half: ha }, &Convex::Box { center: cb, axes: axb, half: hb }).unwrap();
+            prop_assert!((-c.depth - want).abs() < 1e-9 * (1.0 + want), "gjk {} brute {}", -c.depth, want);
         }
     }
 }
@@ -1370,5 +1420,124 @@ mod six_dof {
         let before = tool.pose();
         assert_eq!(tool.tick([f64::NAN; 3], IDENTITY).force, [0.0; 3]);
         assert_eq!(tool.pose(), before);
+    }
+
+    #[test]
+    fn a_point_shell_covers_the_tool_surface_at_its_spacing() {
+        use largestep::haptics::point_shell;
+        let cube = largestep::shapes::cuboid([0.0; 3], [1.0; 3]);
+        let shell = point_shell(&cube, 0.5, 1000).unwrap();
+        // 8 corners; 12 cube edges of one interior point each and 6 face diagonals of
+        // two; one point inside each of the 12 triangles (longest edge sqrt 2: 3 pieces).
+        assert_eq!(shell.len(), 8 + 12 + 6 * 2 + 12);
+        for (i, p) in shell.iter().enumerate() {
+            // On the surface: some coordinate at 0 or 1, all within.
+            assert!(p.iter().all(|c| (-1e-12..=1.0 + 1e-12).contains(c)));
+            assert!(p.iter().any(|c| c.abs() < 1e-12 || (c - 1.0).abs() < 1e-12));
+            // Each point once.
+            for q in &shell[..i] {
+                assert!(
+                    p.iter().zip(q).any(|(a, b)| (a - b).abs() > 1e-9),
+                    "{p:?} twice"
+                );
+            }
+        }
+        // Every point of the surface is within a spacing of some shell point.
+        let fine = point_shell(&cube, 0.05, 100_000).unwrap();
+        let far = fine
+            .iter()
+            .map(|p| {
+                shell
+                    .iter()
+                    .map(|q| p.iter().zip(q).map(|(a, b)| (a - b) * (a - b)).sum::<f64>())
+                    .fold(f64::INFINITY, f64::min)
+                    .sqrt()
+            })
+            .fold(0.0, f64::max);
+        assert!(far <= 0.5, "a surface point {far} from the shell");
+        // Bad input: named, and the count checked before allocating.
+        assert!(point_shell(&cube, 0.0, 10).unwrap_err().contains("spacing"));
+        assert!(point_shell(&cube, 1e-4, 1000)
+            .unwrap_err()
+            .contains("limit of 1000"));
+    }
+
+    #[test]
+    fn device_paths_carry_orientations_and_interpolate_them() {
+        use largestep::haptics::DevicePath;
+        let text = "t,x,y,z,qw,qx,qy,qz\n0,0,0,0,1,0,0,0\n1,1,0,0,0,0,0,2\n";
+        let p = DevicePath::parse(text, "pose.csv").unwrap();
+        assert!(p.turns());
+        // Normalised on reading; half way is half the turn (pi about z at t = 1).
+        assert_eq!(p.orientations[1], [0.0, 0.0, 0.0, 1.0]);
+        let half = quat_log(p.orientation_at(0.5));
+        assert!(
+            (half[2] - std::f64::consts::FRAC_PI_2).abs() < 1e-12,
+            "{half:?}"
+        );
+        assert!((p.at(0.5)[0] - 0.5).abs() < 1e-15);
+        // Written and read back, the same path.
+        assert_eq!(DevicePath::parse(&p.to_csv(), "again.csv").unwrap(), p);
+        // Positions only: identity orientations, written as four columns.
+        let q = DevicePath::parse("0,0,0,0\n1,0,1,0\n", "q.csv").unwrap();
+        assert!(!q.turns() && q.to_csv().starts_with("t,x,y,z\n0,"));
+        // Bad rows name the file and line.
+        let e = DevicePath::parse("0,0,0,0,1,0,0,0\n1,0,0,0\n", "mixed.csv").unwrap_err();
+        assert!(e.to_string().contains("mixed.csv") && e.line == 2, "{e}");
+        let e =
+            DevicePath::parse("t,x,y,z,qw,qx,qy,qz\n0,0,0,0,0,0,0,0\n", "zero.csv").unwrap_err();
+        assert!(e.line == 2 && e.to_string().contains("zero"), "{e}");
+        let e = DevicePath::parse("0,0,0,0,1\n", "five.csv").unwrap_err();
+        assert!(e.to_string().contains("found 5"), "{e}");
+    }
+
+    #[test]
+    fn a_tool_replayed_along_a_stroke_stays_out_and_pushes_back() {
+        use largestep::haptics::{point_shell, replay_tool, tool_trace_csv, DevicePath};
+        // The shared nut's distance field; a 12 x 6 x 12 block tool pressed a tenth of
+        // the nut's height into its top face, slid and tilted (the CLI's stroke).
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../shared/data/tetmesh/nut-surface.off");
+        let nut = largestep::io::read_surface(&path, 1 << 24).unwrap();
+        let h = 1.0;
+        let field = Arc::new(SdfGrid::from_mesh(&nut, h, 12, 1 << 24).unwrap());
+        let block = largestep::shapes::cuboid([-6.0, -3.0, -6.0], [6.0, 3.0, 6.0]);
+        let shell = point_shell(&block, h, 100_000).unwrap();
+        let mut tool = SixDof::new(shell, field, 500.0, 500.0 * 72.0, 2000.0).unwrap();
+        let bounds = largestep::kernels::collide::bv::Aabb::of_points(
+            (0..nut.positions.len() / 3).map(|i| nut.as_ref().vertex(i)),
+        );
+        let depth = 0.1 * (bounds.max[1] - bounds.min[1]);
+        let over = [
+            0.75 * bounds.min[0] + 0.25 * bounds.max[0],
+            0.5 * (bounds.min[2] + bounds.max[2]),
+        ];
+        let mut stroke = DevicePath::stroke(&bounds, over, depth);
+        for p in &mut stroke.positions {
+            p[1] += 3.0;
+        }
+        stroke.tilt([0.0, 0.0, 0.35], 1.0, 2.5);
+        let ticks = replay_tool(&mut tool, &stroke);
+        assert_eq!(ticks.len(), 3001);
+        let pressed: Vec<_> = ticks.iter().filter(|t| t.wrench.contacts > 0).collect();
+        assert!(pressed.len() > 300, "{} ticks in contact", pressed.len());
+        for t in &ticks {
+            // The contacts hold the tool well above the device: its deepest point at most
+            // a tenth of the device's depth into the nut.
+            assert!(
+                t.penetration < 0.1 * depth,
+                "{} deep at t = {}",
+                t.penetration,
+                t.time
+            );
+            // The surface pushes up while the tool presses on the top face (before it
+            // reaches the hole).
+            if t.time > 0.7 && t.time < 1.0 {
+                assert!(t.wrench.force[1] > 0.0 && t.wrench.contacts > 0, "{t:?}");
+            }
+        }
+        let csv = tool_trace_csv(&ticks);
+        assert_eq!(csv.lines().count(), 3002);
+        assert!(csv.lines().all(|l| l.split(',').count() == 24));
     }
 }

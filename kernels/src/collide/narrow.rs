@@ -3,11 +3,11 @@
 //! (van den Bergen 2001) where they overlap, boxes by the separating-axis test
 //! (Gottschalk et al. 1996), and the closed forms for spheres and capsules.
 //!
-//! EPA is exact (to its tolerance) on polytopes: boxes, hulls, triangles. On curved
-//! shapes its polytope is inscribed in the rounded Minkowski difference and can stop
-//! short of the depth (a capsule pair 9% under was found): spheres and capsules have the
-//! closed forms [`sphere_sphere`] and [`capsule_capsule`], which a narrow phase uses for
-//! them.
+//! Spheres and capsules are run as their cores (a point, a segment) with a margin: GJK
+//! and EPA see only polytopes, where both are exact (to their tolerance), and the radii
+//! are added to the result (the margins of van den Bergen 2001, section 4.3.7). Run on
+//! the rounded shapes themselves, EPA's polytope is inscribed in the rounded Minkowski
+//! difference and stops short of the depth (a capsule pair 9% under was found).
 //!
 //! A [`Contact`] is written from shape A to shape B: `normal` points from A into B,
 //! `depth` is the penetration (m, > 0 overlapping, < 0 the separation) and `point` lies
@@ -114,6 +114,22 @@ impl Convex<'_> {
         }
     }
 
+    /// The shape's core and margin: a sphere is its centre and radius, a capsule its
+    /// segment and radius, and every other shape itself with margin 0.
+    pub fn core(&self) -> (Self, f64) {
+        match *self {
+            Convex::Sphere { center, radius } => (
+                Convex::Sphere {
+                    center,
+                    radius: 0.0,
+                },
+                radius,
+            ),
+            Convex::Capsule { a, b, radius } => (Convex::Capsule { a, b, radius: 0.0 }, radius),
+            other => (other, 0.0),
+        }
+    }
+
     /// A point inside the shape (its centre, or the mean of its points).
     pub fn center(&self) -> [f64; 3] {
         match *self {
@@ -180,35 +196,35 @@ fn closest_simplex(s: &mut Simplex) -> Option<[f64; 3]> {
         }
         3 => closest_on_triangle(o, s[0].0.w, s[1].0.w, s[2].0.w),
         _ => {
-            // A tetrahedron: inside when the origin is behind no face (each face seen
-            // from the opposite vertex's side); otherwise the nearest outward face.
+            // A tetrahedron. The origin is inside when the tetrahedron has volume and
+            // the origin is behind none of its faces (each seen from the opposite
+            // vertex's side). Otherwise the closest point is the nearest of the four
+            // faces' closest points: that is right for any origin outside, and it does
+            // not trust the side tests on a flat tetrahedron (parallel faces of boxes
+            // make them), whose signs are rounding noise.
             let faces = [[0, 1, 2, 3], [0, 1, 3, 2], [0, 2, 3, 1], [1, 2, 3, 0]];
-            // (squared distance, face) of the nearest face the origin is outside of.
-            let mut best: Option<(f64, [usize; 4])> = None;
-            let mut inside = true;
-            for f in faces {
-                let (p0, p1, p2, opp) = (s[f[0]].0.w, s[f[1]].0.w, s[f[2]].0.w, s[f[3]].0.w);
+            let w = [s[0].0.w, s[1].0.w, s[2].0.w, s[3].0.w];
+            let (e1, e2, e3) = (sub(w[1], w[0]), sub(w[2], w[0]), sub(w[3], w[0]));
+            let volume = dot(cross(e1, e2), e3);
+            let size = norm2(e1).max(norm2(e2)).max(norm2(e3));
+            let solid = volume.abs() > 1e-10 * size * size.sqrt();
+            let behind_none = faces.iter().all(|f| {
+                let (p0, p1, p2, opp) = (w[f[0]], w[f[1]], w[f[2]], w[f[3]]);
                 let n = cross(sub(p1, p0), sub(p2, p0));
-                let so = dot(n, sub(o, p0));
-                let sd = dot(n, sub(opp, p0));
-                // The origin on the far side of this face from the opposite vertex.
-                if so * sd < 0.0 || (sd == 0.0) {
-                    inside = false;
-                    let (q, _) = closest_on_triangle(o, p0, p1, p2);
-                    let d = norm2(q);
-                    if best.is_none_or(|b| d < b.0) {
-                        best = Some((d, f));
-                    }
-                }
-            }
-            if inside {
+                dot(n, scale(p0, -1.0)) * dot(n, sub(opp, p0)) >= 0.0
+            });
+            if solid && behind_none {
                 return None;
             }
-            let (_, f) = best.expect("outside some face");
+            let closest = faces.map(|f| closest_on_triangle(o, w[f[0]], w[f[1]], w[f[2]]));
+            let k = (0..4)
+                .min_by(|&i, &j| norm2(closest[i].0).total_cmp(&norm2(closest[j].0)))
+                .expect("four faces");
+            let (f, (q, bary)) = (faces[k], closest[k]);
             let face = [s[f[0]], s[f[1]], s[f[2]]];
             s.clear();
             s.extend(face);
-            closest_on_triangle(o, s[0].0.w, s[1].0.w, s[2].0.w)
+            (q, bary)
         }
     };
     // Drop the vertices of zero weight (keep one if all are).
@@ -227,10 +243,23 @@ fn closest_simplex(s: &mut Simplex) -> Option<[f64; 3]> {
 }
 
 /// The contact between two convex shapes: GJK's distance and witness points when they
-/// are apart, EPA's penetration depth and normal when they overlap. `None` only for
-/// non-finite input. Allocates nothing: the simplex and EPA's polytope live on the stack
-/// (about 30 KB at most).
+/// are apart, EPA's penetration depth and normal when they overlap, both on the shapes'
+/// cores with the margins added (see the module docs). `None` only for non-finite input.
+/// Allocates nothing: the simplex and EPA's polytope live on the stack (about 30 KB at
+/// most).
 pub fn gjk_epa(a: &Convex, b: &Convex) -> Option<Contact> {
+    let ((core_a, ra), (core_b, rb)) = (a.core(), b.core());
+    let c = gjk_epa_cores(&core_a, &core_b)?;
+    // The cores' contact moved out to the rounded surfaces along its normal.
+    Some(Contact {
+        normal: c.normal,
+        depth: c.depth + ra + rb,
+        point_a: add(c.point_a, scale(c.normal, ra)),
+        point_b: sub(c.point_b, scale(c.normal, rb)),
+    })
+}
+
+fn gjk_epa_cores(a: &Convex, b: &Convex) -> Option<Contact> {
     let mut d = sub(b.center(), a.center());
     if norm2(d) == 0.0 {
         d = [1.0, 0.0, 0.0];
@@ -265,13 +294,15 @@ pub fn gjk_epa(a: &Convex, b: &Convex) -> Option<Contact> {
     epa(a, b, &simplex)
 }
 
+/// The witness points on A and B of the simplex's closest point (its weights).
+fn witnesses(s: &Simplex) -> ([f64; 3], [f64; 3]) {
+    s.iter().fold(([0.0; 3], [0.0; 3]), |(pa, pb), (p, wi)| {
+        (add(pa, scale(p.a, *wi)), add(pb, scale(p.b, *wi)))
+    })
+}
+
 fn separated(s: &Simplex, v: [f64; 3]) -> Contact {
-    let pa = s
-        .iter()
-        .fold([0.0; 3], |acc, (p, wi)| add(acc, scale(p.a, *wi)));
-    let pb = s
-        .iter()
-        .fold([0.0; 3], |acc, (p, wi)| add(acc, scale(p.b, *wi)));
+    let (pa, pb) = witnesses(s);
     let dist = norm2(v).sqrt();
     // v = pa - pb points from B to A: the normal from A into B is -v.
     Contact {
@@ -314,12 +345,36 @@ fn epa(a: &Convex, b: &Convex, simplex: &Simplex) -> Option<Contact> {
         }
     }
     if verts.len() < 4 {
-        // A flat Minkowski difference (a degenerate shape): touching, depth 0.
+        // A flat Minkowski difference (cores that are points, segments or triangles, or
+        // a degenerate shape) holding the origin: the cores touch, depth 0. The normal
+        // is off the flat set (off a plane's normal, a line's direction), towards B's
+        // centre where that is defined; the witnesses are GJK's.
+        let towards = sub(b.center(), a.center());
+        let normal = match verts.len() {
+            3 => {
+                let n = cross(sub(verts[1].w, verts[0].w), sub(verts[2].w, verts[0].w));
+                length_and_unit(n).map(|(_, n)| {
+                    if dot(n, towards) < 0.0 {
+                        scale(n, -1.0)
+                    } else {
+                        n
+                    }
+                })
+            }
+            2 => length_and_unit(sub(verts[1].w, verts[0].w)).and_then(|(_, u)| {
+                length_and_unit(sub(towards, scale(u, dot(towards, u))))
+                    .map(|(_, n)| n)
+                    .or_else(|| length_and_unit(cross(u, [1.0, 0.0, 0.0])).map(|(_, n)| n))
+                    .or_else(|| length_and_unit(cross(u, [0.0, 1.0, 0.0])).map(|(_, n)| n))
+            }),
+            _ => length_and_unit(towards).map(|(_, n)| n),
+        };
+        let (pa, pb) = witnesses(simplex);
         return Some(Contact {
-            normal: [0.0, 0.0, 1.0],
+            normal: normal.unwrap_or([0.0, 0.0, 1.0]),
             depth: 0.0,
-            point_a: verts[0].a,
-            point_b: verts[0].b,
+            point_a: pa,
+            point_b: pb,
         });
     }
     // Faces as vertex index triples, wound outward.
