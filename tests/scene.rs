@@ -657,6 +657,74 @@ fn mistyped_commands_and_studies_get_the_nearest_name() {
 }
 
 #[test]
+fn haptics_command_with_a_tool_writes_force_and_torque() {
+    let exe = env!("CARGO_BIN_EXE_largestep");
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let nut = root.join("../shared/data/tetmesh/nut-surface.off");
+    let block = root.join("scenes/haptic-block.obj");
+    let out = tmp("haptics-tool");
+    let run = |extra: &[&str], out: &std::path::Path| {
+        let mut args = vec![
+            "haptics",
+            nut.to_str().unwrap(),
+            "--tool",
+            block.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        args.extend(extra);
+        std::process::Command::new(exe).args(args).output().unwrap()
+    };
+    let first = run(&[], &out);
+    assert!(
+        first.status.success(),
+        "{}",
+        String::from_utf8_lossy(&first.stderr)
+    );
+    let stdout = String::from_utf8_lossy(&first.stdout);
+    assert!(
+        stdout.contains("3001 ticks") && stdout.contains("shell points"),
+        "{stdout}"
+    );
+    let csv = std::fs::read_to_string(out.join("haptics.csv")).unwrap();
+    assert!(csv.starts_with("time_s,device_x,device_y,device_z,device_qw,device_qx,device_qy,device_qz,tool_x,tool_y,tool_z,tool_qw,tool_qx,tool_qy,tool_qz,force_x,force_y,force_z,torque_x,torque_y,torque_z,contacts,penetration,work_us\n"));
+    assert_eq!(csv.lines().count(), 3002);
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["mode"], "six-dof");
+    assert!(summary["max_force_n"].as_f64().unwrap() > 0.0);
+    assert!(summary["max_torque_nm"].as_f64().unwrap() > 0.0);
+    assert!(summary["shell_points"].as_u64().unwrap() > 1000);
+    // The written path holds the tilt; replayed, it gives the same trace.
+    let path = out.join("device-path.csv");
+    assert!(std::fs::read_to_string(&path)
+        .unwrap()
+        .starts_with("t,x,y,z,qw,qx,qy,qz\n"));
+    let again = run(&["--path", path.to_str().unwrap()], &out.join("again"));
+    assert!(again.status.success());
+    let strip = |s: &str| {
+        s.lines()
+            .map(|l| l.rsplit_once(',').unwrap().0.to_string())
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(
+        strip(&csv),
+        strip(&std::fs::read_to_string(out.join("again/haptics.csv")).unwrap())
+    );
+    // Bad input: named.
+    let bad = out.join("bad.csv");
+    std::fs::write(&bad, "0,0,0,0,1,0,0,0\n1,0,0,0,0,0,0,0\n").unwrap();
+    let e = run(&["--path", bad.to_str().unwrap()], &out);
+    assert_eq!(e.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&e.stderr);
+    assert!(err.contains("bad.csv:2") && err.contains("zero"), "{err}");
+    let e = run(&["--cells", "1"], &out);
+    assert_eq!(e.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&e.stderr).contains("--cells 1"));
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
 fn haptics_command_writes_the_force_trace_and_names_bad_paths() {
     let exe = env!("CARGO_BIN_EXE_largestep");
     let nut =

@@ -110,21 +110,40 @@ enum Command {
         #[command(flatten)]
         view: ViewArgs,
     },
-    /// Haptic rendering: a point probe against a closed triangle mesh (god object with a
-    /// virtual-coupling spring), replayed at 1 kHz along a device path. Writes
-    /// haptics.csv (time_s, device, proxy, force and work_us per tick), haptics.png (the
-    /// force trace) and summary.json, and prints the loop's latency percentiles.
+    /// Haptic rendering, replayed at 1 kHz along a device path: a point probe against a
+    /// closed triangle mesh (god object with a virtual-coupling spring), or with --tool a
+    /// rigid tool's point shell against the mesh's distance field (six-DoF virtual
+    /// coupling). Writes haptics.csv (per tick: time_s, device and proxy or tool pose,
+    /// force, torque with --tool, work_us), haptics.png (the force trace) and
+    /// summary.json, and prints the loop's latency percentiles.
     Haptics {
         /// The closed surface (.obj, .off).
         mesh: PathBuf,
-        /// The device path: a CSV of t,x,y,z rows (s, m). Default: a scripted 3 s stroke
-        /// down onto the mesh's highest vertex, a tenth of its height into it and along +x,
-        /// written to device-path.csv.
+        /// The device path: a CSV of t,x,y,z rows (s, m), or t,x,y,z,qw,qx,qy,qz rows for
+        /// a tool's pose. Default: a scripted 3 s stroke down onto the mesh's highest
+        /// vertex (a tool: onto the point a quarter of the way across it in x, in the
+        /// middle in z), a tenth of its height into it and along +x by 0.4 of its width
+        /// (a tool also tilts by 20 degrees about z as it slides), written to
+        /// device-path.csv.
         #[arg(long)]
         path: Option<PathBuf>,
         /// Coupling spring stiffness (N/m).
         #[arg(long, default_value_t = 500.0)]
         stiffness: f64,
+        /// Six-DoF: a rigid tool whose mesh vertices (.obj, .off; m, in the tool's frame,
+        /// which the device pose places) are its point shell.
+        #[arg(long)]
+        tool: Option<PathBuf>,
+        /// Six-DoF rotational coupling stiffness (N m/rad). Default: --stiffness times
+        /// the square of the tool's radius about its frame's origin.
+        #[arg(long)]
+        rotation_stiffness: Option<f64>,
+        /// Six-DoF contact stiffness per shell point (N/m). Default: 4 x --stiffness.
+        #[arg(long)]
+        contact_stiffness: Option<f64>,
+        /// Six-DoF: cells of the mesh's distance grid along its longest side.
+        #[arg(long, default_value_t = 64)]
+        cells: usize,
         /// Output folder.
         #[arg(long, default_value = "out/haptics")]
         out: PathBuf,
@@ -406,8 +425,23 @@ fn main() -> ExitCode {
             mesh,
             path,
             stiffness,
+            tool,
+            rotation_stiffness,
+            contact_stiffness,
+            cells,
             out,
-        } => haptics(&mesh, path.as_deref(), stiffness, &out, &limits),
+        } => match tool {
+            None => haptics(&mesh, path.as_deref(), stiffness, &out, &limits),
+            Some(tool) => haptics_tool(
+                &mesh,
+                &tool,
+                path.as_deref(),
+                [Some(stiffness), rotation_stiffness, contact_stiffness],
+                cells,
+                &out,
+                &limits,
+            ),
+        },
         #[cfg(feature = "modal")]
         Command::Modes {
             mesh,
@@ -645,6 +679,38 @@ fn render(
     }
 }
 
+/// The device path of `largestep haptics`: read from `path`, or the scripted `default`
+/// written to `out/device-path.csv`.
+fn device_path(
+    path: Option<&std::path::Path>,
+    out: &std::path::Path,
+    limits: &Limits,
+    default: impl FnOnce() -> largestep::haptics::DevicePath,
+) -> Result<largestep::haptics::DevicePath, String> {
+    match path {
+        Some(p) => largestep::haptics::DevicePath::read(p, limits.max_file_bytes)
+            .map_err(|e| e.to_string()),
+        None => {
+            let d = default();
+            let file = out.join("device-path.csv");
+            std::fs::write(&file, d.to_csv()).map_err(|e| format!("{}: {e}", file.display()))?;
+            Ok(d)
+        }
+    }
+}
+
+/// Prints a haptic loop's work percentiles against the 1 ms tick.
+fn print_latency([p50, p90, p99, max]: [f64; 4]) {
+    println!(
+        "  work per tick  p50 {:.1} us, p90 {:.1} us, p99 {:.1} us, max {:.1} us ({} the 1 ms budget at p99)",
+        p50 * 1e6,
+        p90 * 1e6,
+        p99 * 1e6,
+        max * 1e6,
+        if p99 < largestep::haptics::TICK { "within" } else { "over" }
+    );
+}
+
 /// `largestep haptics`: replays a device path through the god object of a mesh.
 fn haptics(
     mesh: &std::path::Path,
@@ -670,21 +736,13 @@ fn haptics(
     if let Err(e) = std::fs::create_dir_all(out) {
         return fail(format!("{}: {e}", out.display()));
     }
-    let device = match path {
-        Some(p) => match DevicePath::read(p, limits.max_file_bytes) {
-            Ok(d) => d,
-            Err(e) => return fail(e.to_string()),
-        },
-        None => {
-            let b = god.bounds();
-            let top = god.top();
-            let d = DevicePath::stroke(&b, [top[0], top[2]], 0.1 * (b.max[1] - b.min[1]));
-            let file = out.join("device-path.csv");
-            if let Err(e) = std::fs::write(&file, d.to_csv()) {
-                return fail(format!("{}: {e}", file.display()));
-            }
-            d
-        }
+    let device = match device_path(path, out, limits, || {
+        let b = god.bounds();
+        let top = god.top();
+        DevicePath::stroke(&b, [top[0], top[2]], 0.1 * (b.max[1] - b.min[1]))
+    }) {
+        Ok(d) => d,
+        Err(e) => return fail(e),
     };
     // Ticks are kept in memory (about 120 bytes each): check before replaying.
     let ticks_n = device.duration() / TICK + 1.0;
@@ -750,14 +808,182 @@ fn haptics(
         ticks.len(),
         surface.triangles.len()
     );
+    print_latency([p50, p90, p99, max]);
+    println!("  trace          {}", csv.display());
+    println!("  plot           {}", out.join("haptics.png").display());
+    println!("  summary        {}", json.display());
+    ExitCode::SUCCESS
+}
+
+/// `largestep haptics --tool`: replays a device path (poses) through a rigid tool's
+/// point shell against the distance field of a mesh.
+fn haptics_tool(
+    mesh: &std::path::Path,
+    tool: &std::path::Path,
+    path: Option<&std::path::Path>,
+    [stiffness, rotation_stiffness, contact_stiffness]: [Option<f64>; 3],
+    cells: usize,
+    out: &std::path::Path,
+    limits: &Limits,
+) -> ExitCode {
+    use largestep::collide::SdfGrid;
+    use largestep::haptics::{
+        percentiles, point_shell, replay_tool, tool_trace_csv, DevicePath, SixDof, ToolTick, TICK,
+    };
+    use largestep::kernels::collide::bv::Aabb;
+    use largestep::plot::{Curve, Panel, Scale};
+    let fail = |e: String| {
+        eprintln!("error: {e}");
+        ExitCode::from(2)
+    };
+    let read = |file: &std::path::Path| largestep::io::read_surface(file, limits.max_file_bytes);
+    let (surface, tool_surface) = match (read(mesh), read(tool)) {
+        (Ok(m), Ok(t)) => (m, t),
+        (Err(e), _) | (_, Err(e)) => return fail(e.to_string()),
+    };
+    if !(2..=4096).contains(&cells) {
+        return fail(format!("--cells {cells}: must be from 2 to 4096"));
+    }
+    let bounds =
+        Aabb::of_points((0..surface.positions.len() / 3).map(|i| surface.as_ref().vertex(i)));
+    let longest = (0..3)
+        .map(|a| bounds.max[a] - bounds.min[a])
+        .fold(0.0, f64::max);
+    let h = longest / cells as f64;
+    // The shell: sampled at the grid's spacing; its radius about the tool's origin sets
+    // the default rotational stiffness and the grid's padding.
+    let shell = match point_shell(&tool_surface, h, (limits.max_memory / 64) as usize) {
+        Ok(s) => s,
+        Err(e) => return fail(format!("{}: {e}", tool.display())),
+    };
+    let radius = shell
+        .iter()
+        .map(|p| p.iter().map(|c| c * c).sum::<f64>().sqrt())
+        .fold(0.0, f64::max);
+    // A distance grid node costs about 64 bytes while it is built.
+    let pad = ((radius / h).ceil() as usize).min(cells) + 2;
+    let field = match SdfGrid::from_mesh(&surface, h, pad, (limits.max_memory / 64) as usize) {
+        Ok(f) => f,
+        Err(e) => return fail(format!("{}: {e}", mesh.display())),
+    };
+    let kt = stiffness.unwrap_or(500.0);
+    let kr = rotation_stiffness.unwrap_or(kt * radius.max(0.01 * longest).powi(2));
+    let kc = contact_stiffness.unwrap_or(4.0 * kt);
+    let mut six = match SixDof::new(shell, std::sync::Arc::new(field), kt, kr, kc) {
+        Ok(s) => s,
+        Err(e) => return fail(format!("{}: {e}", tool.display())),
+    };
+    if let Err(e) = std::fs::create_dir_all(out) {
+        return fail(format!("{}: {e}", out.display()));
+    }
+    let device = match device_path(path, out, limits, || {
+        // The point probe's stroke, from a quarter of the way across the mesh (through
+        // its middle in z) and carried by the tool's lowest point, tilting by 20 degrees
+        // about z while it slides.
+        let over = [
+            bounds.min[0] + 0.25 * (bounds.max[0] - bounds.min[0]),
+            0.5 * (bounds.min[2] + bounds.max[2]),
+        ];
+        let low = (0..tool_surface.positions.len() / 3)
+            .map(|i| tool_surface.as_ref().vertex(i)[1])
+            .fold(f64::INFINITY, f64::min);
+        let mut d = DevicePath::stroke(&bounds, over, 0.1 * (bounds.max[1] - bounds.min[1]));
+        for p in &mut d.positions {
+            p[1] -= low;
+        }
+        d.tilt([0.0, 0.0, 20f64.to_radians()], 1.0, 2.5);
+        d
+    }) {
+        Ok(d) => d,
+        Err(e) => return fail(e),
+    };
+    // Ticks are kept in memory (about 250 bytes each): check before replaying.
+    if let Err(e) = limits.memory("the haptic trace", 250.0 * (device.duration() / TICK + 1.0)) {
+        return fail(e);
+    }
+    let ticks = replay_tool(&mut six, &device);
+    let csv = out.join("haptics.csv");
+    if let Err(e) = std::fs::write(&csv, tool_trace_csv(&ticks)) {
+        return fail(format!("{}: {e}", csv.display()));
+    }
+    let curve = |label: &str, f: &dyn Fn(&ToolTick) -> f64| Curve {
+        label: label.into(),
+        points: ticks.iter().map(|t| (t.time, f(t))).collect(),
+        dashed: true,
+    };
+    let panels = [
+        Panel {
+            title: format!("six-DoF tool, k = {kt} N/m"),
+            x_label: "time (s)".into(),
+            y_label: "force on the user (N)".into(),
+            scale: Scale::Linear,
+            curves: vec![
+                (0, curve("F_x", &|t| t.wrench.force[0])),
+                (1, curve("F_y", &|t| t.wrench.force[1])),
+                (2, curve("F_z", &|t| t.wrench.force[2])),
+            ],
+        },
+        Panel {
+            title: format!("k_rot = {kr:.3e} N m/rad"),
+            x_label: "time (s)".into(),
+            y_label: "torque on the user (N m)".into(),
+            scale: Scale::Linear,
+            curves: vec![
+                (0, curve("T_x", &|t| t.wrench.torque[0])),
+                (1, curve("T_y", &|t| t.wrench.torque[1])),
+                (2, curve("T_z", &|t| t.wrench.torque[2])),
+            ],
+        },
+        Panel {
+            title: "work per 1 ms tick".into(),
+            x_label: "time (s)".into(),
+            y_label: "work (us)".into(),
+            scale: Scale::Linear,
+            curves: vec![(3, curve("tick", &|t| t.work * 1e6))],
+        },
+    ];
+    if let Err(e) = largestep::plot::write_panels(&out.join("haptics"), &panels, 1, (900, 300)) {
+        return fail(e);
+    }
+    let lat = percentiles(ticks.iter().map(|t| t.work).collect());
+    let largest = |f: &dyn Fn(&ToolTick) -> [f64; 3]| {
+        ticks
+            .iter()
+            .map(|t| f(t).iter().map(|c| c * c).sum::<f64>().sqrt())
+            .fold(0.0, f64::max)
+    };
+    let (fmax, tmax) = (largest(&|t| t.wrench.force), largest(&|t| t.wrench.torque));
+    let deepest = ticks.iter().map(|t| t.penetration).fold(0.0, f64::max);
+    let shell_points = six.shell().len();
+    let grid_cells = six.field().grid.n.map(|n| n - 1);
+    let summary = serde_json::json!({
+        "mode": "six-dof",
+        "mesh": mesh.display().to_string(),
+        "tool": tool.display().to_string(),
+        "shell_points": shell_points,
+        "grid_cells": grid_cells,
+        "grid_spacing_m": h,
+        "ticks": ticks.len(),
+        "tick_s": TICK,
+        "stiffness_n_per_m": kt,
+        "rotation_stiffness_nm_per_rad": kr,
+        "contact_stiffness_n_per_m": kc,
+        "max_force_n": fmax,
+        "max_torque_nm": tmax,
+        "max_penetration_m": deepest,
+        "work_us": {"p50": lat[0] * 1e6, "p90": lat[1] * 1e6, "p99": lat[2] * 1e6, "max": lat[3] * 1e6},
+    });
+    let json = out.join("summary.json");
+    if let Err(e) = std::fs::write(&json, format!("{summary:#}\n")) {
+        return fail(format!("{}: {e}", json.display()));
+    }
     println!(
-        "  work per tick  p50 {:.1} us, p90 {:.1} us, p99 {:.1} us, max {:.1} us ({} the 1 ms budget at p99)",
-        p50 * 1e6,
-        p90 * 1e6,
-        p99 * 1e6,
-        max * 1e6,
-        if p99 < TICK { "within" } else { "over" }
+        "haptics: {} ticks of 1 ms, a tool of {shell_points} shell points against a {:?} distance grid of {} triangles; largest force {fmax:.3} N, torque {tmax:.3} N m, deepest shell point {deepest:.3e} m",
+        ticks.len(),
+        grid_cells,
+        surface.triangles.len()
     );
+    print_latency(lat);
     println!("  trace          {}", csv.display());
     println!("  plot           {}", out.join("haptics.png").display());
     println!("  summary        {}", json.display());

@@ -21,31 +21,42 @@
 
 mod six_dof;
 
-pub use six_dof::{SixDof, Wrench};
+pub use six_dof::{point_shell, replay_tool, tool_trace_csv, SixDof, ToolTick, Wrench};
 
 use crate::collide::check_closed;
 use crate::io::{Mesh, ReadError};
 use crate::kernels::collide::bv::Aabb;
 use crate::kernels::collide::bvh::Bvh;
 use crate::kernels::collide::prox::{norm2, ray_triangle, triangle_normal};
+use crate::kernels::quat::{conj, exp, log, mul, normalize, Quat, IDENTITY};
 use crate::kernels::v3::{add, dot, scale, sub};
 use crate::validate::ModelError;
 
 /// The tick of the haptic loop (s): 1 kHz.
 pub const TICK: f64 = 1e-3;
 
-/// Positions of the device over time, linearly interpolated.
+/// Poses of the device over time: positions linearly interpolated, orientations by
+/// spherical linear interpolation (identity for a path of positions only).
 #[derive(Clone, Debug, PartialEq)]
 pub struct DevicePath {
     /// Times (s), strictly increasing, the first at least 0.
     pub times: Vec<f64>,
     /// Positions (m).
     pub positions: Vec<[f64; 3]>,
+    /// Unit orientations `[w, x, y, z]`, one per time.
+    pub orientations: Vec<Quat>,
 }
 
+/// The CSV headers of a path of positions and of one of poses.
+const POSITION_HEADER: [&str; 4] = ["t", "x", "y", "z"];
+const POSE_HEADER: [&str; 8] = ["t", "x", "y", "z", "qw", "qx", "qy", "qz"];
+
 impl DevicePath {
-    /// Parses a CSV of `t,x,y,z` rows (seconds, metres), an optional header line first
-    /// (`t,x,y,z`), `#` comments and blank lines skipped. Errors name the file and line.
+    /// Parses a CSV of `t,x,y,z` rows (seconds, metres) or of `t,x,y,z,qw,qx,qy,qz` rows
+    /// (a pose: the orientation as a quaternion, normalised on reading unless it is a
+    /// unit one to rounding), every row of
+    /// the same width, an optional header line first, `#` comments and blank lines
+    /// skipped. Errors name the file and line.
     pub fn parse(text: &str, path: &str) -> Result<DevicePath, ReadError> {
         let err = |line: usize, message: String| ReadError {
             path: path.to_string(),
@@ -55,7 +66,10 @@ impl DevicePath {
         let mut out = DevicePath {
             times: Vec::new(),
             positions: Vec::new(),
+            orientations: Vec::new(),
         };
+        // The row width, fixed by the header or the first row.
+        let mut width: Option<usize> = None;
         for (k, raw) in text.lines().enumerate() {
             let line = k + 1;
             let s = raw.split('#').next().unwrap_or("").trim();
@@ -63,33 +77,50 @@ impl DevicePath {
                 continue;
             }
             let fields: Vec<&str> = s.split(',').map(str::trim).collect();
-            if out.times.is_empty() && fields.first().is_some_and(|f| f.parse::<f64>().is_err()) {
-                if fields != ["t", "x", "y", "z"] {
+            if out.times.is_empty()
+                && width.is_none()
+                && fields.first().is_some_and(|f| f.parse::<f64>().is_err())
+            {
+                if fields != POSITION_HEADER && fields != POSE_HEADER {
                     return Err(err(
                         line,
                         format!(
-                            "expected the header `t,x,y,z` or a row of four numbers, found `{s}`"
+                            "expected the header `t,x,y,z` or `t,x,y,z,qw,qx,qy,qz`, or a row of numbers, found `{s}`"
                         ),
                     ));
                 }
+                width = Some(fields.len());
                 continue;
             }
-            if fields.len() != 4 {
+            let names: &[&str] = match width.unwrap_or(fields.len()) {
+                4 => &POSITION_HEADER,
+                8 => &POSE_HEADER,
+                n => {
+                    return Err(err(
+                        line,
+                        format!("expected 4 fields (t, x, y, z) or 8 (t, x, y, z, qw, qx, qy, qz), found {n}"),
+                    ))
+                }
+            };
+            if fields.len() != names.len() {
                 return Err(err(
                     line,
-                    format!("expected 4 fields (t, x, y, z), found {}", fields.len()),
+                    format!(
+                        "expected {} fields ({}) as in the rows above, found {}",
+                        names.len(),
+                        names.join(", "),
+                        fields.len()
+                    ),
                 ));
             }
-            let mut v = [0.0; 4];
+            width = Some(names.len());
+            let mut v = [0.0; 8];
             for (i, f) in fields.iter().enumerate() {
                 v[i] = f
                     .parse::<f64>()
                     .map_err(|_| err(line, format!("`{f}` is not a number")))?;
                 if !v[i].is_finite() {
-                    return Err(err(
-                        line,
-                        format!("{} = {f}: must be finite", ["t", "x", "y", "z"][i]),
-                    ));
+                    return Err(err(line, format!("{} = {f}: must be finite", names[i])));
                 }
             }
             if let Some(&last) = out.times.last() {
@@ -105,8 +136,23 @@ impl DevicePath {
             } else if v[0] < 0.0 {
                 return Err(err(line, format!("t = {}: must be >= 0", v[0])));
             }
+            let q = if names.len() == 8 {
+                let q = [v[4], v[5], v[6], v[7]];
+                // Unit to rounding: kept as written, so that a written path reads back
+                // to the same bits.
+                let unit = (q.iter().map(|c| c * c).sum::<f64>() - 1.0).abs() <= 1e-12;
+                (if unit { Some(q) } else { normalize(q) }).ok_or_else(|| {
+                    err(
+                        line,
+                        "the orientation (qw, qx, qy, qz) is zero: it must be a rotation".into(),
+                    )
+                })?
+            } else {
+                IDENTITY
+            };
             out.times.push(v[0]);
             out.positions.push([v[1], v[2], v[3]]);
+            out.orientations.push(q);
         }
         if out.times.is_empty() {
             return Err(err(1, "the path has no positions".into()));
@@ -120,28 +166,64 @@ impl DevicePath {
         Self::parse(&text, &path.display().to_string())
     }
 
-    /// The CSV text of the path (`t,x,y,z` header, one row per sample).
+    /// Whether some orientation is not the identity.
+    pub fn turns(&self) -> bool {
+        self.orientations.iter().any(|q| *q != IDENTITY)
+    }
+
+    /// The CSV text of the path, one row per sample: `t,x,y,z`, or
+    /// `t,x,y,z,qw,qx,qy,qz` when it [`turns`](Self::turns).
     pub fn to_csv(&self) -> String {
-        let mut s = String::from("t,x,y,z\n");
-        for (t, p) in self.times.iter().zip(&self.positions) {
-            s += &format!("{t},{},{},{}\n", p[0], p[1], p[2]);
+        let turns = self.turns();
+        let header = if turns {
+            &POSE_HEADER[..]
+        } else {
+            &POSITION_HEADER[..]
+        };
+        let mut s = header.join(",") + "\n";
+        for ((t, p), q) in self
+            .times
+            .iter()
+            .zip(&self.positions)
+            .zip(&self.orientations)
+        {
+            s += &format!("{t},{},{},{}", p[0], p[1], p[2]);
+            if turns {
+                s += &format!(",{:?},{:?},{:?},{:?}", q[0], q[1], q[2], q[3]);
+            }
+            s += "\n";
         }
         s
     }
 
-    /// The position at time `t` (s), clamped to the path's ends.
-    pub fn at(&self, t: f64) -> [f64; 3] {
+    /// The samples around time `t`, clamped to the path's ends: `(k0, k1, s)` with the
+    /// pose at `t` between samples `k0` and `k1` at fraction `s`.
+    fn bracket(&self, t: f64) -> (usize, usize, f64) {
         let k = self.times.partition_point(|&s| s <= t);
         if k == 0 {
-            return self.positions[0];
+            return (0, 0, 0.0);
         }
         if k == self.times.len() {
-            return self.positions[k - 1];
+            return (k - 1, k - 1, 0.0);
         }
         let (t0, t1) = (self.times[k - 1], self.times[k]);
-        let s = (t - t0) / (t1 - t0);
-        let (a, b) = (self.positions[k - 1], self.positions[k]);
+        (k - 1, k, (t - t0) / (t1 - t0))
+    }
+
+    /// The position at time `t` (s), clamped to the path's ends.
+    pub fn at(&self, t: f64) -> [f64; 3] {
+        let (k0, k1, s) = self.bracket(t);
+        let (a, b) = (self.positions[k0], self.positions[k1]);
         [0, 1, 2].map(|i| a[i] + s * (b[i] - a[i]))
+    }
+
+    /// The orientation at time `t` (s), clamped to the path's ends: the shorter arc
+    /// between the samples at constant angular speed (`q0 exp(s log(q0* q1))`).
+    pub fn orientation_at(&self, t: f64) -> Quat {
+        let (k0, k1, s) = self.bracket(t);
+        let (a, b) = (self.orientations[k0], self.orientations[k1]);
+        let step = scale(log(mul(conj(a), b)), s);
+        mul(a, exp(step))
     }
 
     /// The path's duration (s): its last time.
@@ -170,7 +252,24 @@ impl DevicePath {
         let n = 301;
         let times: Vec<f64> = (0..n).map(|i| i as f64 * 0.01).collect();
         let positions = times.iter().map(|&t| pos(t)).collect();
-        DevicePath { times, positions }
+        let orientations = vec![IDENTITY; n];
+        DevicePath {
+            times,
+            positions,
+            orientations,
+        }
+    }
+}
+
+impl DevicePath {
+    /// Turns the path's orientations by the rotation vector `rotation` (rad) at a
+    /// constant rate from time `from` to `to` (s): the identity before, all of it after,
+    /// composed before each sample's own orientation. For the scripted tool stroke.
+    pub fn tilt(&mut self, rotation: [f64; 3], from: f64, to: f64) {
+        for (t, q) in self.times.iter().zip(&mut self.orientations) {
+            let s = ((t - from) / (to - from)).clamp(0.0, 1.0);
+            *q = mul(exp(scale(rotation, s)), *q);
+        }
     }
 }
 
@@ -413,7 +512,11 @@ pub fn replay(god: &mut GodObject, path: &DevicePath) -> Result<Vec<Tick>, Strin
 
 /// The 50th, 90th, 99th percentiles and the largest of the ticks' work times (s).
 pub fn latency(ticks: &[Tick]) -> [f64; 4] {
-    let mut w: Vec<f64> = ticks.iter().map(|t| t.work).collect();
+    percentiles(ticks.iter().map(|t| t.work).collect())
+}
+
+/// The 50th, 90th, 99th percentiles and the largest of work times (s; zeros for none).
+pub fn percentiles(mut w: Vec<f64>) -> [f64; 4] {
     w.sort_by(f64::total_cmp);
     if w.is_empty() {
         return [0.0; 4];
