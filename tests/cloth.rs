@@ -2021,6 +2021,85 @@ fn the_quick_accuracy_study_labels_what_it_ran() {
     assert!(svg.contains("T = 0.2 s") && !svg.contains("T = 1 s"));
 }
 
+/// Self contacts enter the implicit solve's filter: a vertex falling onto a still
+/// triangle of its own surface is held at the triangle's normal speed; a vertex at rest
+/// under a falling triangle is not pushed (its share comes from the impulses after).
+#[test]
+fn self_contacts_stop_a_vertex_closing_on_its_own_sheet_in_the_filter() {
+    use largestep::collide::SelfCollision;
+    use largestep::solve::Filter;
+    // Two triangles 2 mm apart (thickness 4 mm): the lower one still, the upper falling
+    // at 1 m/s. Component-major positions and velocities of 6 vertices.
+    let tris: std::sync::Arc<[[u32; 3]]> = vec![[0, 1, 2], [3, 4, 5]].into();
+    let corners = [[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]];
+    let n = 6;
+    let mut x = vec![0.0; 3 * n];
+    let mut v = vec![0.0; 3 * n];
+    for (i, c) in corners
+        .iter()
+        .chain(&[[0.2, 0.2], [0.5, 0.2], [0.2, 0.5]])
+        .enumerate()
+    {
+        x[i] = c[0];
+        x[2 * n + i] = c[1];
+        if i >= 3 {
+            x[n + i] = 0.002;
+            v[n + i] = -1.0;
+        }
+    }
+    let mut sc = SelfCollision::new(tris, 0.004);
+    sc.begin(&x, &v, &[1.0; 6], 1.0 / 60.0);
+    // The upper triangle's vertices close on the lower triangle (normal up); the lower
+    // triangle's vertices lie beyond the upper one's edges.
+    let mut held: Vec<u32> = sc.approaches().iter().map(|a| a.vertex).collect();
+    held.sort();
+    assert_eq!(held, [3, 4, 5]);
+    assert!(sc.approaches().iter().all(|a| a.normal[1] > 0.999));
+    let mut filter = Filter::new(n);
+    sc.constraints(&mut filter);
+    for i in 3..6 {
+        // Stopped along the normal: the still triangle's speed, 0.
+        let got = filter.imposed(i, [0.0, -1.0, 0.0]);
+        assert!(got.iter().all(|c| c.abs() < 1e-12), "vertex {i}: {got:?}");
+        assert_eq!(
+            filter
+                .unilateral()
+                .iter()
+                .filter(|a| a.vertex == i as u32)
+                .count(),
+            1
+        );
+    }
+    // A vertex already held (a pin, an obstacle contact) keeps its own constraint.
+    let mut filter = Filter::new(n);
+    filter.fix(4);
+    sc.constraints(&mut filter);
+    assert_eq!(filter.imposed(4, [0.3, -1.0, 0.2]), [0.0; 3]);
+    // The upper vertices at rest, the lower triangle rising onto them: they close, but
+    // the solve does not push them (the impulses after the step do).
+    for i in 0..3 {
+        v[n + i] = 1.0;
+        v[n + i + 3] = 0.0;
+    }
+    sc.begin(&x, &v, &[1.0; 6], 1.0 / 60.0);
+    assert_eq!(sc.approaches().len(), 3);
+    let mut filter = Filter::new(n);
+    sc.constraints(&mut filter);
+    assert!(filter.is_empty(), "vertices at rest are not pushed");
+    // Both falling, the upper faster: the upper vertices fall with the lower triangle.
+    for i in 3..6 {
+        v[n + i] = -1.0;
+    }
+    for i in 0..3 {
+        v[n + i] = -0.5;
+    }
+    sc.begin(&x, &v, &[1.0; 6], 1.0 / 60.0);
+    let mut filter = Filter::new(n);
+    sc.constraints(&mut filter);
+    let got = filter.imposed(3, [0.0, -1.0, 0.0]);
+    assert!((got[1] + 0.5).abs() < 1e-12, "{got:?}");
+}
+
 /// The two self-collision scenes, smaller: no pair of triangles sharing no vertex crosses
 /// after any step; without `[cloth.self_collision]` the same runs end up crossed (the
 /// check can fail).

@@ -2,6 +2,11 @@
 //! impulses and rigid impact zones, after Bridson, Fedkiw and Anderson 2002 ("Robust
 //! treatment of collisions, contact and friction for cloth animation", sections 6-7).
 //!
+//! Before the implicit step, [`SelfCollision::begin`] finds the vertices closing on a
+//! triangle of the surface within the thickness, and [`SelfCollision::constraints`]
+//! gives the solve's filter a one-sided constraint for each that stops the vertex's own
+//! approach (Baraff and Witkin 1998's filter, section 5.1, one vertex at a time).
+//!
 //! The implicit step proposes end positions `x1`; the response works on the step's
 //! average velocity `u = (x1 - x0) / h` and moves the end to `x0 + h u`:
 //!
@@ -29,6 +34,7 @@ use crate::kernels::collide::bvh::{Bvh, PairWork};
 use crate::kernels::collide::ccd::{
     edge_edge, edge_edge_ccd, vertex_triangle, vertex_triangle_ccd, Proximity,
 };
+use crate::kernels::get3;
 use crate::kernels::v3::{cross, dot, length_and_unit, sub};
 
 /// Natural frequency (rad/s) of the repulsion spring per unit mass: `omega^2` times the
@@ -42,6 +48,8 @@ const ZONE_ROUNDS: usize = 64;
 /// What one [`SelfCollision::resolve`] did.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct SelfStats {
+    /// Vertices the implicit solve's filter held off a triangle at the step's start.
+    pub approaches: usize,
     /// Repulsion impulses applied.
     pub repulsions: usize,
     /// Collision impulses applied.
@@ -82,6 +90,28 @@ pub struct SelfCollision {
     /// The vertices of each pair the last continuous pass found colliding.
     hits: Vec<[u32; 4]>,
     parent: Vec<u32>,
+    /// The step's start-of-step contacts for the implicit solve's filter.
+    approaches: Vec<SelfApproach>,
+    /// The slack of their one-sided constraints (m/s): the thickness over the step.
+    slack: f64,
+}
+
+/// A vertex closing on a triangle of its own surface within the thickness at the start
+/// of a step: the implicit solve holds the vertex's velocity along `normal` (from the
+/// triangle towards the vertex) at the triangle's own there, unless that pulls
+/// ([`crate::solve::Filter::approach`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SelfApproach {
+    /// The vertex.
+    pub vertex: u32,
+    /// Unit normal from the triangle towards the vertex.
+    pub normal: [f64; 3],
+    /// The triangle's vertices.
+    pub triangle: [u32; 3],
+    /// The barycentric weights of the vertex's closest point on the triangle.
+    pub weights: [f64; 3],
+    /// The vertex's distance from the triangle (m).
+    pub distance: f64,
 }
 
 impl SelfCollision {
@@ -136,13 +166,100 @@ impl SelfCollision {
             pairs: Vec::new(),
             hits: Vec::new(),
             parent: Vec::new(),
+            approaches: Vec::new(),
+            slack: 0.0,
         }
     }
 
-    /// Remembers the positions at the start of a step.
-    pub fn begin(&mut self, x: &[f64]) {
+    /// Starts a step of size `h` (s) from positions `x` and velocities `v`: remembers the
+    /// positions, finds the feature pairs within the thickness (which the repulsion of
+    /// [`SelfCollision::resolve`] reuses) and, from them, the vertices closing on a
+    /// triangle, which [`SelfCollision::constraints`] gives the step's filter (the
+    /// nearest triangle per vertex; vertices of zero `inv_mass` are left out).
+    pub fn begin(&mut self, x: &[f64], v: &[f64], inv_mass: &[f64], h: f64) {
+        let n = inv_mass.len();
         self.x0.clear();
         self.x0.extend_from_slice(x);
+        self.approaches.clear();
+        self.pairs.clear();
+        if x.len() != 3 * n || v.len() != 3 * n || h.is_nan() || h <= 0.0 {
+            return;
+        }
+        self.slack = self.thickness / h;
+        // The start-of-step pairs need no motion: u is the velocity, read at s = 0.
+        self.u.clear();
+        self.u.extend_from_slice(v);
+        self.find_pairs(n, h, true);
+        for k in 0..self.pairs.len() {
+            let pair = self.pairs[k];
+            let Pair::Vf(vertex, _) = pair else { continue };
+            if inv_mass[vertex as usize] == 0.0 {
+                continue;
+            }
+            let (idx, w, pr) = self.start_proximity(n, pair);
+            if pr.distance >= self.thickness
+                || self.relative_normal_velocity(n, &idx, &w, pr.normal) >= 0.0
+            {
+                continue;
+            }
+            self.approaches.push(SelfApproach {
+                vertex,
+                normal: pr.normal,
+                triangle: [idx[1], idx[2], idx[3]],
+                weights: [-w[1], -w[2], -w[3]],
+                distance: pr.distance,
+            });
+        }
+        // One per vertex: the nearest triangle.
+        self.approaches.sort_unstable_by(|a, b| {
+            a.vertex
+                .cmp(&b.vertex)
+                .then(a.distance.total_cmp(&b.distance))
+        });
+        self.approaches.dedup_by_key(|a| a.vertex);
+    }
+
+    /// The step's approaches (see [`SelfCollision::begin`]).
+    pub fn approaches(&self) -> &[SelfApproach] {
+        &self.approaches
+    }
+
+    /// Writes the step's approaches into the implicit solve's filter as one-sided
+    /// constraints, on the vertices nothing else constrains (pins and obstacle contacts
+    /// keep theirs). Each stops the vertex's own approach: its velocity along the normal
+    /// becomes the triangle point's there (the triangle's vertices as the filter already
+    /// holds them: a triangle resting on the floor is still), but never more than the
+    /// vertex's own or 0, so the solve never pushes a vertex along the normal (a falling
+    /// sheet does not drive the sheet under it into the floor within the step). The
+    /// filter holds one vertex at a time, so the triangle does not feel the vertex within
+    /// the solve: the impulses of [`SelfCollision::resolve`] settle what is left.
+    pub fn constraints(&self, filter: &mut crate::solve::Filter) {
+        let n = filter.n();
+        if self.u.len() != 3 * n {
+            return;
+        }
+        for a in &self.approaches {
+            let i = a.vertex as usize;
+            if i >= n || !filter.is_free(i) {
+                continue;
+            }
+            let v_tri: f64 = a
+                .triangle
+                .iter()
+                .zip(a.weights)
+                .map(|(&k, w)| {
+                    w * dot(
+                        filter.imposed(k as usize, get3(&self.u, n, k as usize)),
+                        a.normal,
+                    )
+                })
+                .sum();
+            let v_vertex = dot(get3(&self.u, n, i), a.normal);
+            let speed = v_tri.min(v_vertex.max(0.0));
+            if speed > v_vertex {
+                filter.approach(i, a.normal, speed, self.slack);
+            }
+        }
     }
 
     /// Resolves the step from the positions given to [`SelfCollision::begin`] to `x1`
@@ -164,8 +281,7 @@ impl SelfCollision {
         self.u
             .extend(x1.iter().zip(&self.x0).map(|(a, b)| (a - b) / h));
         let eta = 1e-6 * self.thickness.max(1e-9);
-        // 1. Repulsion at the start.
-        self.find_pairs(n, h, true);
+        // 1. Repulsion at the start, over the pairs `begin` found.
         for k in 0..self.pairs.len() {
             let pair = self.pairs[k];
             let (idx, w, pr) = self.start_proximity(n, pair);

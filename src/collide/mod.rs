@@ -25,7 +25,7 @@ mod inside;
 mod penalty;
 mod sdf;
 
-pub use cloth_self::{crossed_triangle_pairs, SelfCollision, SelfStats};
+pub use cloth_self::{crossed_triangle_pairs, SelfApproach, SelfCollision, SelfStats};
 pub use contacts::{VertexContacts, CONTACT_THICKNESS};
 pub use edges::edge_through_triangle;
 pub use inside::{cells_inside, row_crossings, winding_numbers};

@@ -231,6 +231,8 @@ struct Bound<'a, M: MechModel> {
     model: &'a M,
     work: &'a mut M::Work,
     contacts: &'a mut VertexContacts,
+    /// Self-collision, whose start-of-step approaches the filter takes.
+    self_collision: Option<&'a SelfCollision>,
 }
 
 impl<M: MechModel> Mechanical for Bound<'_, M> {
@@ -245,8 +247,12 @@ impl<M: MechModel> Mechanical for Bound<'_, M> {
     }
     fn constraints(&self, filter: &mut Filter) {
         // Contacts first, then the model's own: a pinned vertex in contact stays fixed.
+        // Self contacts last, on the vertices still free.
         self.contacts.constraints(filter);
         self.model.constraints(filter);
+        if let Some(sc) = self.self_collision {
+            sc.constraints(filter);
+        }
     }
     fn force(&mut self, t: f64, x: &[f64], v: &[f64], f: &mut [f64]) {
         self.model.force(self.work, t, x, v, f);
@@ -410,6 +416,7 @@ impl<M: MechModel> MechSimulation<M> {
                 model: &*model,
                 work: &mut work,
                 contacts: &mut contacts,
+                self_collision: None,
             },
         )?;
         let control = model.step_control();
@@ -543,8 +550,13 @@ impl<M: MechModel> MechSimulation<M> {
     /// One integrator step of size h from the current time, then prescribed motion and
     /// contacts.
     fn integrate(&mut self, h: f64) -> Result<StepInfo, IntegrateError> {
-        if let Some((sc, _)) = &mut self.self_collision {
-            sc.begin(self.state.x.as_slice());
+        if let Some((sc, inv_mass)) = &mut self.self_collision {
+            sc.begin(
+                self.state.x.as_slice(),
+                self.state.v.as_slice(),
+                inv_mass,
+                h,
+            );
         }
         let (x, v) = (self.state.x.as_mut_slice(), self.state.v.as_mut_slice());
         let info = self.stepper.step(
@@ -552,6 +564,7 @@ impl<M: MechModel> MechSimulation<M> {
                 model: &*self.model,
                 work: &mut self.work,
                 contacts: &mut self.contacts,
+                self_collision: self.self_collision.as_ref().map(|(sc, _)| &**sc),
             },
             self.t,
             x,
@@ -614,6 +627,7 @@ impl<M: MechModel> MechSimulation<M> {
         // keeps free of crossings.
         if let Some((sc, inv_mass)) = &mut self.self_collision {
             let s = sc.resolve(x, v, inv_mass, h);
+            self.self_stats.approaches += sc.approaches().len();
             self.self_stats.repulsions += s.repulsions;
             self.self_stats.impulses += s.impulses;
             self.self_stats.zone_rounds += s.zone_rounds;

@@ -104,6 +104,11 @@ impl Filter {
         self.verts.is_empty()
     }
 
+    /// Whether vertex i is unconstrained.
+    pub fn is_free(&self, i: usize) -> bool {
+        self.index_of[i] == FREE
+    }
+
     /// The projection of vertex i (identity if free).
     pub fn projection(&self, i: usize) -> [f64; 9] {
         match self.index_of[i] {
@@ -239,6 +244,19 @@ impl Filter {
         for (&i, z) in self.verts.iter().zip(&self.z) {
             for r in 0..3 {
                 v[r * n + i as usize] += z[r];
+            }
+        }
+    }
+
+    /// Vertex i's velocity `vi` as [`Filter::impose`] leaves it: `S_i vi + z_i`.
+    pub fn imposed(&self, i: usize, vi: [f64; 3]) -> [f64; 3] {
+        match self.index_of[i] {
+            FREE => vi,
+            k => {
+                let (s, z) = (&self.s[k as usize], self.z[k as usize]);
+                std::array::from_fn(|r| {
+                    s[3 * r] * vi[0] + s[3 * r + 1] * vi[1] + s[3 * r + 2] * vi[2] + z[r]
+                })
             }
         }
     }
