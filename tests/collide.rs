@@ -1016,6 +1016,33 @@ mod narrow_phase {
         }
 
         #[test]
+        fn polytope_manifolds_lie_within_both_shapes(
+            a in prop::collection::vec(prop::array::uniform3(-1f64..1.0), 4..12),
+            b in prop::collection::vec(prop::array::uniform3(-1f64..1.0), 4..12),
+            shift in prop::array::uniform3(-1.5f64..1.5),
+        ) {
+            use largestep::kernels::collide::manifold::convex_convex;
+            let b: Vec<[f64; 3]> = b.iter().map(|p| [p[0] + shift[0], p[1] + shift[1], p[2] + shift[2]]).collect();
+            let (ca, cb) = (Convex::Hull(&a), Convex::Hull(&b));
+            let epa = gjk_epa(&ca, &cb).unwrap();
+            let Some(m) = convex_convex(&ca, &cb, 0.0) else {
+                prop_assert!(epa.depth < 1e-9);
+                return Ok(());
+            };
+            prop_assert!(m.count >= 1 && m.normal == epa.normal);
+            for p in m.points() {
+                // No deeper than the penetration depth (the least over directions),
+                // and within that depth of both hulls (their distance at most how far
+                // the point is outside, measured by GJK to a point hull).
+                prop_assert!(p.depth <= epa.depth + 1e-9 * (1.0 + epa.depth), "{} vs {}", p.depth, epa.depth);
+                for hull in [&a, &b] {
+                    let out = -gjk_epa(&Convex::Hull(std::slice::from_ref(&p.point)), &Convex::Hull(hull)).unwrap().depth;
+                    prop_assert!(out <= 0.5 * p.depth.abs() + 1e-9 + 0.02 * epa.depth.max(0.0), "point {:?} {out} outside a hull, depth {}", p.point, p.depth);
+                }
+            }
+        }
+
+        #[test]
         fn gjk_distance_of_nearly_touching_boxes_equals_brute_force(
             ha in prop::array::uniform3(0.1f64..1.0),
             hb in prop::array::uniform3(0.1f64..1.0),
@@ -1051,6 +1078,63 @@ mod narrow_phase {
             let c = gjk_epa(&Convex::Box { center: [0.0; 3], axes: axa, half: ha }, &Convex::Box { center: cb, axes: axb, half: hb }).unwrap();
             prop_assert!((-c.depth - want).abs() < 1e-9 * (1.0 + want), "gjk {} brute {}", -c.depth, want);
         }
+    }
+}
+
+/// Polytopes resting on a face touch at the face's corners: a cube hull on a box gets
+/// four points, on its edge two (issue 19: one point made hulls rock).
+#[test]
+fn a_hull_resting_on_a_face_gets_the_face_corners() {
+    use largestep::kernels::collide::manifold::convex_convex;
+    use largestep::kernels::collide::narrow::Convex;
+    use largestep::kernels::quat;
+    let ground = Convex::Box {
+        center: [0.0, -1.0, 0.0],
+        axes: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        half: [5.0, 1.0, 5.0],
+    };
+    for turn in [0.0, 0.3, 1.0] {
+        // A unit cube turned about y, its bottom 1 mm into the ground.
+        let q = quat::exp([0.0, turn, 0.0]);
+        let cube: Vec<[f64; 3]> = (0..8)
+            .map(|k| {
+                let c = [0, 1, 2].map(|a| if k >> a & 1 == 1 { 0.5 } else { -0.5 });
+                let r = quat::rotate(q, c);
+                [r[0] + 0.2, r[1] + 0.499, r[2] - 0.1]
+            })
+            .collect();
+        let m = convex_convex(&Convex::Hull(&cube), &ground, 0.01).unwrap();
+        assert_eq!(m.count, 4, "turn {turn}: {m:?}");
+        assert!((m.normal[1] + 1.0).abs() < 1e-9, "{:?}", m.normal);
+        for p in m.points() {
+            assert!((p.depth - 1e-3).abs() < 1e-9, "depth {}", p.depth);
+            assert!((p.point[1] - (-0.0005)).abs() < 1e-9, "{:?}", p.point);
+        }
+        // Each of the cube's bottom corners is a point.
+        for c in cube.iter().filter(|c| c[1] < 0.0) {
+            assert!(m
+                .points()
+                .iter()
+                .any(|p| (p.point[0] - c[0]).abs() < 1e-9 && (p.point[2] - c[2]).abs() < 1e-9));
+        }
+    }
+    // On an edge (turned 45 degrees about z): the edge's two ends.
+    let q = quat::exp([0.0, 0.0, std::f64::consts::FRAC_PI_4]);
+    let h = 0.5 * std::f64::consts::SQRT_2;
+    let cube: Vec<[f64; 3]> = (0..8)
+        .map(|k| {
+            let c = [0, 1, 2].map(|a| if k >> a & 1 == 1 { 0.5 } else { -0.5 });
+            let r = quat::rotate(q, c);
+            [r[0], r[1] + h - 0.002, r[2]]
+        })
+        .collect();
+    let m = convex_convex(&Convex::Hull(&cube), &ground, 0.01).unwrap();
+    assert_eq!(m.count, 2, "{m:?}");
+    for p in m.points() {
+        assert!(
+            (p.depth - 0.002).abs() < 1e-9 && (p.point[2].abs() - 0.5).abs() < 1e-9,
+            "{p:?}"
+        );
     }
 }
 

@@ -1032,3 +1032,35 @@ fn too_many_overlapping_pairs_are_refused_before_allocating() {
     let e = m.step(&mut s, &mut w, 0.01).unwrap_err().to_string();
     assert!(e.contains("more than 50 body pairs overlap"), "{e}");
 }
+
+/// A mesh body (a convex hull) dropped flat onto a slab comes to rest on its face: the
+/// hull-box manifold holds the face's corners, where one point made it rock.
+#[test]
+fn a_hull_dropped_flat_comes_to_rest_on_its_face() {
+    use largestep::rigid::scene::RigidSim;
+    use largestep::scene::Scene;
+    let file = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/hull-rest.toml");
+    // The T-handle (flat in its x-y plane, 0.1 m thick) turned to lie in the x-z plane.
+    let s = std::f64::consts::FRAC_1_SQRT_2;
+    let text = format!(
+        "[scene]\nname = \"hull-rest\"\ndt = 0.016666666666666666\nduration = 3.0\n\n\
+         [[rigid.body]]\nshape = {{ box = [3.0, 0.5, 3.0] }}\nposition = [0.0, -0.5, 0.0]\nstatic = true\n\n\
+         [[rigid.body]]\nshape = {{ mesh = \"t-handle.obj\" }}\nposition = [0.0, 0.1, 0.0]\norientation = [{s}, -{s}, 0.0, 0.0]\n"
+    );
+    let mut scene = Scene::parse(&text, file.to_str().unwrap()).unwrap();
+    let dt = scene.dt;
+    let sim = &mut scene.systems[0].sim;
+    for _ in 0..180 {
+        sim.step(dt).unwrap();
+    }
+    let st = sim.downcast_ref::<RigidSim>().unwrap().state();
+    let (v, w) = (st.v[1], st.w[1]);
+    let speed = v.iter().map(|c| c * c).sum::<f64>().sqrt();
+    let spin = w.iter().map(|c| c * c).sum::<f64>().sqrt();
+    assert!(
+        speed < 1e-3 && spin < 1e-3,
+        "still moving: v {v:?}, w {w:?}"
+    );
+    // Lying on its 0.1 m thick face: the centre of mass 0.05 m above the slab.
+    assert!((st.x[1][1] - 0.05).abs() < 2e-3, "centre at {:?}", st.x[1]);
+}

@@ -14,7 +14,12 @@
 //! - Capsules: the closed form of the closest points of the segments ([`super::narrow`]),
 //!   and against boxes the contact of each end cap kept when it agrees with the closest
 //!   point's normal, so a capsule lying on a face rests on two points.
-//! - Anything else convex (hulls): GJK with EPA, one point.
+//! - Anything else convex: GJK with EPA for the normal and depth. Between two polytopes
+//!   (hulls, boxes, triangles) each one's support feature along the normal (its vertices
+//!   within a small height of the deepest: a face, an edge or a vertex) is taken in the
+//!   contact plane, the smaller-dimensional one clipped against the other's convex
+//!   outline (Sutherland-Hodgman, as for boxes), so that a hull resting on a face gets
+//!   that face's corners; otherwise one point.
 //!
 //! Normals point from A into B. A point's `depth` is its penetration (m, > 0 overlapping,
 //! < 0 apart within the margin); the point lies midway between the two surfaces. No
@@ -22,7 +27,8 @@
 
 use super::narrow::{capsule_capsule, gjk_epa, sphere_sphere, Contact, Convex};
 use super::prox::closest_segments;
-use crate::v3::{add, cross, dot, length_and_unit, scale, sub};
+use crate::v3::{add, cross, dot, length_and_unit, scale, sub, tangent_frame};
+use arrayvec::ArrayVec;
 
 /// Points a manifold holds at most.
 pub const MAX_POINTS: usize = 4;
@@ -337,6 +343,88 @@ fn clip_faces(reference: &BoxPose, k: usize, n: [f64; 3], inc: &BoxPose, margin:
     m
 }
 
+/// The 2-D convex outline (in `u, v`, heights carried along) of a feature's points,
+/// counter-clockwise (Andrew's monotone chain); collinear and repeated points dropped.
+fn outline(mut pts: Feature) -> Feature {
+    if pts.len() < 3 {
+        return pts;
+    }
+    pts.sort_unstable_by(|p, q| p[0].total_cmp(&q[0]).then(p[1].total_cmp(&q[1])));
+    let turn = |o: [f64; 3], a: [f64; 3], b: [f64; 3]| {
+        (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+    };
+    // Turns smaller than this (m^2, relative to the feature's size) count as straight.
+    let span = pts
+        .iter()
+        .fold(0.0f64, |m, p| m.max(p[0].abs()).max(p[1].abs()))
+        + 1e-300;
+    let eps = 1e-12 * span * span;
+    let mut hull: ArrayVec<[f64; 3], { 2 * FEATURE }> = ArrayVec::new();
+    for pass in 0..2 {
+        let start = hull.len();
+        let order: &mut dyn Iterator<Item = &[f64; 3]> = if pass == 0 {
+            &mut pts.iter()
+        } else {
+            &mut pts.iter().rev()
+        };
+        for p in order {
+            while hull.len() >= start + 2
+                && turn(hull[hull.len() - 2], hull[hull.len() - 1], *p) <= eps
+            {
+                hull.pop();
+            }
+            hull.push(*p);
+        }
+        hull.pop(); // the last point starts the other chain
+    }
+    hull.into_iter().take(FEATURE).collect()
+}
+
+/// Clips the incident feature (a polygon, a segment or a point, in the contact plane)
+/// to the convex counter-clockwise `reference` outline, heights interpolated along.
+fn clip_convex(
+    incident: &Feature,
+    reference: &Feature,
+) -> Option<ArrayVec<[f64; 3], { 2 * FEATURE }>> {
+    let mut poly: ArrayVec<[f64; 3], { 2 * FEATURE }> = incident.iter().copied().collect();
+    let r = reference.len();
+    for e in 0..r {
+        let (a, b) = (reference[e], reference[(e + 1) % r]);
+        // Inside: left of a -> b (>= 0).
+        let side = |p: [f64; 3]| (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0]);
+        let mut out: ArrayVec<[f64; 3], { 2 * FEATURE }> = ArrayVec::new();
+        let m = poly.len();
+        if m == 1 {
+            if side(poly[0]) >= 0.0 {
+                out.push(poly[0]);
+            }
+        } else {
+            // A segment is one edge (both ends kept here), not a closed loop of two.
+            let edges = if m == 2 { 1 } else { m };
+            for k in 0..edges {
+                let (p, q) = (poly[k], poly[(k + 1) % m]);
+                let (dp, dq) = (side(p), side(q));
+                if dp >= 0.0 {
+                    out.try_push(p).ok()?;
+                }
+                if (dp < 0.0 && dq > 0.0) || (dp > 0.0 && dq < 0.0) {
+                    let s = dp / (dp - dq);
+                    out.try_push(std::array::from_fn(|c| p[c] + s * (q[c] - p[c])))
+                        .ok()?;
+                }
+                if m == 2 && dq >= 0.0 {
+                    out.try_push(q).ok()?;
+                }
+            }
+        }
+        poly = out;
+        if poly.is_empty() {
+            return None;
+        }
+    }
+    Some(poly)
+}
+
 /// Indices of at most four of `pts` (reference-face coordinates `u, v, height`) that keep
 /// the contact area: the deepest, the farthest from it, then the two on either side of
 /// that line farthest from it (Gregorius 2013).
@@ -484,8 +572,99 @@ pub fn capsule_box(seg: [[f64; 3]; 2], radius: f64, b: &BoxPose, margin: f64) ->
     Some(m)
 }
 
-/// Any two convex shapes by GJK and EPA: one point, `None` beyond `margin` or for
-/// non-finite input.
+/// Any two convex shapes by GJK and EPA (see the module docs): up to four points between
+/// polytopes, else one; `None` beyond `margin` or for non-finite input.
 pub fn convex_convex(a: &Convex, b: &Convex, margin: f64) -> Option<Manifold> {
-    Manifold::from_contact(&gjk_epa(a, b)?, margin)
+    let c = gjk_epa(a, b)?;
+    let one = Manifold::from_contact(&c, margin)?;
+    Some(polytope_manifold(a, b, &c, margin).unwrap_or(one))
+}
+
+/// Vertices of a support feature kept at most (a hull face with more gives one point).
+const FEATURE: usize = 32;
+
+/// A support feature in the contact plane: `[u, v, height along the normal]` per vertex,
+/// its 2-D convex outline counter-clockwise.
+type Feature = ArrayVec<[f64; 3], FEATURE>;
+
+/// The multi-point manifold of two polytopes from their contact `c` (see the module
+/// docs); `None` when a shape is rounded, a feature is too large, or clipping leaves
+/// fewer than two points.
+fn polytope_manifold(a: &Convex, b: &Convex, c: &Contact, margin: f64) -> Option<Manifold> {
+    let n = c.normal;
+    let (u, v) = tangent_frame(n);
+    let origin = c.point();
+    // Heights measured along n from the contact point; A's feature faces +n, B's -n.
+    let frame = |p: [f64; 3]| {
+        let r = sub(p, origin);
+        [dot(r, u), dot(r, v), dot(r, n)]
+    };
+    // A face tilted by up to about a degree still counts as one: the tolerance is a
+    // fiftieth of the shape's extent along n, and at least a micrometre.
+    let feature = |shape: &Convex, sign: f64| -> Option<Feature> {
+        let (mut hi, mut lo) = (f64::NEG_INFINITY, f64::INFINITY);
+        if !shape.for_each_vertex(|p| {
+            let h = sign * dot(sub(p, origin), n);
+            hi = hi.max(h);
+            lo = lo.min(h);
+        }) {
+            return None;
+        }
+        let tol = (0.02 * (hi - lo)).max(1e-6);
+        let mut f = Feature::new();
+        let mut fits = true;
+        shape.for_each_vertex(|p| {
+            if sign * dot(sub(p, origin), n) >= hi - tol {
+                fits &= f.try_push(frame(p)).is_ok();
+            }
+        });
+        fits.then(|| outline(f))
+    };
+    let (fa, fb) = (feature(a, 1.0)?, feature(b, -1.0)?);
+    // Clip the feature with fewer vertices against the other's outline (a face against
+    // a face: B's against A's). The reference face's plane is its highest point along
+    // its outward normal.
+    let (reference, incident, sign) = if fb.len() <= fa.len() || fb.len() < 3 {
+        (fa, fb, 1.0)
+    } else {
+        (fb, fa, -1.0)
+    };
+    if reference.len() < 3 {
+        return None;
+    }
+    let top = reference
+        .iter()
+        .fold(f64::NEG_INFINITY, |m, p| m.max(sign * p[2]));
+    let clipped = clip_convex(&incident, &reference)?;
+    // Depth: how far the incident point lies beyond the reference plane.
+    let mut kept: ArrayVec<[f64; 3], { 2 * FEATURE }> = ArrayVec::new();
+    for p in &clipped {
+        // In the reference's outward direction (sign n) the plane is at `top`.
+        let depth = top - sign * p[2];
+        if depth >= -margin {
+            kept.push([p[0], p[1], -depth]);
+        }
+    }
+    if kept.len() < 2 {
+        return None;
+    }
+    let mut m = Manifold {
+        normal: n,
+        ..Manifold::default()
+    };
+    let (chosen, k) = reduce(&kept);
+    for &i in &chosen[..k] {
+        let [pu, pv, h] = kept[i];
+        let depth = -h;
+        // Midway between the incident point and the reference plane.
+        let height = sign * (top - 0.5 * depth);
+        m.push(
+            add(
+                origin,
+                add(add(scale(u, pu), scale(v, pv)), scale(n, height)),
+            ),
+            depth,
+        );
+    }
+    Some(m)
 }

@@ -130,6 +130,28 @@ impl Convex<'_> {
         }
     }
 
+    /// Calls `f` with each vertex of a polytope (a box's eight corners, a hull's points,
+    /// a triangle's corners); `false` for a rounded shape (sphere, capsule), which has
+    /// none.
+    pub fn for_each_vertex(&self, mut f: impl FnMut([f64; 3])) -> bool {
+        match *self {
+            Convex::Sphere { .. } | Convex::Capsule { .. } => return false,
+            Convex::Box { center, axes, half } => {
+                for k in 0..8 {
+                    let mut p = center;
+                    for (a, (axis, h)) in axes.iter().zip(half).enumerate() {
+                        let s = if k >> a & 1 == 1 { h } else { -h };
+                        p = add(p, scale(*axis, s));
+                    }
+                    f(p);
+                }
+            }
+            Convex::Hull(points) => points.iter().for_each(|p| f(*p)),
+            Convex::Triangle(t) => t.iter().for_each(|p| f(*p)),
+        }
+        true
+    }
+
     /// A point inside the shape (its centre, or the mean of its points).
     pub fn center(&self) -> [f64; 3] {
         match *self {
