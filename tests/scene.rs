@@ -656,39 +656,73 @@ fn mistyped_commands_and_studies_get_the_nearest_name() {
     assert!(!stderr_of(&["study", "qqq"]).contains("did you mean"));
 }
 
-#[test]
-fn haptics_command_with_a_tool_writes_force_and_torque() {
-    let exe = env!("CARGO_BIN_EXE_largestep");
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
-    let nut = root.join("../shared/data/tetmesh/nut-surface.off");
-    let block = root.join("scenes/haptic-block.obj");
-    let out = tmp("haptics-tool");
-    let run = |extra: &[&str], out: &std::path::Path| {
-        let mut args = vec![
-            "haptics",
-            nut.to_str().unwrap(),
-            "--tool",
-            block.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ];
-        args.extend(extra);
-        std::process::Command::new(exe).args(args).output().unwrap()
-    };
-    let first = run(&[], &out);
+/// `largestep haptics` on the shared nut with `extra` arguments, writing to `out`.
+fn haptics_cli(extra: &[&str], out: &std::path::Path) -> std::process::Output {
+    let nut =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/tetmesh/nut-surface.off");
+    let mut args = vec![
+        "haptics",
+        nut.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend(extra);
+    std::process::Command::new(env!("CARGO_BIN_EXE_largestep"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+/// A successful haptics run's trace: it printed `said`, and `out/haptics.csv` has the
+/// `header` and 3,001 ticks.
+fn haptics_trace(
+    run: &std::process::Output,
+    said: &str,
+    out: &std::path::Path,
+    header: &str,
+) -> String {
     assert!(
-        first.status.success(),
+        run.status.success(),
         "{}",
-        String::from_utf8_lossy(&first.stderr)
+        String::from_utf8_lossy(&run.stderr)
     );
-    let stdout = String::from_utf8_lossy(&first.stdout);
+    let stdout = String::from_utf8_lossy(&run.stdout);
     assert!(
-        stdout.contains("3001 ticks") && stdout.contains("shell points"),
+        stdout.contains("3001 ticks") && stdout.contains(said),
         "{stdout}"
     );
     let csv = std::fs::read_to_string(out.join("haptics.csv")).unwrap();
-    assert!(csv.starts_with("time_s,device_x,device_y,device_z,device_qw,device_qx,device_qy,device_qz,tool_x,tool_y,tool_z,tool_qw,tool_qx,tool_qy,tool_qz,force_x,force_y,force_z,torque_x,torque_y,torque_z,contacts,penetration,work_us\n"));
+    assert!(
+        csv.starts_with(&format!("{header}\n")),
+        "{}",
+        csv.lines().next().unwrap_or("")
+    );
     assert_eq!(csv.lines().count(), 3002);
+    csv
+}
+
+/// A trace without its last column (the work times, which differ run to run).
+fn without_work(csv: &str) -> Vec<String> {
+    csv.lines()
+        .map(|l| l.rsplit_once(',').unwrap().0.to_string())
+        .collect()
+}
+
+#[test]
+fn haptics_command_with_a_tool_writes_force_and_torque() {
+    let block = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes/haptic-block.obj");
+    let out = tmp("haptics-tool");
+    let tool = |extra: &[&str], out: &std::path::Path| {
+        let mut args = vec!["--tool", block.to_str().unwrap()];
+        args.extend(extra);
+        haptics_cli(&args, out)
+    };
+    let csv = haptics_trace(
+        &tool(&[], &out),
+        "shell points",
+        &out,
+        "time_s,device_x,device_y,device_z,device_qw,device_qx,device_qy,device_qz,tool_x,tool_y,tool_z,tool_qw,tool_qx,tool_qy,tool_qz,force_x,force_y,force_z,torque_x,torque_y,torque_z,contacts,penetration,work_us",
+    );
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     assert_eq!(summary["mode"], "six-dof");
@@ -700,25 +734,20 @@ fn haptics_command_with_a_tool_writes_force_and_torque() {
     assert!(std::fs::read_to_string(&path)
         .unwrap()
         .starts_with("t,x,y,z,qw,qx,qy,qz\n"));
-    let again = run(&["--path", path.to_str().unwrap()], &out.join("again"));
+    let again = tool(&["--path", path.to_str().unwrap()], &out.join("again"));
     assert!(again.status.success());
-    let strip = |s: &str| {
-        s.lines()
-            .map(|l| l.rsplit_once(',').unwrap().0.to_string())
-            .collect::<Vec<_>>()
-    };
     assert_eq!(
-        strip(&csv),
-        strip(&std::fs::read_to_string(out.join("again/haptics.csv")).unwrap())
+        without_work(&csv),
+        without_work(&std::fs::read_to_string(out.join("again/haptics.csv")).unwrap())
     );
     // Bad input: named.
     let bad = out.join("bad.csv");
     std::fs::write(&bad, "0,0,0,0,1,0,0,0\n1,0,0,0,0,0,0,0\n").unwrap();
-    let e = run(&["--path", bad.to_str().unwrap()], &out);
+    let e = tool(&["--path", bad.to_str().unwrap()], &out);
     assert_eq!(e.status.code(), Some(2));
     let err = String::from_utf8_lossy(&e.stderr);
     assert!(err.contains("bad.csv:2") && err.contains("zero"), "{err}");
-    let e = run(&["--cells", "1"], &out);
+    let e = tool(&["--cells", "1"], &out);
     assert_eq!(e.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&e.stderr).contains("--cells 1"));
     let _ = std::fs::remove_dir_all(&out);
@@ -726,32 +755,13 @@ fn haptics_command_with_a_tool_writes_force_and_torque() {
 
 #[test]
 fn haptics_command_writes_the_force_trace_and_names_bad_paths() {
-    let exe = env!("CARGO_BIN_EXE_largestep");
-    let nut =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/tetmesh/nut-surface.off");
     let out = tmp("haptics");
-    let run = std::process::Command::new(exe)
-        .args([
-            "haptics",
-            nut.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ])
-        .output()
-        .unwrap();
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
+    let csv = haptics_trace(
+        &haptics_cli(&[], &out),
+        "p99",
+        &out,
+        "time_s,device_x,device_y,device_z,proxy_x,proxy_y,proxy_z,force_x,force_y,force_z,work_us",
     );
-    let stdout = String::from_utf8_lossy(&run.stdout);
-    assert!(
-        stdout.contains("3001 ticks") && stdout.contains("p99"),
-        "{stdout}"
-    );
-    let csv = std::fs::read_to_string(out.join("haptics.csv")).unwrap();
-    assert!(csv.starts_with("time_s,device_x,device_y,device_z,proxy_x,proxy_y,proxy_z,force_x,force_y,force_z,work_us\n"));
-    assert_eq!(csv.lines().count(), 3002);
     for f in [
         "haptics.png",
         "haptics.svg",
@@ -764,41 +774,17 @@ fn haptics_command_writes_the_force_trace_and_names_bad_paths() {
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     assert!(summary["max_force_n"].as_f64().unwrap() > 0.0);
     // The written path replays to the same trace.
-    let again = std::process::Command::new(exe)
-        .args([
-            "haptics",
-            nut.to_str().unwrap(),
-            "--path",
-            out.join("device-path.csv").to_str().unwrap(),
-            "--out",
-            out.join("again").to_str().unwrap(),
-        ])
-        .output()
-        .unwrap();
+    let path = out.join("device-path.csv");
+    let again = haptics_cli(&["--path", path.to_str().unwrap()], &out.join("again"));
     assert!(again.status.success());
-    let strip = |s: &str| {
-        s.lines()
-            .map(|l| l.rsplit_once(',').unwrap().0.to_string())
-            .collect::<Vec<_>>()
-    };
     assert_eq!(
-        strip(&csv),
-        strip(&std::fs::read_to_string(out.join("again/haptics.csv")).unwrap())
+        without_work(&csv),
+        without_work(&std::fs::read_to_string(out.join("again/haptics.csv")).unwrap())
     );
     // A bad path file: the file and line are named.
     let bad = out.join("bad.csv");
     std::fs::write(&bad, "t,x,y,z\n0,0,0,0\n0.5,1,oops,0\n").unwrap();
-    let run = std::process::Command::new(exe)
-        .args([
-            "haptics",
-            nut.to_str().unwrap(),
-            "--path",
-            bad.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ])
-        .output()
-        .unwrap();
+    let run = haptics_cli(&["--path", bad.to_str().unwrap()], &out);
     assert_eq!(run.status.code(), Some(2));
     let err = String::from_utf8_lossy(&run.stderr);
     assert!(

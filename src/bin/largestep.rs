@@ -699,6 +699,36 @@ fn device_path(
     }
 }
 
+/// A panel of a haptic trace over time: one dashed curve per `(label, value)` getter,
+/// coloured in order from `first_colour`.
+fn trace_panel<T>(
+    title: String,
+    y_label: &str,
+    ticks: &[T],
+    time: impl Fn(&T) -> f64,
+    curves: &[(&str, &dyn Fn(&T) -> f64)],
+    first_colour: usize,
+) -> largestep::plot::Panel {
+    largestep::plot::Panel {
+        title,
+        x_label: "time (s)".into(),
+        y_label: y_label.into(),
+        scale: largestep::plot::Scale::Linear,
+        curves: curves
+            .iter()
+            .enumerate()
+            .map(|(k, (label, f))| {
+                let curve = largestep::plot::Curve {
+                    label: (*label).into(),
+                    points: ticks.iter().map(|t| (time(t), f(t))).collect(),
+                    dashed: true,
+                };
+                (first_colour + k, curve)
+            })
+            .collect(),
+    }
+}
+
 /// Prints a haptic loop's work percentiles against the 1 ms tick.
 fn print_latency([p50, p90, p99, max]: [f64; 4]) {
     println!(
@@ -720,7 +750,6 @@ fn haptics(
     limits: &Limits,
 ) -> ExitCode {
     use largestep::haptics::{latency, replay, trace_csv, DevicePath, GodObject, TICK};
-    use largestep::plot::{Curve, Panel, Scale};
     let fail = |e: String| {
         eprintln!("error: {e}");
         ExitCode::from(2)
@@ -757,30 +786,28 @@ fn haptics(
     if let Err(e) = std::fs::write(&csv, trace_csv(&ticks)) {
         return fail(format!("{}: {e}", csv.display()));
     }
-    let curve = |label: &str, f: &dyn Fn(&largestep::haptics::Tick) -> f64| Curve {
-        label: label.into(),
-        points: ticks.iter().map(|t| (t.time, f(t))).collect(),
-        dashed: true,
-    };
+    let time = |t: &largestep::haptics::Tick| t.time;
     let panels = [
-        Panel {
-            title: format!("god object, k = {stiffness} N/m"),
-            x_label: "time (s)".into(),
-            y_label: "force on the user (N)".into(),
-            scale: Scale::Linear,
-            curves: vec![
-                (0, curve("F_x", &|t| t.force[0])),
-                (1, curve("F_y", &|t| t.force[1])),
-                (2, curve("F_z", &|t| t.force[2])),
+        trace_panel(
+            format!("god object, k = {stiffness} N/m"),
+            "force on the user (N)",
+            &ticks,
+            time,
+            &[
+                ("F_x", &|t| t.force[0]),
+                ("F_y", &|t| t.force[1]),
+                ("F_z", &|t| t.force[2]),
             ],
-        },
-        Panel {
-            title: "work per 1 ms tick".into(),
-            x_label: "time (s)".into(),
-            y_label: "work (us)".into(),
-            scale: Scale::Linear,
-            curves: vec![(3, curve("tick", &|t| t.work * 1e6))],
-        },
+            0,
+        ),
+        trace_panel(
+            "work per 1 ms tick".into(),
+            "work (us)",
+            &ticks,
+            time,
+            &[("tick", &|t| t.work * 1e6)],
+            3,
+        ),
     ];
     if let Err(e) = largestep::plot::write_panels(&out.join("haptics"), &panels, 1, (900, 320)) {
         return fail(e);
@@ -831,7 +858,6 @@ fn haptics_tool(
         percentiles, point_shell, replay_tool, tool_trace_csv, DevicePath, SixDof, ToolTick, TICK,
     };
     use largestep::kernels::collide::bv::Aabb;
-    use largestep::plot::{Curve, Panel, Scale};
     let fail = |e: String| {
         eprintln!("error: {e}");
         ExitCode::from(2)
@@ -906,41 +932,40 @@ fn haptics_tool(
     if let Err(e) = std::fs::write(&csv, tool_trace_csv(&ticks)) {
         return fail(format!("{}: {e}", csv.display()));
     }
-    let curve = |label: &str, f: &dyn Fn(&ToolTick) -> f64| Curve {
-        label: label.into(),
-        points: ticks.iter().map(|t| (t.time, f(t))).collect(),
-        dashed: true,
-    };
+    let time = |t: &ToolTick| t.time;
     let panels = [
-        Panel {
-            title: format!("six-DoF tool, k = {kt} N/m"),
-            x_label: "time (s)".into(),
-            y_label: "force on the user (N)".into(),
-            scale: Scale::Linear,
-            curves: vec![
-                (0, curve("F_x", &|t| t.wrench.force[0])),
-                (1, curve("F_y", &|t| t.wrench.force[1])),
-                (2, curve("F_z", &|t| t.wrench.force[2])),
+        trace_panel(
+            format!("six-DoF tool, k = {kt} N/m"),
+            "force on the user (N)",
+            &ticks,
+            time,
+            &[
+                ("F_x", &|t| t.wrench.force[0]),
+                ("F_y", &|t| t.wrench.force[1]),
+                ("F_z", &|t| t.wrench.force[2]),
             ],
-        },
-        Panel {
-            title: format!("k_rot = {kr:.3e} N m/rad"),
-            x_label: "time (s)".into(),
-            y_label: "torque on the user (N m)".into(),
-            scale: Scale::Linear,
-            curves: vec![
-                (0, curve("T_x", &|t| t.wrench.torque[0])),
-                (1, curve("T_y", &|t| t.wrench.torque[1])),
-                (2, curve("T_z", &|t| t.wrench.torque[2])),
+            0,
+        ),
+        trace_panel(
+            format!("k_rot = {kr:.3e} N m/rad"),
+            "torque on the user (N m)",
+            &ticks,
+            time,
+            &[
+                ("T_x", &|t| t.wrench.torque[0]),
+                ("T_y", &|t| t.wrench.torque[1]),
+                ("T_z", &|t| t.wrench.torque[2]),
             ],
-        },
-        Panel {
-            title: "work per 1 ms tick".into(),
-            x_label: "time (s)".into(),
-            y_label: "work (us)".into(),
-            scale: Scale::Linear,
-            curves: vec![(3, curve("tick", &|t| t.work * 1e6))],
-        },
+            0,
+        ),
+        trace_panel(
+            "work per 1 ms tick".into(),
+            "work (us)",
+            &ticks,
+            time,
+            &[("tick", &|t| t.work * 1e6)],
+            3,
+        ),
     ];
     if let Err(e) = largestep::plot::write_panels(&out.join("haptics"), &panels, 1, (900, 300)) {
         return fail(e);
