@@ -699,6 +699,9 @@ fn device_path(
     }
 }
 
+/// A labelled value of a haptic trace's tick.
+type TraceCurve<'a, T> = (&'a str, &'a dyn Fn(&T) -> f64);
+
 /// A panel of a haptic trace over time: one dashed curve per `(label, value)` getter,
 /// coloured in order from `first_colour`.
 fn trace_panel<T>(
@@ -706,7 +709,7 @@ fn trace_panel<T>(
     y_label: &str,
     ticks: &[T],
     time: impl Fn(&T) -> f64,
-    curves: &[(&str, &dyn Fn(&T) -> f64)],
+    curves: &[TraceCurve<'_, T>],
     first_colour: usize,
 ) -> largestep::plot::Panel {
     largestep::plot::Panel {
@@ -727,6 +730,31 @@ fn trace_panel<T>(
             })
             .collect(),
     }
+}
+
+/// A panel of a vector of a haptic trace's tick: its x, y and z as `symbol_x` and so on.
+fn vector_panel<T>(
+    title: String,
+    y_label: &str,
+    ticks: &[T],
+    time: impl Fn(&T) -> f64,
+    symbol: &str,
+    value: &dyn Fn(&T) -> [f64; 3],
+) -> largestep::plot::Panel {
+    let labels = ["x", "y", "z"].map(|a| format!("{symbol}_{a}"));
+    let component = [0, 1, 2].map(|a| move |t: &T| value(t)[a]);
+    trace_panel(
+        title,
+        y_label,
+        ticks,
+        time,
+        &[
+            (&labels[0], &component[0]),
+            (&labels[1], &component[1]),
+            (&labels[2], &component[2]),
+        ],
+        0,
+    )
 }
 
 /// Prints a haptic loop's work percentiles against the 1 ms tick.
@@ -788,17 +816,13 @@ fn haptics(
     }
     let time = |t: &largestep::haptics::Tick| t.time;
     let panels = [
-        trace_panel(
+        vector_panel(
             format!("god object, k = {stiffness} N/m"),
             "force on the user (N)",
             &ticks,
             time,
-            &[
-                ("F_x", &|t| t.force[0]),
-                ("F_y", &|t| t.force[1]),
-                ("F_z", &|t| t.force[2]),
-            ],
-            0,
+            "F",
+            &|t| t.force,
         ),
         trace_panel(
             "work per 1 ms tick".into(),
@@ -934,29 +958,21 @@ fn haptics_tool(
     }
     let time = |t: &ToolTick| t.time;
     let panels = [
-        trace_panel(
+        vector_panel(
             format!("six-DoF tool, k = {kt} N/m"),
             "force on the user (N)",
             &ticks,
             time,
-            &[
-                ("F_x", &|t| t.wrench.force[0]),
-                ("F_y", &|t| t.wrench.force[1]),
-                ("F_z", &|t| t.wrench.force[2]),
-            ],
-            0,
+            "F",
+            &|t| t.wrench.force,
         ),
-        trace_panel(
+        vector_panel(
             format!("k_rot = {kr:.3e} N m/rad"),
             "torque on the user (N m)",
             &ticks,
             time,
-            &[
-                ("T_x", &|t| t.wrench.torque[0]),
-                ("T_y", &|t| t.wrench.torque[1]),
-                ("T_z", &|t| t.wrench.torque[2]),
-            ],
-            0,
+            "T",
+            &|t| t.wrench.torque,
         ),
         trace_panel(
             "work per 1 ms tick".into(),
