@@ -757,6 +757,23 @@ fn vector_panel<T>(
     )
 }
 
+/// The panel of a haptic trace's work per tick (`work` in seconds, drawn in us).
+fn work_panel<T>(
+    ticks: &[T],
+    time: impl Fn(&T) -> f64,
+    work: &dyn Fn(&T) -> f64,
+) -> largestep::plot::Panel {
+    let us = |t: &T| work(t) * 1e6;
+    trace_panel(
+        "work per 1 ms tick".into(),
+        "work (us)",
+        ticks,
+        time,
+        &[("tick", &us)],
+        3,
+    )
+}
+
 /// Prints a haptic loop's work percentiles against the 1 ms tick.
 fn print_latency([p50, p90, p99, max]: [f64; 4]) {
     println!(
@@ -824,14 +841,7 @@ fn haptics(
             "F",
             &|t| t.force,
         ),
-        trace_panel(
-            "work per 1 ms tick".into(),
-            "work (us)",
-            &ticks,
-            time,
-            &[("tick", &|t| t.work * 1e6)],
-            3,
-        ),
+        work_panel(&ticks, time, &|t| t.work),
     ];
     if let Err(e) = largestep::plot::write_panels(&out.join("haptics"), &panels, 1, (900, 320)) {
         return fail(e);
@@ -974,14 +984,7 @@ fn haptics_tool(
             "T",
             &|t| t.wrench.torque,
         ),
-        trace_panel(
-            "work per 1 ms tick".into(),
-            "work (us)",
-            &ticks,
-            time,
-            &[("tick", &|t| t.work * 1e6)],
-            3,
-        ),
+        work_panel(&ticks, time, &|t| t.work),
     ];
     if let Err(e) = largestep::plot::write_panels(&out.join("haptics"), &panels, 1, (900, 300)) {
         return fail(e);
