@@ -1015,6 +1015,105 @@ mod coupling {
         assert!(top > 0.6, "{top}");
         std::fs::remove_dir_all(&out).ok();
     }
+
+    /// The same with the box given as a mesh (a convex hull): hull bodies are moving
+    /// obstacles too, their distances by GJK and EPA.
+    #[test]
+    fn a_rising_mesh_body_lifts_the_cloth_and_no_vertex_enters_it() {
+        let dir =
+            std::env::temp_dir().join(format!("largestep-hull-coupling-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let cube = largestep::shapes::cuboid([-0.3; 3], [0.3; 3]);
+        let mut obj = Vec::new();
+        largestep::io::write_obj(&mut obj, cube.as_ref(), "a 0.6 m cube").unwrap();
+        std::fs::write(dir.join("cube.obj"), obj).unwrap();
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/rigid-cloth.toml");
+        let text = std::fs::read_to_string(path).unwrap().replace(
+            "shape = { box = [0.3, 0.3, 0.3] }",
+            "shape = { mesh = \"cube.obj\" }",
+        );
+        assert!(text.contains("cube.obj"));
+        let scene = Scene::parse(&text, dir.join("scene.toml").to_str().unwrap()).unwrap();
+        let out = dir.join("out");
+        let mut runner = Runner::new(scene, &out);
+        runner.keep_frames(true);
+        runner.run(Some(40), &mut |_| {}).unwrap();
+        let (mut deepest, mut top) = (0.0f64, f64::NEG_INFINITY);
+        for (frame, record) in runner.kept_frames().iter().zip(runner.records()) {
+            let n = frame.positions.len() / 3;
+            let cy = -0.32 + 0.25 * record.time;
+            for i in 0..30 * 30 {
+                let p = [
+                    frame.positions[i],
+                    frame.positions[n + i],
+                    frame.positions[2 * n + i],
+                ];
+                let q = [p[0].abs() - 0.3, (p[1] - cy).abs() - 0.3, p[2].abs() - 0.3];
+                if q.iter().all(|&c| c < 0.0) {
+                    deepest = deepest.max(-q.iter().fold(f64::NEG_INFINITY, |m, &c| m.max(c)));
+                }
+                top = top.max(p[1]);
+            }
+        }
+        assert!(deepest < 1e-4, "{deepest}");
+        assert!(top > 0.6, "{top}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}
+
+/// A hull obstacle's signed distance is the oriented box's for a cube's corners, inside
+/// and out.
+#[test]
+fn a_hull_obstacle_measures_distances_as_the_box_it_spans() {
+    use largestep::collide::Obstacle;
+    use largestep::kernels::quat;
+    let q = quat::exp([0.3, -0.7, 0.4]);
+    let r = quat::to_matrix(q);
+    let axes = [0, 1, 2].map(|k| [r[0][k], r[1][k], r[2][k]]);
+    let (center, half) = ([0.2, 1.0, -0.4], [0.3, 0.2, 0.5]);
+    let corners: std::sync::Arc<[[f64; 3]]> = (0..8)
+        .map(|c| [0, 1, 2].map(|a| if c >> a & 1 == 1 { half[a] } else { -half[a] }))
+        .collect();
+    let hull = Obstacle::Hull {
+        points: corners,
+        center,
+        axes,
+    };
+    hull.validate(0).unwrap();
+    let boxed = Obstacle::Oriented { center, axes, half };
+    let mut seed = 7u64;
+    let mut rnd = || {
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+    };
+    for _ in 0..2000 {
+        let p = [
+            center[0] + 1.6 * rnd(),
+            center[1] + 1.6 * rnd(),
+            center[2] + 1.6 * rnd(),
+        ];
+        let (dh, nh) = hull.distance(p).unwrap();
+        let (db, nb) = boxed.distance(p).unwrap();
+        assert!((dh - db).abs() < 1e-9, "at {p:?}: hull {dh}, box {db}");
+        // Normals agree away from ties between faces (inside, near the medial axis).
+        let n2: f64 = nh.iter().map(|c| c * c).sum();
+        assert!((n2 - 1.0).abs() < 1e-9);
+        if db > 1e-6 {
+            assert!(
+                nh.iter().zip(nb).all(|(a, b)| (a - b).abs() < 1e-6),
+                "{nh:?} vs {nb:?}"
+            );
+        }
+    }
+    // Bad input: named.
+    let bad = Obstacle::Hull {
+        points: vec![[f64::NAN; 3]].into(),
+        center,
+        axes,
+    };
+    assert!(bad.validate(3).unwrap_err().to_string().contains("points"));
 }
 
 #[test]

@@ -34,6 +34,7 @@ pub use sdf::{check_closed, SdfGrid, EXACT_BAND};
 
 use crate::io::Mesh;
 use crate::validate::{check, require, ModelError, Rule};
+use largestep_kernels::collide::narrow::{gjk_epa, Convex};
 use largestep_kernels::collide::sdf::{box_distance, Shape};
 use largestep_kernels::interp::sample3_grad;
 use largestep_kernels::v3::{dot, length_and_unit as unit, sub};
@@ -84,6 +85,18 @@ pub enum Obstacle {
         axes: [[f64; 3]; 3],
         /// Half extents (m), > 0.
         half: [f64; 3],
+    },
+    /// The solid convex hull of `points` (m, in the hull's own frame, shared with the
+    /// rigid body it belongs to) placed at `center` and turned by orthonormal `axes`:
+    /// a point `p` of the frame is at `center + sum p_k axes[k]` (a rigid body's mesh,
+    /// [`MovingObstacle`]). Distances by GJK and EPA.
+    Hull {
+        /// The hull's points in its frame.
+        points: Arc<[[f64; 3]]>,
+        /// Where the frame's origin is (m).
+        center: [f64; 3],
+        /// The frame's orthonormal axes (world).
+        axes: [[f64; 3]; 3],
     },
 }
 
@@ -183,6 +196,7 @@ impl Obstacle {
             Obstacle::Capsule { .. } => "capsule",
             Obstacle::Sdf(_) => "sdf",
             Obstacle::Oriented { .. } => "oriented box",
+            Obstacle::Hull { .. } => "hull",
         }
     }
 
@@ -194,6 +208,17 @@ impl Obstacle {
         let check = |field, value, rule| check(item, k, field, value, rule);
         let require = |field, value, ok, why| require(item, k, field, value, ok, why);
         let finite3 = |field, v: [f64; 3]| v.iter().try_for_each(|&c| check(field, c, Finite));
+        let check_orthonormal = |axes: &[[f64; 3]; 3]| {
+            for (k, a) in axes.iter().enumerate() {
+                finite3("axes", *a)?;
+                for (j, b) in axes.iter().enumerate() {
+                    let want = if j == k { 1.0 } else { 0.0 };
+                    let d = dot(*a, *b);
+                    require("axes", d, (d - want).abs() < 1e-6, "must be orthonormal")?;
+                }
+            }
+            Ok::<(), ModelError>(())
+        };
         match self {
             Obstacle::Plane { normal, offset } => {
                 finite3("normal", *normal)?;
@@ -226,14 +251,18 @@ impl Obstacle {
             Obstacle::Oriented { center, axes, half } => {
                 finite3("center", *center)?;
                 half.iter().try_for_each(|&h| check("half", h, Positive))?;
-                for (k, a) in axes.iter().enumerate() {
-                    finite3("axes", *a)?;
-                    for (j, b) in axes.iter().enumerate() {
-                        let want = if j == k { 1.0 } else { 0.0 };
-                        let d = dot(*a, *b);
-                        require("axes", d, (d - want).abs() < 1e-6, "must be orthonormal")?;
-                    }
-                }
+                check_orthonormal(axes)?;
+            }
+            Obstacle::Hull {
+                points,
+                center,
+                axes,
+            } => {
+                finite3("center", *center)?;
+                check_orthonormal(axes)?;
+                let why = "needs at least one point";
+                require("points", points.len() as f64, !points.is_empty(), why)?;
+                points.iter().try_for_each(|p| finite3("points", *p))?;
             }
             Obstacle::Sdf(s) => {
                 let g = &s.grid;
@@ -275,7 +304,8 @@ impl Obstacle {
                 }
                 Some(m)
             }
-            Obstacle::Plane { .. } | Obstacle::Sdf(_) => None,
+            // A hull's faces are not kept; its rigid body draws it.
+            Obstacle::Plane { .. } | Obstacle::Sdf(_) | Obstacle::Hull { .. } => None,
         }
     }
 
@@ -337,6 +367,26 @@ impl Obstacle {
                 let world =
                     [0, 1, 2].map(|k| axes[0][k] * g[0] + axes[1][k] * g[1] + axes[2][k] * g[2]);
                 nonzero((d, world))
+            }
+            Obstacle::Hull {
+                points,
+                center,
+                axes,
+            } => {
+                // In the hull's frame: GJK's distance outside, EPA's depth inside; the
+                // contact's normal runs from the point into the hull, so the outward
+                // normal is its opposite.
+                let r = sub(p, *center);
+                let local = [dot(r, axes[0]), dot(r, axes[1]), dot(r, axes[2])];
+                let point = Convex::Sphere {
+                    center: local,
+                    radius: 0.0,
+                };
+                let c = gjk_epa(&point, &Convex::Hull(points))?;
+                let n = c.normal.map(|x| -x);
+                let world =
+                    [0, 1, 2].map(|k| axes[0][k] * n[0] + axes[1][k] * n[1] + axes[2][k] * n[2]);
+                nonzero((-c.depth, world))
             }
             Obstacle::Sdf(s) => {
                 if !s.grid.contains(p) {

@@ -752,7 +752,10 @@ fn overlaps(o: &Obstacle, lo: [f64; 3], hi: [f64; 3]) -> bool {
         Obstacle::Capsule { a, b, radius } => {
             (0..3).all(|k| a[k].max(b[k]) + radius > lo[k] && a[k].min(b[k]) - radius < hi[k])
         }
-        Obstacle::Plane { .. } | Obstacle::Sdf(_) | Obstacle::Oriented { .. } => true,
+        Obstacle::Plane { .. }
+        | Obstacle::Sdf(_)
+        | Obstacle::Oriented { .. }
+        | Obstacle::Hull { .. } => true,
     }
 }
 

@@ -392,7 +392,7 @@ pub(crate) enum Collider {
     Sphere(f64),
     Box([f64; 3]),
     Capsule(f64, f64),
-    Hull(Vec<[f64; 3]>),
+    Hull(std::sync::Arc<[[f64; 3]]>),
 }
 
 /// A joint with its anchors in the bodies' frames.
@@ -1023,7 +1023,15 @@ impl Rigid {
                         half: p.half,
                     }
                 }
-                Collider::Hull(_) => continue,
+                Collider::Hull(points) => {
+                    // The hull's frame is the body's principal frame.
+                    let r = quat::to_matrix(s.q[i]);
+                    Obstacle::Hull {
+                        points: points.clone(),
+                        center: s.x[i],
+                        axes: [0, 1, 2].map(|k| [r[0][k], r[1][k], r[2][k]]),
+                    }
+                }
             };
             out.push(MovingObstacle {
                 shape,
