@@ -1030,14 +1030,24 @@ mod narrow_phase {
                 return Ok(());
             };
             prop_assert!(m.count >= 1 && m.normal == epa.normal);
+            // EPA's witnesses are `depth` apart along the normal.
+            let gap = [0, 1, 2].map(|k| epa.point_a[k] - epa.point_b[k] - epa.normal[k] * epa.depth);
+            prop_assert!(norm2(gap).sqrt() < 1e-9, "witnesses off by {gap:?}");
+            // A support feature takes the vertices within a fiftieth of the shape's
+            // extent along the normal as flat: points may be that far off its surface.
+            let extent = |h: &[[f64; 3]]| {
+                let d = h.iter().map(|p| p[0] * m.normal[0] + p[1] * m.normal[1] + p[2] * m.normal[2]);
+                d.clone().fold(f64::MIN, f64::max) - d.fold(f64::MAX, f64::min)
+            };
+            let flat = 0.02 * extent(&a).max(extent(&b));
             for p in m.points() {
-                // No deeper than the penetration depth (the least over directions),
-                // and within that depth of both hulls (their distance at most how far
-                // the point is outside, measured by GJK to a point hull).
-                prop_assert!(p.depth <= epa.depth + 1e-9 * (1.0 + epa.depth), "{} vs {}", p.depth, epa.depth);
+                // No deeper than the penetration depth (the least over directions) beyond
+                // that, and within depth (plus it) of both hulls: their distance, by GJK
+                // to a point hull, at most how far the point is outside.
+                prop_assert!(p.depth <= epa.depth + flat + 1e-9, "{} vs {}", p.depth, epa.depth);
                 for hull in [&a, &b] {
                     let out = -gjk_epa(&Convex::Hull(std::slice::from_ref(&p.point)), &Convex::Hull(hull)).unwrap().depth;
-                    prop_assert!(out <= 0.5 * p.depth.abs() + 1e-9 + 0.02 * epa.depth.max(0.0), "point {:?} {out} outside a hull, depth {}", p.point, p.depth);
+                    prop_assert!(out <= 0.5 * p.depth.abs() + flat + 1e-9, "point {:?} {out} outside a hull, depth {}", p.point, p.depth);
                 }
             }
         }

@@ -408,17 +408,33 @@ fn epa(a: &Convex, b: &Convex, simplex: &Simplex) -> Option<Contact> {
     let mut horizon: ArrayVec<[usize; 2], EPA_HORIZON> = ArrayVec::new();
     let mut best: Option<(f64, [f64; 3], [usize; 3])> = None;
     for _ in 0..MAX_ITERS {
-        // The face nearest the origin.
+        // The face nearest the origin whose plane's nearest point lies on the face. A
+        // convex polytope holding the origin has its nearest point there; rounding can
+        // leave the polytope slightly non-convex, where a face's plane may be nearer
+        // while that point falls outside it (witnesses far from the contact, found by
+        // the manifold proptest). Only when no face qualifies is the nearest plane taken.
         best = None;
+        let mut nearest_plane: Option<(f64, [f64; 3], [usize; 3])> = None;
         for f in &faces {
             let (p0, p1, p2) = (verts[f[0]].w, verts[f[1]].w, verts[f[2]].w);
             let Some((_, n)) = length_and_unit(cross(sub(p1, p0), sub(p2, p0))) else {
                 continue;
             };
             let dist = dot(n, p0);
-            if best.as_ref().is_none_or(|b| dist < b.0) {
-                best = Some((dist, n, *f));
+            if nearest_plane.as_ref().is_none_or(|b| dist < b.0) {
+                nearest_plane = Some((dist, n, *f));
             }
+            if best.as_ref().is_none_or(|b| dist < b.0) {
+                let q = scale(n, dist);
+                let (on, _) = closest_on_triangle(q, p0, p1, p2);
+                let size = norm2(sub(p1, p0)).max(norm2(sub(p2, p0)));
+                if norm2(sub(on, q)) <= 1e-18 * size.max(1e-300) {
+                    best = Some((dist, n, *f));
+                }
+            }
+        }
+        if best.is_none() {
+            best = nearest_plane;
         }
         let (dist, n, _) = best?;
         let w = support(a, b, n);
