@@ -130,8 +130,9 @@ enum Command {
         /// Coupling spring stiffness (N/m).
         #[arg(long, default_value_t = 500.0)]
         stiffness: f64,
-        /// Six-DoF: a rigid tool whose mesh vertices (.obj, .off; m, in the tool's frame,
-        /// which the device pose places) are its point shell.
+        /// Six-DoF: a rigid tool (.obj, .off; m, in the tool's frame, which the device
+        /// pose places); its surface sampled at the distance grid's spacing is its point
+        /// shell.
         #[arg(long)]
         tool: Option<PathBuf>,
         /// Six-DoF rotational coupling stiffness (N m/rad). Default: --stiffness times
@@ -436,7 +437,7 @@ fn main() -> ExitCode {
                 &mesh,
                 &tool,
                 path.as_deref(),
-                [Some(stiffness), rotation_stiffness, contact_stiffness],
+                (stiffness, rotation_stiffness, contact_stiffness),
                 cells,
                 &out,
                 &limits,
@@ -774,18 +775,6 @@ fn work_panel<T>(
     )
 }
 
-/// Prints a haptic loop's work percentiles against the 1 ms tick.
-fn print_latency([p50, p90, p99, max]: [f64; 4]) {
-    println!(
-        "  work per tick  p50 {:.1} us, p90 {:.1} us, p99 {:.1} us, max {:.1} us ({} the 1 ms budget at p99)",
-        p50 * 1e6,
-        p90 * 1e6,
-        p99 * 1e6,
-        max * 1e6,
-        if p99 < largestep::haptics::TICK { "within" } else { "over" }
-    );
-}
-
 /// `largestep haptics`: replays a device path through the god object of a mesh.
 fn haptics(
     mesh: &std::path::Path,
@@ -794,7 +783,7 @@ fn haptics(
     out: &std::path::Path,
     limits: &Limits,
 ) -> ExitCode {
-    use largestep::haptics::{latency, replay, trace_csv, DevicePath, GodObject, TICK};
+    use largestep::haptics::{replay, trace_csv, DevicePath, GodObject, TICK};
     let fail = |e: String| {
         eprintln!("error: {e}");
         ExitCode::from(2)
@@ -827,10 +816,6 @@ fn haptics(
         Ok(t) => t,
         Err(e) => return fail(e),
     };
-    let csv = out.join("haptics.csv");
-    if let Err(e) = std::fs::write(&csv, trace_csv(&ticks)) {
-        return fail(format!("{}: {e}", csv.display()));
-    }
     let time = |t: &largestep::haptics::Tick| t.time;
     let panels = [
         vector_panel(
@@ -843,14 +828,7 @@ fn haptics(
         ),
         work_panel(&ticks, time, &|t| t.work),
     ];
-    if let Err(e) = largestep::plot::write_panels(&out.join("haptics"), &panels, 1, (900, 320)) {
-        return fail(e);
-    }
-    let [p50, p90, p99, max] = latency(&ticks);
-    let fmax = ticks
-        .iter()
-        .map(|t| t.force.iter().map(|c| c * c).sum::<f64>().sqrt())
-        .fold(0.0, f64::max);
+    let fmax = largest_norm(&ticks, |t| t.force);
     let summary = serde_json::json!({
         "mesh": mesh.display().to_string(),
         "triangles": surface.triangles.len(),
@@ -858,22 +836,71 @@ fn haptics(
         "tick_s": TICK,
         "stiffness_n_per_m": stiffness,
         "max_force_n": fmax,
-        "work_us": {"p50": p50 * 1e6, "p90": p90 * 1e6, "p99": p99 * 1e6, "max": max * 1e6},
     });
-    let json = out.join("summary.json");
-    if let Err(e) = std::fs::write(&json, format!("{summary:#}\n")) {
-        return fail(format!("{}: {e}", json.display()));
-    }
-    println!(
+    let headline = format!(
         "haptics: {} ticks of 1 ms against {} triangles, largest force {fmax:.3} N",
         ticks.len(),
         surface.triangles.len()
     );
-    print_latency([p50, p90, p99, max]);
-    println!("  trace          {}", csv.display());
+    let work = ticks.iter().map(|t| t.work).collect();
+    match write_haptics(out, &trace_csv(&ticks), &panels, 320, summary, work) {
+        Ok(latency) => report_haptics(out, &headline, latency),
+        Err(e) => fail(e),
+    }
+}
+
+/// Writes a haptics run's outputs into `out`: `haptics.csv` (the trace), the plot of
+/// `panels` (`haptics.png`, `.svg`; `height` px a panel) and `summary.json` (`summary`
+/// with the percentiles of the ticks' `work` times, which it returns).
+fn write_haptics(
+    out: &std::path::Path,
+    trace: &str,
+    panels: &[largestep::plot::Panel],
+    height: u32,
+    mut summary: serde_json::Value,
+    work: Vec<f64>,
+) -> Result<[f64; 4], String> {
+    let csv = out.join("haptics.csv");
+    std::fs::write(&csv, trace).map_err(|e| format!("{}: {e}", csv.display()))?;
+    largestep::plot::write_panels(&out.join("haptics"), panels, 1, (900, height))?;
+    let latency = largestep::haptics::percentiles(work);
+    let [p50, p90, p99, max] = latency;
+    summary["work_us"] =
+        serde_json::json!({"p50": p50 * 1e6, "p90": p90 * 1e6, "p99": p99 * 1e6, "max": max * 1e6});
+    let json = out.join("summary.json");
+    std::fs::write(&json, format!("{summary:#}\n"))
+        .map_err(|e| format!("{}: {e}", json.display()))?;
+    Ok(latency)
+}
+
+/// Prints a haptics run's headline, its work percentiles against the 1 ms tick and the
+/// files [`write_haptics`] wrote.
+fn report_haptics(
+    out: &std::path::Path,
+    headline: &str,
+    [p50, p90, p99, max]: [f64; 4],
+) -> ExitCode {
+    println!("{headline}");
+    println!(
+        "  work per tick  p50 {:.1} us, p90 {:.1} us, p99 {:.1} us, max {:.1} us ({} the 1 ms budget at p99)",
+        p50 * 1e6,
+        p90 * 1e6,
+        p99 * 1e6,
+        max * 1e6,
+        if p99 < largestep::haptics::TICK { "within" } else { "over" }
+    );
+    println!("  trace          {}", out.join("haptics.csv").display());
     println!("  plot           {}", out.join("haptics.png").display());
-    println!("  summary        {}", json.display());
+    println!("  summary        {}", out.join("summary.json").display());
     ExitCode::SUCCESS
+}
+
+/// The largest length of a vector over the ticks of a haptic trace.
+fn largest_norm<T>(ticks: &[T], f: impl Fn(&T) -> [f64; 3]) -> f64 {
+    ticks
+        .iter()
+        .map(|t| f(t).iter().map(|c| c * c).sum::<f64>().sqrt())
+        .fold(0.0, f64::max)
 }
 
 /// `largestep haptics --tool`: replays a device path (poses) through a rigid tool's
@@ -882,14 +909,14 @@ fn haptics_tool(
     mesh: &std::path::Path,
     tool: &std::path::Path,
     path: Option<&std::path::Path>,
-    [stiffness, rotation_stiffness, contact_stiffness]: [Option<f64>; 3],
+    (kt, rotation_stiffness, contact_stiffness): (f64, Option<f64>, Option<f64>),
     cells: usize,
     out: &std::path::Path,
     limits: &Limits,
 ) -> ExitCode {
     use largestep::collide::SdfGrid;
     use largestep::haptics::{
-        percentiles, point_shell, replay_tool, tool_trace_csv, DevicePath, SixDof, ToolTick, TICK,
+        point_shell, replay_tool, tool_trace_csv, DevicePath, SixDof, ToolTick, TICK,
     };
     use largestep::kernels::collide::bv::Aabb;
     let fail = |e: String| {
@@ -926,7 +953,6 @@ fn haptics_tool(
         Ok(f) => f,
         Err(e) => return fail(format!("{}: {e}", mesh.display())),
     };
-    let kt = stiffness.unwrap_or(500.0);
     let kr = rotation_stiffness.unwrap_or(kt * radius.max(0.01 * longest).powi(2));
     let kc = contact_stiffness.unwrap_or(4.0 * kt);
     let mut six = match SixDof::new(shell, std::sync::Arc::new(field), kt, kr, kc) {
@@ -962,10 +988,6 @@ fn haptics_tool(
         return fail(e);
     }
     let ticks = replay_tool(&mut six, &device);
-    let csv = out.join("haptics.csv");
-    if let Err(e) = std::fs::write(&csv, tool_trace_csv(&ticks)) {
-        return fail(format!("{}: {e}", csv.display()));
-    }
     let time = |t: &ToolTick| t.time;
     let panels = [
         vector_panel(
@@ -986,17 +1008,8 @@ fn haptics_tool(
         ),
         work_panel(&ticks, time, &|t| t.work),
     ];
-    if let Err(e) = largestep::plot::write_panels(&out.join("haptics"), &panels, 1, (900, 300)) {
-        return fail(e);
-    }
-    let lat = percentiles(ticks.iter().map(|t| t.work).collect());
-    let largest = |f: &dyn Fn(&ToolTick) -> [f64; 3]| {
-        ticks
-            .iter()
-            .map(|t| f(t).iter().map(|c| c * c).sum::<f64>().sqrt())
-            .fold(0.0, f64::max)
-    };
-    let (fmax, tmax) = (largest(&|t| t.wrench.force), largest(&|t| t.wrench.torque));
+    let fmax = largest_norm(&ticks, |t| t.wrench.force);
+    let tmax = largest_norm(&ticks, |t| t.wrench.torque);
     let deepest = ticks.iter().map(|t| t.penetration).fold(0.0, f64::max);
     let shell_points = six.shell().len();
     let grid_cells = six.field().grid.n.map(|n| n - 1);
@@ -1015,23 +1028,18 @@ fn haptics_tool(
         "max_force_n": fmax,
         "max_torque_nm": tmax,
         "max_penetration_m": deepest,
-        "work_us": {"p50": lat[0] * 1e6, "p90": lat[1] * 1e6, "p99": lat[2] * 1e6, "max": lat[3] * 1e6},
     });
-    let json = out.join("summary.json");
-    if let Err(e) = std::fs::write(&json, format!("{summary:#}\n")) {
-        return fail(format!("{}: {e}", json.display()));
-    }
-    println!(
+    let headline = format!(
         "haptics: {} ticks of 1 ms, a tool of {shell_points} shell points against a {:?} distance grid of {} triangles; largest force {fmax:.3} N, torque {tmax:.3} N m, deepest shell point {deepest:.3e} m",
         ticks.len(),
         grid_cells,
         surface.triangles.len()
     );
-    print_latency(lat);
-    println!("  trace          {}", csv.display());
-    println!("  plot           {}", out.join("haptics.png").display());
-    println!("  summary        {}", json.display());
-    ExitCode::SUCCESS
+    let work = ticks.iter().map(|t| t.work).collect();
+    match write_haptics(out, &tool_trace_csv(&ticks), &panels, 300, summary, work) {
+        Ok(latency) => report_haptics(out, &headline, latency),
+        Err(e) => fail(e),
+    }
 }
 
 fn study(name: &str, out: &std::path::Path, quick: bool) -> ExitCode {

@@ -55,7 +55,8 @@ const ZONE_ROUNDS: usize = 64;
 /// What one [`SelfCollision::resolve`] did.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct SelfStats {
-    /// Vertices the implicit solve's filter held off a triangle at the step's start.
+    /// Vertices found closing on a triangle of their own surface at the step's start
+    /// (offered to the implicit solve's filter, which holds those still free).
     pub approaches: usize,
     /// Repulsion impulses applied.
     pub repulsions: usize,

@@ -259,9 +259,7 @@ impl DevicePath {
             orientations,
         }
     }
-}
 
-impl DevicePath {
     /// Turns the path's orientations by the rotation vector `rotation` (rad) at a
     /// constant rate from time `from` to `to` (s): the identity before, all of it after,
     /// composed before each sample's own orientation. For the scripted tool stroke.

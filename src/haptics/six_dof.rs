@@ -14,6 +14,7 @@
 use super::{DevicePath, TICK};
 use crate::collide::SdfGrid;
 use crate::io::Mesh;
+use crate::kernels::collide::bv::{Aabb, Sphere};
 use crate::kernels::interp::{sample3, sample3_grad};
 use crate::kernels::quat::{
     conj, exp as quat_exp, log as quat_log, mul as quat_mul, rotate, Quat, IDENTITY,
@@ -130,7 +131,7 @@ impl SixDof {
                 self.env
                     .grid
                     .contains(p)
-                    .then(|| sample3_grad(&self.env.phi, self.env.grid, p).0)
+                    .then(|| sample3(&self.env.phi, self.env.grid, p))
             })
             .fold(0.0, |m: f64, phi| m.max(-phi))
     }
@@ -147,6 +148,15 @@ impl SixDof {
             };
         }
         let mut contacts = 0;
+        // Two cells: the trilinear field's slack in the cluster test below, and the
+        // scale of the convergence test.
+        let slack = 2.0
+            * self
+                .env
+                .grid
+                .spacing
+                .iter()
+                .fold(0.0, |m: f64, h| m.max(*h));
         for _ in 0..ITERATIONS {
             let mut h = Matrix6::<f64>::zeros();
             let mut g = Vector6::<f64>::zeros();
@@ -161,15 +171,8 @@ impl SixDof {
             }
             contacts = 0;
             // A cluster whose centre is farther from the surface than its radius (plus
-            // two cells for the trilinear field's slack) holds no point in contact: the
-            // one-level point-shell hierarchy of Barbič and James.
-            let slack = 2.0
-                * self
-                    .env
-                    .grid
-                    .spacing
-                    .iter()
-                    .fold(0.0, |m: f64, h| m.max(*h));
+            // the slack) holds no point in contact: the one-level point-shell hierarchy
+            // of Barbič and James.
             for &(start, end, centre, radius) in &self.clusters {
                 let c = add(self.position, rotate(self.orientation, centre));
                 if self.env.grid.contains(c)
@@ -226,38 +229,20 @@ const CLUSTER: usize = 32;
 
 /// The shell reordered into clusters of at most [`CLUSTER`] neighbouring points (halved
 /// at the median along their longest extent until small enough), with each cluster's
-/// bounding sphere about its points' mean.
+/// bounding sphere ([`Sphere::of_points`]).
 fn clustered(mut shell: Vec<[f64; 3]>) -> (Vec<[f64; 3]>, Vec<Cluster>) {
     let mut clusters = Vec::new();
     let mut todo = vec![(0, shell.len())];
     while let Some((start, end)) = todo.pop() {
         let part = &mut shell[start..end];
         if part.len() <= CLUSTER {
-            let centre = scale(
-                part.iter().fold([0.0; 3], |c, p| add(c, *p)),
-                1.0 / part.len() as f64,
-            );
-            let radius = part
-                .iter()
-                .map(|p| {
-                    let d = sub(*p, centre);
-                    dot(d, d).sqrt()
-                })
-                .fold(0.0, f64::max);
-            clusters.push((start, end, centre, radius));
+            let ball = Sphere::of_points(part).expect("a cluster has points");
+            clusters.push((start, end, ball.center, ball.radius));
             continue;
         }
-        let (lo, hi) = part.iter().fold(
-            ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
-            |(lo, hi), p| {
-                (
-                    [0, 1, 2].map(|a| lo[a].min(p[a])),
-                    [0, 1, 2].map(|a| hi[a].max(p[a])),
-                )
-            },
-        );
+        let b = Aabb::of_points(part.iter().copied());
         let axis = (0..3)
-            .max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b])))
+            .max_by(|&a, &c| (b.max[a] - b.min[a]).total_cmp(&(b.max[c] - b.min[c])))
             .unwrap_or(0);
         let mid = part.len() / 2;
         part.select_nth_unstable_by(mid, |p, q| p[axis].total_cmp(&q[axis]));

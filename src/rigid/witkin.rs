@@ -22,6 +22,7 @@
 //! States advance by explicit Euler, symplectic Euler or classical Runge-Kutta; each
 //! stage solves for the multipliers at its own state.
 
+use largestep_kernels::v3::{dot, sub};
 use largestep_kernels::vec;
 use nalgebra::{DMatrix, DVector};
 
@@ -189,14 +190,6 @@ impl Default for WitkinWork {
     }
 }
 
-fn d3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
 impl Witkin {
     /// Checks the particles' inverse masses and the constraints against `n` particles and
     /// the start state.
@@ -304,12 +297,12 @@ impl Witkin {
         for k in &self.constraints {
             match *k {
                 Constraint::Distance { a, b, length } => {
-                    let d = d3(x[a], x[b]);
+                    let d = sub(x[a], x[b]);
                     c.push(0.5 * (dot(d, d) - length * length));
-                    cd.push(dot(d, d3(vel(a), vel(b))));
+                    cd.push(dot(d, sub(vel(a), vel(b))));
                 }
                 Constraint::Anchor { a, point, length } => {
-                    let d = d3(x[a], point);
+                    let d = sub(x[a], point);
                     c.push(0.5 * (dot(d, d) - length * length));
                     cd.push(dot(d, vel(a)));
                 }
@@ -319,7 +312,7 @@ impl Witkin {
                     normal,
                     radius,
                 } => {
-                    let d = d3(x[a], center);
+                    let d = sub(x[a], center);
                     c.push(0.5 * (dot(d, d) - radius * radius));
                     cd.push(dot(d, vel(a)));
                     c.push(dot(d, normal));
@@ -393,19 +386,19 @@ impl Witkin {
         for k in &self.constraints {
             match *k {
                 Constraint::Distance { a, b, .. } => {
-                    let d = d3(x[a], x[b]);
-                    let dv = d3(v[a], v[b]);
+                    let d = sub(x[a], x[b]);
+                    let dv = sub(v[a], v[b]);
                     w.jac.push([(a, d), (b, d.map(|c| -c))]);
                     w.jdot.push([(a, dv), (b, dv.map(|c| -c))]);
                 }
                 Constraint::Anchor { a, point, .. } => {
-                    w.jac.push(one(a, d3(x[a], point)));
+                    w.jac.push(one(a, sub(x[a], point)));
                     w.jdot.push(one(a, v[a]));
                 }
                 Constraint::Circle {
                     a, center, normal, ..
                 } => {
-                    w.jac.push(one(a, d3(x[a], center)));
+                    w.jac.push(one(a, sub(x[a], center)));
                     w.jdot.push(one(a, v[a]));
                     w.jac.push(one(a, normal));
                     w.jdot.push(one(a, [0.0; 3]));

@@ -239,11 +239,13 @@ impl Filter {
     /// `v = S v + z` for component-major Vec3s velocities v: constrained directions take
     /// their prescribed velocity (zero unless [`Filter::prescribe`]d).
     pub fn impose(&self, v: &mut [f64]) {
-        self.apply(v);
         let n = self.n;
-        for (&i, z) in self.verts.iter().zip(&self.z) {
-            for r in 0..3 {
-                v[r * n + i as usize] += z[r];
+        assert_eq!(v.len(), 3 * n);
+        for &i in &self.verts {
+            let i = i as usize;
+            let vi = self.imposed(i, largestep_kernels::get3(v, n, i));
+            for (r, c) in vi.into_iter().enumerate() {
+                v[r * n + i] = c;
             }
         }
     }

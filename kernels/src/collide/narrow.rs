@@ -406,6 +406,8 @@ fn epa(a: &Convex, b: &Convex, simplex: &Simplex) -> Option<Contact> {
         faces.push(outward(&verts, f, center));
     }
     let mut horizon: ArrayVec<[usize; 2], EPA_HORIZON> = ArrayVec::new();
+    // Which faces the new support point sees, decided once per iteration.
+    let mut seen: ArrayVec<bool, EPA_FACES> = ArrayVec::new();
     let mut best: Option<(f64, [f64; 3], [usize; 3])> = None;
     for _ in 0..MAX_ITERS {
         // The face nearest the origin whose plane's nearest point lies on the face. A
@@ -444,13 +446,14 @@ fn epa(a: &Convex, b: &Convex, simplex: &Simplex) -> Option<Contact> {
         }
         // The faces the new point sees, and their horizon; stop growing if the polytope
         // would outgrow its arrays (see `EPA_VERTS`).
-        let sees = |f: &[usize; 3]| {
+        seen.clear();
+        seen.extend(faces.iter().map(|f| {
             let (p0, p1, p2) = (verts[f[0]].w, verts[f[1]].w, verts[f[2]].w);
             dot(cross(sub(p1, p0), sub(p2, p0)), sub(w.w, p0)) > 0.0
-        };
+        }));
         horizon.clear();
         let mut fits = verts.len() < EPA_VERTS;
-        for f in faces.iter().filter(|f| sees(f)) {
+        for (f, _) in faces.iter().zip(&seen).filter(|(_, s)| **s) {
             for e in [[f[0], f[1]], [f[1], f[2]], [f[2], f[0]]] {
                 // An edge of two removed faces appears both ways: drop it.
                 if let Some(i) = horizon.iter().position(|h| *h == [e[1], e[0]]) {
@@ -460,13 +463,17 @@ fn epa(a: &Convex, b: &Convex, simplex: &Simplex) -> Option<Contact> {
                 }
             }
         }
-        let kept = faces.iter().filter(|f| !sees(f)).count();
+        let kept = seen.iter().filter(|s| !**s).count();
         if !fits || kept + horizon.len() > EPA_FACES {
             break;
         }
         // Remove the faces the new point sees; stitch the horizon to it.
         let wi = verts.len();
-        faces.retain(|f| !sees(f));
+        let mut k = 0;
+        faces.retain(|_| {
+            k += 1;
+            !seen[k - 1]
+        });
         verts.push(w);
         for e in &horizon {
             faces.push([e[0], e[1], wi]);
