@@ -12,6 +12,9 @@
 //!   arithmetic operation, square root, comparison and selection 1), and reported against
 //!   one core's FMA peak, measured right before and after the timing (`machine::peak_fma`,
 //!   4-wide, over the threads, divided by them; the higher of the two).
+//!   `fem/kernel/x4-cached` makes the same calls with every group's outputs in one
+//!   reused buffer: the kernel's arithmetic rate, where `x4` also pays for writing the
+//!   43 MB of stiffness blocks that the model's gather reads (about 40% of its time).
 //! - `fem/assembly`: `Fem::force_jacobians` on all threads: the kernels, the gather of
 //!   the forces and the stiffness blocks into the block-sparse matrix (deterministic, in
 //!   a fixed order). The difference from the parallel kernel time is the gather.
@@ -321,6 +324,25 @@ fn kernels(
             );
         }
     };
+    // The same calls with the outputs in one reused group buffer: the kernel's own rate,
+    // without writing the 43 MB of stiffness blocks the model keeps for its gather (the
+    // x4 row above pays for that traffic, as the model does).
+    let (mut fc, mut kc) = ([0.0; 48], [0.0; 360]);
+    let mut sink = 0.0;
+    let mut x4_cached = || {
+        for e in (0..ne).step_by(4) {
+            element_x4(
+                &mut fc,
+                Some(&mut kc),
+                &four(e, xs),
+                &four(e, |e| fem.dm_inv(e)),
+                four(e, |e| fem.volumes()[e]),
+                &four(e, lame),
+                &iso,
+            );
+            sink += kc[e % 360];
+        }
+    };
     // Flops, counted on the same elements.
     FLOPS.with(|c| c.set(0));
     for e in 0..ne {
@@ -344,6 +366,7 @@ fn kernels(
     for (name, run) in [
         ("scalar", &mut scalar as &mut dyn FnMut()),
         ("x4", &mut x4 as &mut dyn FnMut()),
+        ("x4-cached", &mut x4_cached as &mut dyn FnMut()),
     ] {
         let id = format!("fem/kernel/{name}");
         if !wanted(&id) {
@@ -366,6 +389,7 @@ fn kernels(
             100.0 * rate * flops / 1e9 / core_peak
         ));
     }
+    std::hint::black_box(sink);
     if wanted("fem/kernel/scalar") && wanted("fem/kernel/x4") {
         let worst = f
             .iter()

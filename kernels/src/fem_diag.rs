@@ -173,30 +173,40 @@ pub fn sym_eig3<R: Lane>(s: [R; 6]) -> ([R; 3], [R; 9]) {
         for (p, r) in [(0usize, 1usize), (0, 2), (1, 2)] {
             let o = 3 - p - r;
             let apr = a[3 * p + r];
-            let tiny = R::splat(1e-300);
-            let zero_off = apr.abs();
-            let safe = R::if_lt(zero_off, tiny, one, apr);
-            let theta = (a[3 * r + r] - a[3 * p + p]) / (safe + safe);
-            let sign = R::if_lt(theta, zero, -one, one);
-            let t = sign / (theta.abs() + theta.fma(theta, one).sqrt());
-            let t = R::if_lt(zero_off, tiny, zero, t);
+            // Golub and Van Loan's tan t = sgn(theta) / (|theta| + sqrt(theta^2 + 1)) with
+            // theta = d / e, multiplied through by |e|: t = sgn(d) e / (|d| + sqrt(d^2 +
+            // e^2)). One division fewer on the chain of dependent square roots and
+            // divisions that bounds this loop (four sweeps are about half the kernel's
+            // time, benches/fem.rs), and no test for e = 0, where t = 0 (d = e = 0 adds
+            // `flat` to the denominator). cos = 1 / sqrt(1 + t^2) keeps cos exactly 1 for
+            // rotations below rounding, so a body at rest keeps singular values of exactly
+            // 1 where its F^T F rounds to the identity.
+            let (app, arr) = (a[3 * p + p], a[3 * r + r]);
+            let d = arr - app;
+            let e = apr + apr;
+            let sd = R::if_lt(d, zero, -one, one);
+            let big = d.abs() + d.fma(d, e * e).sqrt();
+            let flat = R::if_lt(big, R::splat(1e-300), one, zero);
+            let t = sd * e / (big + flat);
             let c = one / t.fma(t, one).sqrt();
             let sn = t * c;
-            a[3 * p + p] = a[3 * p + p] - t * apr;
-            a[3 * r + r] = a[3 * r + r] + t * apr;
+            let nsn = -sn;
+            let tapr = t * apr;
+            a[3 * p + p] = app - tapr;
+            a[3 * r + r] = arr + tapr;
             a[3 * p + r] = zero;
             a[3 * r + p] = zero;
             let (aop, aor) = (a[3 * o + p], a[3 * o + r]);
-            let nop = c * aop - sn * aor;
-            let nor = sn * aop + c * aor;
+            let nop = c.fma(aop, nsn * aor);
+            let nor = sn.fma(aop, c * aor);
             a[3 * o + p] = nop;
             a[3 * p + o] = nop;
             a[3 * o + r] = nor;
             a[3 * r + o] = nor;
             for k in 0..3 {
                 let (qkp, qkr) = (q[3 * k + p], q[3 * k + r]);
-                q[3 * k + p] = c * qkp - sn * qkr;
-                q[3 * k + r] = sn * qkp + c * qkr;
+                q[3 * k + p] = c.fma(qkp, nsn * qkr);
+                q[3 * k + r] = sn.fma(qkp, c * qkr);
             }
         }
     }
@@ -514,22 +524,20 @@ pub fn element<R: Lane>(
     for ai in 0..4 {
         for bi in ai..4 {
             let (ga, gb) = (&gh[ai], &gh[bi]);
-            let mut kh = [zero; 9];
-            for m in 0..3 {
-                for p in 0..3 {
-                    kh[3 * m + p] = if m == p {
-                        let mut s = a[4 * m] * ga[m] * gb[m];
-                        for n in 0..3 {
-                            if n != m {
-                                s = pa[pair(m, n)].fma(ga[n] * gb[n], s);
-                            }
-                        }
-                        s
-                    } else {
-                        a[3 * m + p].fma(ga[m] * gb[p], pb[pair(m, p)] * ga[p] * gb[m])
-                    };
+            // o[3 m + p] = g^_am g^_bp.
+            let o: [R; 9] = std::array::from_fn(|i| ga[i / 3] * gb[i % 3]);
+            let kh: [R; 9] = std::array::from_fn(|i| {
+                let (m, p) = (i / 3, i % 3);
+                if m == p {
+                    let (n1, n2) = ((m + 1) % 3, (m + 2) % 3);
+                    pa[pair(m, n1)].fma(
+                        o[4 * n1],
+                        pa[pair(m, n2)].fma(o[4 * n2], a[4 * m] * o[4 * m]),
+                    )
+                } else {
+                    a[3 * m + p].fma(o[3 * m + p], pb[pair(m, p)] * o[3 * p + m])
                 }
-            }
+            });
             // K_ab = -vol U K^ U^T.
             let uk = mul3(&u, &kh);
             for i in 0..3 {
@@ -575,8 +583,15 @@ pub fn element_x4(
         Some(k) => {
             let mut kl = [f64x4::ZERO; 90];
             let e = element(&mut fl, Some(&mut kl), &xl, &dl, f64x4::new(vol), ll, iso);
-            for (i, v) in kl.iter().enumerate() {
-                let v = v.to_array();
+            // Lane l's 90 values, four at a time through 4x4 transposes.
+            for (i0, quad) in kl.chunks_exact(4).enumerate() {
+                let t = f64x4::transpose([quad[0], quad[1], quad[2], quad[3]]);
+                for (l, tl) in t.iter().enumerate() {
+                    k[90 * l + 4 * i0..90 * l + 4 * i0 + 4].copy_from_slice(&tl.to_array());
+                }
+            }
+            for i in 88..90 {
+                let v = kl[i].to_array();
                 for l in 0..4 {
                     k[90 * l + i] = v[l];
                 }
@@ -585,12 +600,10 @@ pub fn element_x4(
         }
         None => element(&mut fl, None, &xl, &dl, f64x4::new(vol), ll, iso),
     };
-    for a in 0..4 {
-        for c in 0..3 {
-            let v = fl[a][c].to_array();
-            for l in 0..4 {
-                f[12 * l + 3 * a + c] = v[l];
-            }
+    for (q, quad) in fl.as_flattened().chunks_exact(4).enumerate() {
+        let t = f64x4::transpose([quad[0], quad[1], quad[2], quad[3]]);
+        for (l, tl) in t.iter().enumerate() {
+            f[12 * l + 4 * q..12 * l + 4 * q + 4].copy_from_slice(&tl.to_array());
         }
     }
     e.to_array()

@@ -425,6 +425,7 @@ impl FemDesc {
             std::array::from_fn(|_| Vec::with_capacity(self.tets.len()));
         let mut volume = Vec::with_capacity(self.tets.len());
         let mut mass = vec![0.0; n];
+        let mut rounding = vec![0.0; n];
         let mut lame: [Vec<f64>; 2] = std::array::from_fn(|_| Vec::with_capacity(self.tets.len()));
         let region = |e: usize| self.element_material.get(e).map_or(0, |&r| r as usize);
         for (e, t) in self.tets.iter().enumerate() {
@@ -469,7 +470,17 @@ impl FemDesc {
             for &i in t {
                 mass[i as usize] += 0.25 * m.density * v;
             }
+            // Element force terms at rest: vol P g_a with |P| about (2 mu + 3 lambda) per
+            // unit strain, so |P| ~ (2 mu + 3 lambda) |sigma| where sigma ~ 1 rounds.
+            let modulus = 2.0 * l.mu + 3.0 * l.lambda.abs();
+            for (a, g) in largestep_kernels::fem::shape_gradients(&inv)
+                .iter()
+                .enumerate()
+            {
+                rounding[t[a] as usize] += v * modulus * largestep_kernels::v3::dot(*g, *g).sqrt();
+            }
         }
+        let force_rounding = rounding.iter().map(|r| r * r).sum::<f64>().sqrt();
         let unused: Vec<u32> = (0..n as u32).filter(|&i| mass[i as usize] == 0.0).collect();
         let mut fixed: Vec<u32> = self
             .pinned
@@ -535,6 +546,7 @@ impl FemDesc {
             gather,
             mass_matrix: None,
             notes: self.notes.clone(),
+            force_rounding,
         };
         let mut model = model;
         if self.mass == FemMass::Consistent {
@@ -646,6 +658,8 @@ pub struct Fem {
     /// `FemDesc::notes`.
     notes: Vec<String>,
     gather: VectorGather,
+    /// [`MechModel::force_rounding`] (N).
+    force_rounding: f64,
 }
 
 /// Scratch buffers of a [`Fem`] model's evaluations.
@@ -922,6 +936,10 @@ impl MechModel for Fem {
             f: vec![0.0; self.gather.vector_buffer_len()],
             jac: None,
         }
+    }
+
+    fn force_rounding(&self) -> f64 {
+        self.force_rounding
     }
 
     fn vertex_count(&self) -> usize {

@@ -63,6 +63,12 @@ pub trait Mechanical {
     fn constraints(&self, filter: &mut Filter) {
         let _ = filter;
     }
+    /// A norm (N) of the force terms that cancel in the net force at rest (elastic
+    /// stresses times element areas): the net force rounds to a few eps times this, even
+    /// where it should be zero, and Newton cannot reduce a residual below that.
+    fn force_rounding(&self) -> f64 {
+        0.0
+    }
     /// `f = total force` (N) at time t, positions x (m) and velocities v (m/s).
     fn force(&mut self, t: f64, x: &[f64], v: &[f64], f: &mut [f64]);
     /// Potential energy (J) at time t and positions x, if the non-damping forces have one
@@ -882,6 +888,9 @@ impl NewtonProblem for Residual<'_> {
                 scale2 += size * size;
             }
         }
+        // The terms that cancel inside the forces round too (zero net force at rest).
+        let cancelled = h * (c.w0.abs() + c.w1.abs()) * self.sys.force_rounding();
+        scale2 += cancelled * cancelled;
         if let Some(f) = self.filter {
             f.apply(r);
         }

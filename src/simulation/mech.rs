@@ -102,6 +102,12 @@ pub trait MechModel: Send + Sync + 'static {
             filter.fix(p as usize);
         }
     }
+    /// A norm (N) of the force terms that cancel in the net force at rest (elastic
+    /// stresses times element areas): the net force rounds to a few eps times this, even
+    /// where it should be zero, and Newton cannot reduce a residual below that.
+    fn force_rounding(&self) -> f64 {
+        0.0
+    }
     /// `f = total force` (N) at time t, positions x (m) and velocities v (m/s).
     fn force(&self, work: &mut Self::Work, t: f64, x: &[f64], v: &[f64], f: &mut [f64]);
     /// Potential energy (J) of the non-damping forces, if they have one (see
@@ -244,6 +250,9 @@ impl<M: MechModel> Mechanical for Bound<'_, M> {
     }
     fn mass_matrix(&self) -> Option<&Bsr3> {
         self.model.mass_matrix()
+    }
+    fn force_rounding(&self) -> f64 {
+        self.model.force_rounding()
     }
     fn constraints(&self, filter: &mut Filter) {
         // Contacts first, then the model's own: a pinned vertex in contact stays fixed.
