@@ -32,6 +32,7 @@ rigid-cradle scenes/rigid-cradle.toml 640x360 animation.gif
 rigid-t-handle scenes/rigid-t-handle.toml 640x360 animation.gif
 rigid-chain scenes/rigid-chain.toml 640x360 animation.gif
 rigid-cloth scenes/rigid-cloth.toml 1280x720 contact-sheet.png
+rigid-jello scenes/rigid-jello.toml 1280x720 contact-sheet.png
 anim-clip scenes/anim-clip.toml 640x360 animation.gif
 anim-twist scenes/anim-twist.toml 1280x720 contact-sheet.png
 anim-reach scenes/anim-reach.toml 1280x720 contact-sheet.png

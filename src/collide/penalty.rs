@@ -6,11 +6,17 @@
 //! obstacles without the curvature term `-k_c g dn/dx`, which is small at shallow
 //! penetration and could make the stiffness indefinite. Its potential `k_c g^2 / 2` enters
 //! the energy and `d_c (v.n)^2` the dissipation.
+//!
+//! Moving obstacles ([`MovingObstacle`], rigid bodies handed over each step, one-way) take
+//! the same law with the vertex's velocity relative to the obstacle's material there,
+//! `F = -k_c g n - d_c ((v - v_o).n) n`; their pose is held for the step, so the springs
+//! keep a potential within it. They do work on the model at the rate `sum F . v_o`
+//! ([`Penalty::moving_power`]).
 
-use super::Obstacle;
+use super::{MovingObstacle, Obstacle};
 use crate::sparse::Bsr3;
 use largestep_kernels::get3;
-use largestep_kernels::v3::dot;
+use largestep_kernels::v3::{dot, sub};
 
 /// Penalty contacts against obstacles.
 #[derive(Clone, Debug, PartialEq)]
@@ -63,12 +69,10 @@ impl Penalty {
     /// Adds the collision springs' forces to `f` (component-major, like `x` and `v`).
     pub fn add_forces(&self, x: &[f64], v: &[f64], f: &mut [f64]) {
         let n = x.len() / 3;
-        let (k, d) = (self.stiffness, self.damping);
         self.for_each_contact(x, |i, nrm, g| {
-            let vn = dot(nrm, get3(v, n, i));
-            let mag = -k * g - d * vn;
+            let fi = self.force_of(nrm, g, get3(v, n, i));
             for c in 0..3 {
-                f[c * n + i] += mag * nrm[c];
+                f[c * n + i] += fi[c];
             }
         });
     }
@@ -76,24 +80,117 @@ impl Penalty {
     /// Adds `-k_c n n^T` (to `dfdx`) and `-d_c n n^T` (to `dfdv`) of every active
     /// contact to its vertex's diagonal block.
     pub fn add_jacobians(&self, x: &[f64], dfdx: &mut Bsr3, mut dfdv: Option<&mut Bsr3>) {
-        let (k, d) = (self.stiffness, self.damping);
-        let pattern = dfdx.pattern().clone();
-        let diag = pattern.diag_slots();
-        // Adds -coef n n^T to a 3x3 block.
-        let sub_nn = |block: &mut [f64], coef: f64, n: [f64; 3]| {
+        let diag = dfdx.pattern().clone();
+        let diag = diag.diag_slots();
+        self.for_each_contact(x, |i, nrm, _| {
+            self.sub_nn(diag[i] as usize, nrm, dfdx, dfdv.as_deref_mut());
+        });
+    }
+
+    /// Adds `-k_c n n^T` to block `slot` of dfdx and `-d_c n n^T` to that of dfdv.
+    fn sub_nn(&self, slot: usize, n: [f64; 3], dfdx: &mut Bsr3, dfdv: Option<&mut Bsr3>) {
+        let sub = |block: &mut [f64], coef: f64| {
             for r in 0..3 {
                 for c in 0..3 {
                     block[3 * r + c] -= coef * n[r] * n[c];
                 }
             }
         };
-        self.for_each_contact(x, |i, nrm, _| {
-            let slot = diag[i] as usize;
-            sub_nn(dfdx.block_mut(slot), k, nrm);
-            if let Some(dv) = dfdv.as_deref_mut() {
-                sub_nn(dv.block_mut(slot), d, nrm);
+        sub(dfdx.block_mut(slot), self.stiffness);
+        if let Some(dv) = dfdv {
+            sub(dv.block_mut(slot), self.damping);
+        }
+    }
+
+    /// Calls `f(i, n, g, v_o)` for every vertex i inside a moving obstacle at signed
+    /// distance g < 0 with outward normal n, where the obstacle's material moves at v_o;
+    /// obstacle by obstacle, vertices in order.
+    fn for_each_moving_contact(
+        moving: &[MovingObstacle],
+        x: &[f64],
+        mut f: impl FnMut(usize, [f64; 3], f64, [f64; 3]),
+    ) {
+        let n = x.len() / 3;
+        for o in moving {
+            for i in 0..n {
+                let p = get3(x, n, i);
+                if let Some((g, nrm)) = o.shape.distance(p) {
+                    if g < 0.0 {
+                        f(i, nrm, g, o.velocity_at(p));
+                    }
+                }
+            }
+        }
+    }
+
+    /// The contact force (N) of a vertex at depth g < 0, normal n, moving at v relative
+    /// to the surface.
+    #[inline]
+    fn force_of(&self, nrm: [f64; 3], g: f64, v_rel: [f64; 3]) -> [f64; 3] {
+        let mag = -self.stiffness * g - self.damping * dot(nrm, v_rel);
+        nrm.map(|c| mag * c)
+    }
+
+    /// Adds the collision springs of the moving obstacles to `f`.
+    pub fn add_moving_forces(
+        &self,
+        moving: &[MovingObstacle],
+        x: &[f64],
+        v: &[f64],
+        f: &mut [f64],
+    ) {
+        let n = x.len() / 3;
+        Self::for_each_moving_contact(moving, x, |i, nrm, g, vo| {
+            let fi = self.force_of(nrm, g, sub(get3(v, n, i), vo));
+            for c in 0..3 {
+                f[c * n + i] += fi[c];
             }
         });
+    }
+
+    /// [`Penalty::add_jacobians`] for the moving obstacles.
+    pub fn add_moving_jacobians(
+        &self,
+        moving: &[MovingObstacle],
+        x: &[f64],
+        dfdx: &mut Bsr3,
+        mut dfdv: Option<&mut Bsr3>,
+    ) {
+        let diag = dfdx.pattern().clone();
+        let diag = diag.diag_slots();
+        Self::for_each_moving_contact(moving, x, |i, nrm, _, _| {
+            self.sub_nn(diag[i] as usize, nrm, dfdx, dfdv.as_deref_mut());
+        });
+    }
+
+    /// The moving obstacles' collision springs' potential energy `sum k_c g^2 / 2` (J),
+    /// at their present poses.
+    pub fn moving_energy(&self, moving: &[MovingObstacle], x: &[f64]) -> f64 {
+        let mut e = 0.0;
+        Self::for_each_moving_contact(moving, x, |_, _, g, _| e += 0.5 * self.stiffness * g * g);
+        e
+    }
+
+    /// The moving obstacles' contact dissipation `sum d_c ((v - v_o).n)^2` (W).
+    pub fn moving_dissipation(&self, moving: &[MovingObstacle], x: &[f64], v: &[f64]) -> f64 {
+        let n = x.len() / 3;
+        let mut p = 0.0;
+        Self::for_each_moving_contact(moving, x, |i, nrm, _, vo| {
+            let vn = dot(nrm, sub(get3(v, n, i), vo));
+            p += self.damping * vn * vn;
+        });
+        p
+    }
+
+    /// The rate (W) at which the moving obstacles do work on the model: `sum F . v_o` over
+    /// their contacts (what moves the springs' anchors, and the damping's reference).
+    pub fn moving_power(&self, moving: &[MovingObstacle], x: &[f64], v: &[f64]) -> f64 {
+        let n = x.len() / 3;
+        let mut p = 0.0;
+        Self::for_each_moving_contact(moving, x, |i, nrm, g, vo| {
+            p += dot(self.force_of(nrm, g, sub(get3(v, n, i), vo)), vo);
+        });
+        p
     }
 
     /// The collision springs' potential energy `sum k_c g^2 / 2` (J).

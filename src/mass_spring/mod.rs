@@ -577,6 +577,10 @@ impl MechModel for MassSpring {
         self.penalty.as_ref().map_or(&[], |p| &p.obstacles)
     }
 
+    fn penalty(&self) -> Option<&Penalty> {
+        self.penalty.as_ref()
+    }
+
     fn fixed_vertices(&self) -> &[u32] {
         &self.pinned
     }

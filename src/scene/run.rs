@@ -386,6 +386,8 @@ pub struct Runner {
     coupled: bool,
     providers: Vec<bool>,
     moving: Vec<crate::collide::MovingObstacle>,
+    /// Systems that give no bodies and take none of the others' (warned in the summary).
+    deaf: Vec<String>,
 }
 
 /// The preview of grid frames, made as they are written: each frame's picture is
@@ -424,6 +426,21 @@ impl Runner {
             .collect();
         let coupled =
             systems.iter().any(|s| s.sim.takes_moving_obstacles()) && providers.iter().any(|&p| p);
+        let deaf = if providers.iter().any(|&p| p) {
+            systems
+                .iter()
+                .zip(&providers)
+                .filter(|(s, &p)| !p && !s.sim.takes_moving_obstacles())
+                .map(|(s, _)| {
+                    format!(
+                        "[{}] does not meet the other systems' bodies: it has no contacts of its own to meet them with (give it obstacles or collisions)",
+                        s.table
+                    )
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
         if listening {
             for s in systems.iter_mut().filter(|s| !s.sim.listens()) {
                 s.sim.record_contact_impulses(true);
@@ -445,6 +462,7 @@ impl Runner {
             coupled,
             providers,
             moving,
+            deaf,
         };
         runner.hand_over_obstacles();
         runner
@@ -578,6 +596,13 @@ impl Runner {
             }
         }
         Ok(total)
+    }
+
+    /// The systems' warnings, then those of the scene as a whole.
+    fn warnings(&self) -> Vec<String> {
+        let mut w: Vec<String> = self.systems.iter().flat_map(|s| s.sim.warnings()).collect();
+        w.extend(self.deaf.iter().cloned());
+        w
     }
 
     /// Gives every system that takes moving obstacles those of the others (rigid bodies at
@@ -998,7 +1023,7 @@ impl Runner {
             newton_iterations: 0,
             linear_iterations: 0,
             max_linear_iterations: 0,
-            warnings: self.systems.iter().flat_map(|s| s.sim.warnings()).collect(),
+            warnings: self.warnings(),
             out_dir: self.out_dir.clone(),
         };
         let mut steps_done = 0usize;
@@ -1068,7 +1093,7 @@ impl Runner {
                 (gain / scale, r.time)
             })
             .fold((0.0, 0.0), |a, b| if b.0 > a.0 { b } else { a });
-        summary.warnings = self.systems.iter().flat_map(|s| s.sim.warnings()).collect();
+        summary.warnings = self.warnings();
         summary.wall_seconds = start.elapsed().as_secs_f64();
         Ok(summary)
     }

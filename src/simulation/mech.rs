@@ -22,7 +22,7 @@
 
 use super::{Energy, FrameData, Simulation, Stage};
 use crate::collide::{
-    max_penetration, MovingObstacle, Obstacle, SelfCollision, SelfStats, VertexContacts,
+    max_penetration, MovingObstacle, Obstacle, Penalty, SelfCollision, SelfStats, VertexContacts,
 };
 use crate::integrate::{
     kinetic_energy, kinetic_energy_matrix, IntegrateError, MechSettings, MechState, MechStepper,
@@ -168,6 +168,12 @@ pub trait MechModel: Send + Sync + 'static {
     fn mass_matrix(&self) -> Option<&Bsr3> {
         None
     }
+    /// The penalty law of the model's own obstacles, when it meets them with forces
+    /// (collision springs inside [`MechModel::force`]): other systems' moving obstacles
+    /// then act through the same law, with velocities relative to them.
+    fn penalty(&self) -> Option<&Penalty> {
+        None
+    }
     /// Whether the model has a volume to write ([`MechModel::write_volume`]).
     fn has_volume(&self) -> bool {
         false
@@ -239,6 +245,16 @@ struct Bound<'a, M: MechModel> {
     contacts: &'a mut VertexContacts,
     /// Self-collision, whose start-of-step approaches the filter takes.
     self_collision: Option<&'a SelfCollision>,
+    /// Other systems' moving obstacles, which a model with penalty contacts
+    /// ([`MechModel::penalty`]) meets with its collision springs.
+    moving: &'a [MovingObstacle],
+}
+
+impl<M: MechModel> Bound<'_, M> {
+    /// The model's penalty law, when moving obstacles are there to meet with it.
+    fn moving_penalty(&self) -> Option<&Penalty> {
+        self.model.penalty().filter(|_| !self.moving.is_empty())
+    }
 }
 
 impl<M: MechModel> Mechanical for Bound<'_, M> {
@@ -265,13 +281,22 @@ impl<M: MechModel> Mechanical for Bound<'_, M> {
     }
     fn force(&mut self, t: f64, x: &[f64], v: &[f64], f: &mut [f64]) {
         self.model.force(self.work, t, x, v, f);
+        if let Some(p) = self.moving_penalty() {
+            p.add_moving_forces(self.moving, x, v, f);
+        }
         self.contacts.record_pull(f);
     }
     fn potential_energy(&self, t: f64, x: &[f64]) -> Option<f64> {
-        self.model.potential_energy(t, x)
+        let moving = self
+            .moving_penalty()
+            .map_or(0.0, |p| p.moving_energy(self.moving, x));
+        Some(self.model.potential_energy(t, x)? + moving)
     }
     fn dissipation(&self, x: &[f64], v: &[f64]) -> f64 {
-        self.model.dissipation(x, v)
+        let moving = self
+            .moving_penalty()
+            .map_or(0.0, |p| p.moving_dissipation(self.moving, x, v));
+        self.model.dissipation(x, v) + moving
     }
     fn prepare_jacobians(&mut self) -> Result<Option<Arc<Bsr3Pattern>>, SparseError> {
         self.model.prepare_jacobians(self.work)
@@ -288,8 +313,13 @@ impl<M: MechModel> Mechanical for Bound<'_, M> {
         dfdx: &mut Bsr3,
         dfdv: Option<&mut Bsr3>,
     ) -> Result<(), IntegrateError> {
+        let mut dfdv = dfdv;
         self.model
-            .force_jacobians(self.work, t, x, v, f, dfdx, dfdv)?;
+            .force_jacobians(self.work, t, x, v, f, dfdx, dfdv.as_deref_mut())?;
+        if let Some(p) = self.moving_penalty() {
+            p.add_moving_forces(self.moving, x, v, f);
+            p.add_moving_jacobians(self.moving, x, dfdx, dfdv);
+        }
         self.contacts.record_pull(f);
         Ok(())
     }
@@ -331,6 +361,9 @@ pub struct MechSimulation<M: MechModel> {
     /// over accepted steps, and their power at the end of the last one (W).
     external_work: f64,
     power: f64,
+    /// The moving obstacles' power through collision springs at the end of the last step
+    /// (W; see [`Penalty::moving_power`]), counted in `external_work`.
+    moving_power: f64,
     /// The model's initial size (m): the diagonal of its vertices' bounding box, at least
     /// 1 m. A vertex moving ten times that in one step is a blow-up.
     size: f64,
@@ -426,6 +459,7 @@ impl<M: MechModel> MechSimulation<M> {
                 work: &mut work,
                 contacts: &mut contacts,
                 self_collision: None,
+                moving: &[],
             },
         )?;
         let control = model.step_control();
@@ -465,6 +499,7 @@ impl<M: MechModel> MechSimulation<M> {
             t: 0.0,
             external_work: 0.0,
             power,
+            moving_power: 0.0,
             size,
             impulses: None,
             self_collision,
@@ -574,6 +609,7 @@ impl<M: MechModel> MechSimulation<M> {
                 work: &mut self.work,
                 contacts: &mut self.contacts,
                 self_collision: self.self_collision.as_ref().map(|(sc, _)| &**sc),
+                moving: &self.moving,
             },
             self.t,
             x,
@@ -611,7 +647,7 @@ impl<M: MechModel> MechSimulation<M> {
         // Moving obstacles do work on the model: what their contacts change of its energy
         // is counted as external work (with them, the static obstacles' small losses at
         // contact are counted there too).
-        let coupled = !self.moving.is_empty();
+        let coupled = !self.moving.is_empty() && self.model.contact_friction().is_some();
         let before = if coupled { self.energy().total() } else { 0.0 };
         let (x, v) = (self.state.x.as_mut_slice(), self.state.v.as_mut_slice());
         if let Some(friction) = self.model.contact_friction() {
@@ -646,6 +682,13 @@ impl<M: MechModel> MechSimulation<M> {
             let p = self.model.external_power(self.t, x, v);
             self.external_work += 0.5 * h * (self.power + p);
             self.power = p;
+        }
+        // Moving obstacles met by collision springs work on the model through them (the
+        // trapezoidal rule over the step, the obstacles held at their end-of-step poses).
+        if let Some(pen) = self.model.penalty().filter(|_| !self.moving.is_empty()) {
+            let p = pen.moving_power(&self.moving, x, v);
+            self.external_work += 0.5 * h * (self.moving_power + p);
+            self.moving_power = p;
         }
         let speed = max_speed(v);
         if speed * h > 10.0 * self.size {
@@ -790,7 +833,7 @@ impl<M: MechModel> MechSimulation<M> {
             self.saved.0.copy_from_slice(self.state.x.as_slice());
             self.saved.1.copy_from_slice(self.state.v.as_slice());
             self.saved_contacts.clone_from(&self.contacts);
-            let saved_work = (self.external_work, self.power);
+            let saved_work = (self.external_work, self.power, self.moving_power);
             // The strain change is measured after the contact response too: moving
             // vertices out of an obstacle can stretch the model as much as the step.
             let why = match self.integrate(h).and_then(|info| {
@@ -823,7 +866,7 @@ impl<M: MechModel> MechSimulation<M> {
             };
             self.t = end - remaining;
             self.contacts.clone_from(&self.saved_contacts);
-            (self.external_work, self.power) = saved_work;
+            (self.external_work, self.power, self.moving_power) = saved_work;
             // Undo and halve.
             self.state.x.as_mut_slice().copy_from_slice(&self.saved.0);
             self.state.v.as_mut_slice().copy_from_slice(&self.saved.1);
@@ -974,7 +1017,7 @@ impl<M: MechModel> Simulation for MechSimulation<M> {
     }
 
     fn takes_moving_obstacles(&self) -> bool {
-        self.model.contact_friction().is_some()
+        self.model.contact_friction().is_some() || self.model.penalty().is_some()
     }
 
     fn set_moving_obstacles(&mut self, obstacles: &[MovingObstacle]) {
