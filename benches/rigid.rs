@@ -7,6 +7,8 @@
 //!   peer's on the same bodies (rapier3d 0.36.1 in `benches/peers/rapier-pile`, run here
 //!   when built; it reads the bodies from `target/criterion/rigid-pile.bin`), with the
 //!   solver settings of each.
+//! - The whole run again with sleeping on (`RigidDesc::sleep`, Box2D's thresholds),
+//!   beside the peer's run with sleeping on.
 //! - Machine fraction: the solver's floating-point work counted from the contacts (each
 //!   contact point's three rows cost 24 multiply-adds a visit, two visits a sub-step, four
 //!   sub-steps) over one thread's share of the peak FMA rate measured in the same run.
@@ -113,6 +115,20 @@ fn main() {
         )
     });
 
+    // The same run with sleeping on, beside the peer's sleeping on.
+    let sleeping = {
+        let mut d = m.desc().clone();
+        d.sleep = Some(largestep::rigid::sleep::Sleep::default());
+        let (m, mut s, mut w) = d.build().expect("builds");
+        let mut times = Vec::new();
+        for _ in 0..360 {
+            let t = Instant::now();
+            m.step(&mut s, &mut w, dt).expect("step");
+            times.push(t.elapsed().as_secs_f64() * 1e3);
+        }
+        (mean(&times), s.asleep.iter().filter(|&&a| a).count())
+    };
+
     let limits = largestep::machine::measure(64);
     let per_thread = limits.peak_gflops() / limits.threads as f64;
     let d = m.desc();
@@ -131,16 +147,27 @@ fn main() {
         .map_or("not built".to_string(), |p| {
             format!("{p:.3} ms ({:.2}x ours)", p / ms)
         });
+    let ratio_sleeping = peer
+        .as_ref()
+        .and_then(|l| l.iter().find(|l| l.contains("sleeping on")).cloned())
+        .as_deref()
+        .and_then(peer_ms)
+        .map_or("not built".to_string(), |p| {
+            format!("{p:.3} ms ({:.2}x ours)", p / sleeping.0)
+        });
     let summary = format!(
         "## Pile of 1,000 boxes (`scenes/rigid-pile.toml`), dt = 1/60 s, 1 thread\n\n\
 | | largestep | peer: rapier3d 0.36.1 (sleeping off) |\n|---|---|---|\n\
 | mean step over the 360 steps | {ms:.3} ms (first 120: {:.3}, last 120: {:.3}) | {ratio} |\n\
+| the same with sleeping on (peer: sleeping on) | {:.3} ms, {} of 1,000 boxes asleep at the end | {ratio_sleeping} |\n\
 | solver | {} sub-steps of sequential impulses, soft contacts (30 Hz, damping ratio 20), relax, friction 0.5 | 4 iterations, soft contacts (rapier's defaults), friction 0.5 |\n\n\
 {:.0} contact points a step on average, deepest {deepest:.4} m; at the end the lowest centre is at {lowest:.3} m and the fastest box moves {fastest:.3} m/s.\n\n\
 Machine: {:.1} GFLOP/s of solver work, {:.1}% of one thread's peak FMA rate ({per_thread:.1} GFLOP/s).\n\n\
 Peer output:\n\n```\n{}\n```\n",
         mean(&times[..120]),
         mean(&times[240..]),
+        sleeping.0,
+        sleeping.1,
         d.iterations,
         contacts as f64 / 360.0,
         flops / (ms * 1e-3) / 1e9,

@@ -730,6 +730,8 @@ mod scenes {
             ("[[rigid.body]]\nshape = { sphere = 1.0 }\nposition = [nan, 0.0, 0.0]\n", "finite"),
             ("[[rigid.array]]\nshape = { sphere = 1.0 }\ncount = [100000, 100000, 1000]\nspacing = [1.0, 1.0, 1.0]\n", "memory budget"),
             ("[[rigid.particle]]\nposition = [0.0, 0.0, 0.0]\n[[rigid.constraint]]\ntype = \"anchor\"\na = 2\npoint = [0.0, 1.0, 0.0]\n", "particle 2 does not exist"),
+            ("[rigid]\nsleeping = true\n[[rigid.particle]]\nposition = [0.0, 0.0, 0.0]\n", "sleeping applies to rigid bodies"),
+            ("[rigid]\nsleeping = 3\n[[rigid.body]]\nshape = { sphere = 1.0 }\n", "sleeping"),
         ] {
             let text = format!("{base}{body}");
             let e = Scene::parse(&text, "bad.toml").unwrap_err();
@@ -743,6 +745,18 @@ mod scenes {
             .into_simulation()
             .unwrap();
         assert!(sim.warnings().iter().any(|w| w.contains("normalised")));
+        // `sleeping = true` gives the bodies Box2D's sleep thresholds.
+        let text =
+            format!("{base}[rigid]\nsleeping = true\n[[rigid.body]]\nshape = {{ sphere = 1.0 }}\n");
+        let sim = Scene::parse(&text, "ok.toml")
+            .unwrap()
+            .into_simulation()
+            .unwrap();
+        let rigid: &largestep::rigid::scene::RigidSim = sim.downcast_ref().unwrap();
+        assert_eq!(
+            rigid.model().desc().sleep,
+            Some(largestep::rigid::sleep::Sleep::default())
+        );
     }
 }
 
@@ -1262,4 +1276,75 @@ mod jello_coupling {
         );
         std::fs::remove_dir_all(&out).ok();
     }
+}
+
+/// Sleeping: a stack at rest falls asleep as one island and then stays exactly where it
+/// is; a ball dropped on it wakes the whole stack (not only the box it hits), which then
+/// moves, and everything falls asleep again once it has settled. Without sleeping nothing
+/// ever sleeps.
+#[test]
+fn a_resting_stack_sleeps_and_a_ball_dropped_on_it_wakes_it() {
+    use largestep::rigid::sleep::Sleep;
+    let mut d = stack(3, RigidSolver::SequentialImpulses);
+    // A ball falling from 14 m onto the top box's corner, arriving after about 1.6 s.
+    d.bodies.push(BodyDesc::new(
+        Shape::Sphere { radius: 0.3 },
+        [0.3, 14.0, 0.2],
+    ));
+    d.sleep = Some(Sleep::default());
+    let (m, mut s, mut w) = d.build().unwrap();
+    let dt = 1.0 / 60.0;
+    let stack_bodies = [1, 2, 3];
+    let mut asleep_at = None;
+    let mut frozen = None;
+    let mut woke_at = None;
+    let mut moved_after_waking = 0.0f64;
+    for step in 0..600 {
+        m.step(&mut s, &mut w, dt).unwrap();
+        let all_asleep = stack_bodies.iter().all(|&i| s.asleep[i]);
+        if all_asleep && asleep_at.is_none() {
+            asleep_at = Some(step);
+            frozen = Some(stack_bodies.map(|i| (s.x[i], s.q[i])));
+        }
+        if all_asleep && woke_at.is_none() {
+            // Asleep: not one bit moves, and the ball is still falling.
+            assert_eq!(Some(stack_bodies.map(|i| (s.x[i], s.q[i]))), frozen);
+            assert!(!s.asleep[4]);
+        }
+        if asleep_at.is_some() && woke_at.is_none() && !all_asleep {
+            // The ball hit: every box of the island woke with the one it touched.
+            assert!(stack_bodies.iter().all(|&i| !s.asleep[i]), "{:?}", s.asleep);
+            woke_at = Some(step);
+        }
+        if let (Some(f), Some(_)) = (frozen, woke_at) {
+            for (k, &i) in stack_bodies.iter().enumerate() {
+                let dx = largestep::kernels::v3::sub(s.x[i], f[k].0);
+                moved_after_waking =
+                    moved_after_waking.max(largestep::kernels::v3::dot(dx, dx).sqrt());
+            }
+        }
+    }
+    let (asleep_at, woke_at) = (
+        asleep_at.expect("the stack fell asleep"),
+        woke_at.expect("the ball woke it"),
+    );
+    eprintln!(
+        "sleeping stack: asleep after {:.2} s, woken at {:.2} s, moved up to {moved_after_waking:.4} m, asleep at the end: {:?}",
+        (asleep_at + 1) as f64 * dt,
+        (woke_at + 1) as f64 * dt,
+        s.asleep
+    );
+    assert!(asleep_at < woke_at && (woke_at as f64) * dt > 1.2);
+    // The impact moved the stack.
+    assert!(moved_after_waking > 1e-4, "{moved_after_waking}");
+    // Ten seconds later, all at rest and asleep again.
+    assert!(s.asleep[1..].iter().all(|&a| a), "{:?}", s.asleep);
+    assert!(!s.asleep[0], "the static ground is never asleep");
+    // Without sleeping, the same run never sleeps.
+    d.sleep = None;
+    let (m, mut s, mut w) = d.build().unwrap();
+    for _ in 0..600 {
+        m.step(&mut s, &mut w, dt).unwrap();
+    }
+    assert!(s.asleep.iter().all(|&a| !a));
 }

@@ -174,6 +174,11 @@ pub(crate) fn collide(
         if !m.is_dynamic(i) && !m.is_dynamic(j) {
             continue;
         }
+        // Two asleep bodies, or one asleep against one that does not move, stay as
+        // they are.
+        if !super::sleep::moves(m, s, i) && !super::sleep::moves(m, s, j) {
+            continue;
+        }
         if m.jointed.binary_search(&(a, b)).is_ok() {
             continue;
         }

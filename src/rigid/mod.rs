@@ -48,6 +48,7 @@
 mod contact;
 pub mod mass;
 pub mod scene;
+pub mod sleep;
 mod solver;
 pub mod witkin;
 
@@ -324,6 +325,9 @@ pub struct RigidDesc {
     /// inside one another, or shapes far larger than their spacing) is refused before
     /// the narrow phase allocates for them.
     pub max_pairs: usize,
+    /// Bodies at rest fall asleep and leave the step until touched ([`sleep`]); none
+    /// sleep when `None`.
+    pub sleep: Option<sleep::Sleep>,
 }
 
 impl Default for RigidDesc {
@@ -340,6 +344,7 @@ impl Default for RigidDesc {
             correction: Correction::Soft,
             beta: None,
             max_pairs: 1 << 20,
+            sleep: None,
         }
     }
 }
@@ -454,6 +459,13 @@ pub struct RigidState {
     pub time: f64,
     /// Steps taken.
     pub steps: u64,
+    /// Whether each body is asleep (see [`sleep`]; always false without
+    /// [`RigidDesc::sleep`]).
+    pub asleep: Vec<bool>,
+    /// How long each awake dynamic body has moved slower than the sleep thresholds (s).
+    pub rest: Vec<f64>,
+    /// The island each asleep body fell asleep with (they wake together).
+    pub island: Vec<u64>,
 }
 
 /// Scratch for stepping, kept between steps (contact impulses for warm starting).
@@ -466,6 +478,7 @@ pub struct RigidWork {
     pub(crate) previous: Vec<ContactPoint>,
     pub(crate) solver: solver::SolverWork,
     pub(crate) hulls: Vec<Vec<[f64; 3]>>,
+    pub(crate) sleep: sleep::SleepWork,
 }
 
 impl RigidWork {
@@ -683,6 +696,9 @@ impl RigidDesc {
             };
             s.v.push(v);
             s.w.push(w);
+            s.asleep.push(false);
+            s.rest.push(0.0);
+            s.island.push(0);
             // Shape origin in body frame: Rpᵀ (0 - c); shape rotation in body frame: Rpᵀ.
             m.frame_origin.push(to_body([0.0; 3]));
             m.frame_rot.push(quat::conj(q_principal));
@@ -1063,10 +1079,16 @@ impl Rigid {
         w: &mut RigidWork,
         dt: f64,
     ) -> Result<RigidStepInfo, RigidError> {
-        let info = contact::collide(self, s, w, dt)?;
+        let mut info = contact::collide(self, s, w, dt)?;
+        if self.desc.sleep.is_some() && sleep::wake_touched(self, s, &w.contacts) {
+            // The woken islands' own contacts were left out while they slept.
+            std::mem::swap(&mut w.contacts, &mut w.previous);
+            info = contact::collide(self, s, w, dt)?;
+        }
         solver::step(self, s, w, dt);
         s.time += dt;
         s.steps += 1;
+        sleep::settle(self, s, &w.contacts, &mut w.sleep, dt);
         for i in 0..self.len() {
             let what = if !s.x[i].iter().all(|v| v.is_finite()) {
                 "position"

@@ -16,6 +16,7 @@
 //! correction = "soft"           # or "split", "baumgarte"
 //! stiffness = 1e6               # penalty only (N/m per point; default from the masses)
 //! damping = 1e3                 # penalty only (N s/m)
+//! sleeping = false              # bodies at rest sleep until touched (Box2D's thresholds)
 //!
 //! [[rigid.body]]
 //! shape = { box = [0.5, 0.5, 0.5] }  # half extents; or { sphere = r },
@@ -58,6 +59,7 @@
 //! anchor_b = [0.0, 2.0, 0.0]
 //! ```
 
+use super::sleep::Sleep;
 use super::witkin::{Constraint, Witkin, WitkinError, WitkinIntegrator, WitkinState, WitkinWork};
 use super::{
     BodyDesc, Correction, JointDesc, JointKind, Motion, Rigid, RigidDesc, RigidError,
@@ -94,6 +96,8 @@ pub struct RigidTable {
     pub stiffness: Option<f64>,
     #[serde(default)]
     pub damping: Option<f64>,
+    #[serde(default)]
+    pub sleeping: Option<bool>,
     #[serde(default)]
     pub body: Vec<BodyTable>,
     #[serde(default)]
@@ -616,6 +620,7 @@ pub fn desc(ctx: &Context<'_>, t: &RigidTable) -> Result<(RigidDesc, Vec<String>
             beta: None,
             // About 2 kB a pair (contacts and solver rows): what the memory budget holds.
             max_pairs: ((ctx.limits.max_memory / 2048) as usize).max(1024),
+            sleep: t.sleeping.unwrap_or(false).then(Sleep::default),
         },
         warnings,
     ))
@@ -662,6 +667,7 @@ fn witkin(ctx: &Context<'_>, t: &RigidTable) -> Result<WitkinSim, SceneError> {
         "restitution",
         "friction",
         "iterations",
+        "sleeping",
     ] {
         let given = match k {
             "solver" => t.solver.is_some(),
@@ -670,6 +676,7 @@ fn witkin(ctx: &Context<'_>, t: &RigidTable) -> Result<WitkinSim, SceneError> {
             "damping" => t.damping.is_some(),
             "restitution" => t.restitution.is_some(),
             "friction" => t.friction.is_some(),
+            "sleeping" => t.sleeping.is_some(),
             _ => t.iterations.is_some(),
         };
         if given {

@@ -299,11 +299,16 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
     let h = dt / substeps as f64;
     let sw = &mut w.solver;
     sw.bodies.clear();
+    // Asleep bodies meet the solver as static ones.
     sw.bodies.extend((0..n).map(|i| SolverBody {
         v: s.v[i],
         w: s.w[i],
-        inv_mass: m.inv_mass[i],
-        inv_inertia: m.inv_inertia_world(i, s.q[i]),
+        inv_mass: if s.asleep[i] { 0.0 } else { m.inv_mass[i] },
+        inv_inertia: if s.asleep[i] {
+            [[0.0; 3]; 3]
+        } else {
+            m.inv_inertia_world(i, s.q[i])
+        },
     }));
     sw.x0.clone_from(&s.x);
     sw.r0.clear();
@@ -398,7 +403,9 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
     for sub_step in 0..substeps {
         // Velocities: gravity and the gyroscopic term.
         for (i, b) in sw.bodies.iter_mut().enumerate() {
-            m.advance_velocity(i, s.q[i], &mut b.v, &mut b.w, h);
+            if !s.asleep[i] {
+                m.advance_velocity(i, s.q[i], &mut b.v, &mut b.w, h);
+            }
         }
         // Joint rows at the present pose.
         sw.joints.clear();
@@ -472,6 +479,9 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
         }
         // Positions.
         for i in 0..n {
+            if s.asleep[i] {
+                continue;
+            }
             let b = &mut sw.bodies[i];
             s.v[i] = b.v;
             s.w[i] = b.w;
