@@ -895,10 +895,14 @@ impl<M: MechModel> MechSimulation<M> {
                 Some(m) => kinetic_energy_matrix(m, self.state.v.as_slice()),
                 None => kinetic_energy(self.model.mass(), self.state.v.as_slice()),
             },
+            // With the springs of the moving obstacles, whose work `external_work` counts.
             potential: self
                 .model
                 .potential_energy(self.t, self.state.x.as_slice())
-                .unwrap_or(0.0),
+                .unwrap_or(0.0)
+                + self.model.penalty().map_or(0.0, |p| {
+                    p.moving_energy(&self.moving, self.state.x.as_slice())
+                }),
             external_work: self.external_work,
         }
     }
