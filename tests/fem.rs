@@ -2568,54 +2568,63 @@ fn library_settings_for_elasticity_use_smoothed_aggregation() {
 #[test]
 fn a_tilted_body_at_rest_steps_without_a_solver_error() {
     let mesh = box_mesh([6, 2, 2], [0.6, 0.1, 0.1], [0.0, 0.0, 0.0]);
-    // A rotation by 0.7 rad about (1, 2, 3) / |(1, 2, 3)| (Rodrigues).
+    // Rotations about (1, 2, 3) / |(1, 2, 3)| (Rodrigues).
     let k = [1.0, 2.0, 3.0].map(|c: f64| c / 14f64.sqrt());
-    let (s, c) = 0.7f64.sin_cos();
-    let rot = |p: [f64; 3]| -> [f64; 3] {
-        let kxp = [
-            k[1] * p[2] - k[2] * p[1],
-            k[2] * p[0] - k[0] * p[2],
-            k[0] * p[1] - k[1] * p[0],
-        ];
-        let kp = k[0] * p[0] + k[1] * p[1] + k[2] * p[2];
-        std::array::from_fn(|i| p[i] * c + kxp[i] * s + k[i] * kp * (1.0 - c))
-    };
-    let positions: Vec<[f64; 3]> = mesh.positions.iter().map(|&p| rot(p)).collect();
-    for (model, young) in [
-        (Material::Corotational, 1e6),
-        (Material::StableNeoHookean, 2e11),
-    ] {
-        let mut d = FemDesc::new(
-            positions.clone(),
-            mesh.tets.clone(),
-            FemMaterial {
-                model,
-                young,
-                poisson: 0.3,
-                density: 1000.0,
-            },
-        );
-        d.pinned = (0..positions.len())
-            .filter(|&i| mesh.positions[i][0] < 1e-9)
-            .collect();
-        let (fem, state) = d.build().unwrap();
-        let mut sim =
-            MechSimulation::new(fem, state, MechSettings::new(Method::BackwardEuler)).unwrap();
-        sim.set_step_control(None);
-        for step in 0..5 {
-            if let Err(e) = sim.step(1.0 / 60.0) {
-                panic!("{model:?}, E = {young:e}: step {step}: {e}");
+    let mut failed = Vec::new();
+    for angle in [0.1f64, 0.2, 0.3, 0.45, 0.7, 0.9, 1.1, 1.3, 1.7, 2.3] {
+        let (s, c) = angle.sin_cos();
+        let rot = |p: [f64; 3]| -> [f64; 3] {
+            let kxp = [
+                k[1] * p[2] - k[2] * p[1],
+                k[2] * p[0] - k[0] * p[2],
+                k[0] * p[1] - k[1] * p[0],
+            ];
+            let kp = k[0] * p[0] + k[1] * p[1] + k[2] * p[2];
+            std::array::from_fn(|i| p[i] * c + kxp[i] * s + k[i] * kp * (1.0 - c))
+        };
+        let positions: Vec<[f64; 3]> = mesh.positions.iter().map(|&p| rot(p)).collect();
+        for (model, young) in [
+            (Material::Corotational, 1e6),
+            (Material::StableNeoHookean, 2e11),
+            (Material::NeoHookean, 1e7),
+            (Material::StVenantKirchhoff, 1e5),
+        ] {
+            let mut d = FemDesc::new(
+                positions.clone(),
+                mesh.tets.clone(),
+                FemMaterial {
+                    model,
+                    young,
+                    poisson: 0.3,
+                    density: 1000.0,
+                },
+            );
+            d.pinned = (0..positions.len())
+                .filter(|&i| mesh.positions[i][0] < 1e-9)
+                .collect();
+            let (fem, state) = d.build().unwrap();
+            let mut sim =
+                MechSimulation::new(fem, state, MechSettings::new(Method::BackwardEuler)).unwrap();
+            sim.set_step_control(None);
+            for step in 0..5 {
+                if let Err(e) = sim.step(1.0 / 60.0) {
+                    failed.push(format!(
+                        "{angle} rad, {model:?}, E = {young:e}: step {step}: {e}"
+                    ));
+                    break;
+                }
             }
-        }
-        let n = positions.len();
-        let x = sim.state().x.as_slice();
-        for (i, p) in positions.iter().enumerate() {
-            for c in 0..3 {
-                assert!(
-                    (x[c * n + i] - p[c]).abs() < 1e-12,
-                    "{model:?}: vertex {i} moved"
-                );
+            let n = positions.len();
+            let x = sim.state().x.as_slice();
+            for (i, p) in positions.iter().enumerate() {
+                for c in 0..3 {
+                    assert!(
+                        (x[c * n + i] - p[c]).abs() < 1e-12,
+                        "{model:?}: vertex {i} moved"
+                    );
+                }
             }
         }
     }
+    assert!(failed.is_empty(), "{failed:#?}");
 }
