@@ -1080,7 +1080,7 @@ impl Rigid {
         dt: f64,
     ) -> Result<RigidStepInfo, RigidError> {
         let mut info = contact::collide(self, s, w, dt)?;
-        if self.desc.sleep.is_some() && sleep::wake_touched(self, s, &w.contacts) {
+        if self.desc.sleep.is_some() && sleep::wake_touched(self, s, &w.contacts, &mut w.sleep) {
             // The woken islands' own contacts were left out while they slept.
             std::mem::swap(&mut w.contacts, &mut w.previous);
             info = contact::collide(self, s, w, dt)?;

@@ -51,38 +51,47 @@ pub(crate) fn moves(m: &Rigid, s: &RigidState, i: usize) -> bool {
 }
 
 /// Wakes the island of every asleep body that a moving body touches; returns whether any
-/// woke (the contacts must then be found again).
-pub(crate) fn wake_touched(m: &Rigid, s: &mut RigidState, contacts: &[ContactPoint]) -> bool {
-    let mut woke = false;
+/// woke (the contacts must then be found again). One pass over the bodies wakes every
+/// touched island at once, whatever their number.
+pub(crate) fn wake_touched(
+    m: &Rigid,
+    s: &mut RigidState,
+    contacts: &[ContactPoint],
+    work: &mut SleepWork,
+) -> bool {
+    let tags = &mut work.wake;
+    tags.clear();
     for c in contacts {
         let (a, b) = (c.a as usize, c.b as usize);
         for (sleeper, other) in [(a, b), (b, a)] {
             if s.asleep[sleeper] && moves(m, s, other) {
-                wake_island(s, s.island[sleeper]);
-                woke = true;
+                tags.push(s.island[sleeper]);
             }
         }
     }
-    woke
-}
-
-/// Wakes every body of island `tag`.
-fn wake_island(s: &mut RigidState, tag: u64) {
+    if tags.is_empty() {
+        return false;
+    }
+    tags.sort_unstable();
+    tags.dedup();
     for i in 0..s.asleep.len() {
-        if s.asleep[i] && s.island[i] == tag {
+        if s.asleep[i] && tags.binary_search(&s.island[i]).is_ok() {
             s.asleep[i] = false;
             s.rest[i] = 0.0;
         }
     }
+    true
 }
 
-/// Scratch of [`settle`], kept between steps.
+/// Scratch of [`wake_touched`] and [`settle`], kept between steps.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct SleepWork {
     /// Union-find parents.
     parent: Vec<u32>,
     /// Each island's shortest rest time, at its root.
     shortest: Vec<f64>,
+    /// The islands to wake.
+    wake: Vec<u64>,
 }
 
 /// After a step of `dt`: rest times, then the islands that have all rested long enough
@@ -106,7 +115,9 @@ pub(crate) fn settle(
             s.rest[i] = if slow { s.rest[i] + dt } else { 0.0 };
         }
     }
-    let SleepWork { parent, shortest } = work;
+    let SleepWork {
+        parent, shortest, ..
+    } = work;
     parent.clear();
     parent.extend(0..n as u32);
     let join = |parent: &mut Vec<u32>, a: usize, b: usize| {
