@@ -310,17 +310,25 @@ fn kernels(
             f[12 * e..12 * e + 12].copy_from_slice(fe.as_flattened());
         }
     };
+    // Elements e..e + 4 as the model calls them.
+    let call_x4 = |e: usize, f: &mut [f64; 48], k: &mut [f64; 360]| {
+        element_x4(
+            f,
+            Some(k),
+            &four(e, xs),
+            &four(e, |e| fem.dm_inv(e)),
+            four(e, |e| fem.volumes()[e]),
+            &four(e, lame),
+            &iso,
+        );
+    };
     let (mut f4, mut k4) = (vec![0.0; 12 * ne], vec![0.0; 90 * ne]);
     let mut x4 = || {
         for e in (0..ne).step_by(4) {
-            element_x4(
+            call_x4(
+                e,
                 (&mut f4[12 * e..12 * e + 48]).try_into().unwrap(),
-                Some((&mut k4[90 * e..90 * e + 360]).try_into().unwrap()),
-                &four(e, xs),
-                &four(e, |e| fem.dm_inv(e)),
-                four(e, |e| fem.volumes()[e]),
-                &four(e, lame),
-                &iso,
+                (&mut k4[90 * e..90 * e + 360]).try_into().unwrap(),
             );
         }
     };
@@ -331,15 +339,7 @@ fn kernels(
     let mut sink = 0.0;
     let mut x4_cached = || {
         for e in (0..ne).step_by(4) {
-            element_x4(
-                &mut fc,
-                Some(&mut kc),
-                &four(e, xs),
-                &four(e, |e| fem.dm_inv(e)),
-                four(e, |e| fem.volumes()[e]),
-                &four(e, lame),
-                &iso,
-            );
+            call_x4(e, &mut fc, &mut kc);
             sink += kc[e % 360];
         }
     };

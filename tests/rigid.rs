@@ -986,6 +986,28 @@ fn a_kinematic_paddle_pushes_a_box() {
     assert_eq!(s.x[0], [0.0, -0.5, 0.0]);
 }
 
+/// Runs `scenes/<name>` for `frames` frames with the frames kept: the runner, its
+/// summary and the output folder (for the caller to remove).
+#[cfg(any(feature = "cloth", feature = "mass-spring"))]
+fn run_kept(
+    name: &str,
+    frames: usize,
+) -> (
+    largestep::scene::Runner,
+    largestep::scene::Summary,
+    std::path::PathBuf,
+) {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("scenes")
+        .join(name);
+    let scene = largestep::scene::Scene::load(&path).unwrap();
+    let out = std::env::temp_dir().join(format!("largestep-{name}-{}", std::process::id()));
+    let mut runner = largestep::scene::Runner::new(scene, &out);
+    runner.keep_frames(true);
+    let summary = runner.run(Some(frames), &mut |_| {}).unwrap();
+    (runner, summary, out)
+}
+
 /// One-way coupling: rigid bodies as moving obstacles of the cloth.
 #[cfg(feature = "cloth")]
 mod coupling {
@@ -994,12 +1016,7 @@ mod coupling {
 
     #[test]
     fn a_rising_box_lifts_the_cloth_and_no_vertex_enters_it() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/rigid-cloth.toml");
-        let scene = Scene::load(&path).unwrap();
-        let out = std::env::temp_dir().join(format!("largestep-coupling-{}", std::process::id()));
-        let mut runner = Runner::new(scene, &out);
-        runner.keep_frames(true);
-        runner.run(Some(40), &mut |_| {}).unwrap();
+        let (runner, _, out) = super::run_kept("rigid-cloth.toml", 40);
         let cloth = 30 * 30;
         let mut deepest = 0.0f64;
         let mut top = f64::NEG_INFINITY;
@@ -1187,14 +1204,8 @@ mod jello_coupling {
 
     #[test]
     fn a_spinning_paddle_knocks_the_jello_away_through_its_collision_springs() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/rigid-jello.toml");
-        let scene = Scene::load(&path).unwrap();
-        let out =
-            std::env::temp_dir().join(format!("largestep-jello-paddle-{}", std::process::id()));
-        let mut runner = Runner::new(scene, &out);
-        runner.keep_frames(true);
         // 2 s: the paddle reaches the cube after about a quarter turn (1 s).
-        let summary = runner.run(Some(100), &mut |_| {}).unwrap();
+        let (runner, summary, out) = super::run_kept("rigid-jello.toml", 100);
         let frames = runner.kept_frames();
         // The cube's particles: x >= 0.25 at the start (the paddle's corners are at
         // |x| = 0.04).

@@ -583,30 +583,33 @@ pub fn element_x4(
         Some(k) => {
             let mut kl = [f64x4::ZERO; 90];
             let e = element(&mut fl, Some(&mut kl), &xl, &dl, f64x4::new(vol), ll, iso);
-            // Lane l's 90 values, four at a time through 4x4 transposes.
-            for (i0, quad) in kl.chunks_exact(4).enumerate() {
-                let t = f64x4::transpose([quad[0], quad[1], quad[2], quad[3]]);
-                for (l, tl) in t.iter().enumerate() {
-                    k[90 * l + 4 * i0..90 * l + 4 * i0 + 4].copy_from_slice(&tl.to_array());
-                }
-            }
-            for i in 88..90 {
-                let v = kl[i].to_array();
-                for l in 0..4 {
-                    k[90 * l + i] = v[l];
-                }
-            }
+            scatter_lanes::<90>(&kl, k);
             e
         }
         None => element(&mut fl, None, &xl, &dl, f64x4::new(vol), ll, iso),
     };
-    for (q, quad) in fl.as_flattened().chunks_exact(4).enumerate() {
+    scatter_lanes::<12>(fl.as_flattened(), f);
+    e.to_array()
+}
+
+/// Lane l of every value into `out[S l..S (l + 1)]`, in order (`values.len() == S`; four
+/// elements' outputs, element-major): four values at a time through 4x4 transposes, the
+/// rest one by one.
+#[inline(always)]
+fn scatter_lanes<const S: usize>(values: &[f64x4], out: &mut [f64]) {
+    debug_assert_eq!(values.len(), S);
+    let whole = S / 4 * 4;
+    for (q, quad) in values[..whole].chunks_exact(4).enumerate() {
         let t = f64x4::transpose([quad[0], quad[1], quad[2], quad[3]]);
         for (l, tl) in t.iter().enumerate() {
-            f[12 * l + 4 * q..12 * l + 4 * q + 4].copy_from_slice(&tl.to_array());
+            out[S * l + 4 * q..S * l + 4 * q + 4].copy_from_slice(&tl.to_array());
         }
     }
-    e.to_array()
+    for (i, v) in values.iter().enumerate().skip(whole) {
+        for (l, x) in v.to_array().into_iter().enumerate() {
+            out[S * l + i] = x;
+        }
+    }
 }
 
 /// The material of `iso` at one deformation gradient F, through the singular-value frame

@@ -58,6 +58,17 @@ pub fn gather_nodes<const K: usize>(v: &[f64], n: usize, el: &[u32; K]) -> [[f64
     out
 }
 
+/// The root of `i`'s set in a union-find forest (`parent[r] == r` at each root),
+/// halving the path on the way (Tarjan and van Leeuwen 1984): cloth zones, rigid islands.
+#[inline]
+pub fn find_root(parent: &mut [u32], mut i: u32) -> u32 {
+    while parent[i as usize] != i {
+        parent[i as usize] = parent[parent[i as usize] as usize];
+        i = parent[i as usize];
+    }
+    i
+}
+
 /// `[g(t), g(t + 1), g(t + 2), g(t + 3)]`: the inputs of four consecutive elements, for
 /// the kernels that take four elements per call (SIMD over elements). Written out:
 /// `[t, ..].map(g)` stayed an out-of-line call (`try_map`) whose result was copied, about

@@ -586,13 +586,7 @@ impl SelfCollision {
     /// Merges the vertices of every pair the last pass found colliding into zones and
     /// moves each zone rigidly.
     fn rigid_zones(&mut self, n: usize, h: f64, inv_mass: &[f64]) {
-        fn find(p: &mut [u32], mut i: u32) -> u32 {
-            while p[i as usize] != i {
-                p[i as usize] = p[p[i as usize] as usize];
-                i = p[i as usize];
-            }
-            i
-        }
+        use largestep_kernels::find_root as find;
         if self.hits.is_empty() {
             return;
         }

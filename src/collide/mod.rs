@@ -29,7 +29,7 @@ pub use cloth_self::{crossed_triangle_pairs, SelfApproach, SelfCollision, SelfSt
 pub use contacts::{VertexContacts, CONTACT_THICKNESS};
 pub use edges::edge_through_triangle;
 pub use inside::{cells_inside, row_crossings, winding_numbers};
-pub use penalty::Penalty;
+pub use penalty::{Against, Penalty};
 pub use sdf::{check_closed, SdfGrid, EXACT_BAND};
 
 use crate::io::Mesh;

@@ -19,7 +19,7 @@ pub mod world;
 
 pub use generators::{chain, grid, lattice, GridOptions, LatticeOptions};
 
-use crate::collide::{Obstacle, Penalty};
+use crate::collide::{Against, Obstacle, Penalty};
 use crate::integrate::{IntegrateError, MechState};
 use crate::loads::{Body, ForceField, Gravity, Loads};
 use crate::simulation::{MechModel, Stage, StepControl};
@@ -490,14 +490,17 @@ impl MechModel for MassSpring {
             self.gather.gather_vectors_add(&work.elem_f, f);
         }
         if let Some(p) = &self.penalty {
-            p.add_forces(x, v, f);
+            p.add_forces(Against::Own, x, v, f);
         }
     }
 
     fn potential_energy(&self, _t: f64, x: &[f64]) -> Option<f64> {
         // The force field is left out: a sampled field need not have a potential.
         let loads = self.loads.potential(&self.body(), x);
-        let penalty = self.penalty.as_ref().map_or(0.0, |p| p.energy(x));
+        let penalty = self
+            .penalty
+            .as_ref()
+            .map_or(0.0, |p| p.energy(Against::Own, x));
         Some(loads + ks::springs_energy(x, self.springs.view()) + penalty)
     }
 
@@ -507,7 +510,11 @@ impl MechModel for MassSpring {
         } else {
             0.0
         };
-        springs + self.penalty.as_ref().map_or(0.0, |p| p.dissipation(x, v))
+        springs
+            + self
+                .penalty
+                .as_ref()
+                .map_or(0.0, |p| p.dissipation(Against::Own, x, v))
     }
 
     fn prepare_jacobians(
@@ -567,8 +574,8 @@ impl MechModel for MassSpring {
         }
         if let Some(p) = &self.penalty {
             // The loads' gradients are left out of the Jacobian: they are external.
-            p.add_forces(x, v, f);
-            p.add_jacobians(x, dfdx, dfdv);
+            p.add_forces(Against::Own, x, v, f);
+            p.add_jacobians(Against::Own, x, dfdx, dfdv);
         }
         Ok(())
     }

@@ -15,6 +15,7 @@
 //! with it: they were one island, since they touched when it fell asleep.
 
 use super::{ContactPoint, Rigid, RigidState};
+use largestep_kernels::find_root;
 use largestep_kernels::v3::dot;
 
 /// When bodies fall asleep (`RigidDesc::sleep`).
@@ -121,7 +122,7 @@ pub(crate) fn settle(
     parent.clear();
     parent.extend(0..n as u32);
     let join = |parent: &mut Vec<u32>, a: usize, b: usize| {
-        let (ra, rb) = (root(parent, a), root(parent, b));
+        let (ra, rb) = (find_root(parent, a as u32), find_root(parent, b as u32));
         // The smaller index is the root: islands come out the same whatever the order.
         let (lo, hi) = (ra.min(rb), ra.max(rb));
         parent[hi as usize] = lo;
@@ -145,14 +146,14 @@ pub(crate) fn settle(
     shortest.clear();
     shortest.resize(n, f64::INFINITY);
     for i in (0..n).filter(|&i| awake(s, i)) {
-        let r = root(parent, i) as usize;
+        let r = find_root(parent, i as u32) as usize;
         shortest[r] = shortest[r].min(s.rest[i]);
     }
     for i in 0..n {
         if !awake(s, i) {
             continue;
         }
-        let r = root(parent, i);
+        let r = find_root(parent, i as u32);
         if shortest[r as usize] >= sleep.time {
             s.asleep[i] = true;
             // The step and the root: a new island never shares a tag with an older one
@@ -162,14 +163,4 @@ pub(crate) fn settle(
             s.w[i] = [0.0; 3];
         }
     }
-}
-
-/// The root of i's set, halving the path on the way.
-fn root(parent: &mut [u32], mut i: usize) -> u32 {
-    while parent[i] as usize != i {
-        let up = parent[parent[i] as usize];
-        parent[i] = up;
-        i = up as usize;
-    }
-    i as u32
 }

@@ -22,7 +22,8 @@
 
 use super::{Energy, FrameData, Simulation, Stage};
 use crate::collide::{
-    max_penetration, MovingObstacle, Obstacle, Penalty, SelfCollision, SelfStats, VertexContacts,
+    max_penetration, Against, MovingObstacle, Obstacle, Penalty, SelfCollision, SelfStats,
+    VertexContacts,
 };
 use crate::integrate::{
     kinetic_energy, kinetic_energy_matrix, IntegrateError, MechSettings, MechState, MechStepper,
@@ -250,11 +251,12 @@ struct Bound<'a, M: MechModel> {
     moving: &'a [MovingObstacle],
 }
 
-impl<M: MechModel> Bound<'_, M> {
-    /// The model's penalty law, when moving obstacles are there to meet with it.
-    fn moving_penalty(&self) -> Option<&Penalty> {
-        self.model.penalty().filter(|_| !self.moving.is_empty())
-    }
+/// The model's penalty law, when moving obstacles are there to meet with it.
+fn moving_penalty<'a, M: MechModel>(
+    model: &'a M,
+    moving: &[MovingObstacle],
+) -> Option<&'a Penalty> {
+    model.penalty().filter(|_| !moving.is_empty())
 }
 
 impl<M: MechModel> Mechanical for Bound<'_, M> {
@@ -281,21 +283,19 @@ impl<M: MechModel> Mechanical for Bound<'_, M> {
     }
     fn force(&mut self, t: f64, x: &[f64], v: &[f64], f: &mut [f64]) {
         self.model.force(self.work, t, x, v, f);
-        if let Some(p) = self.moving_penalty() {
-            p.add_moving_forces(self.moving, x, v, f);
+        if let Some(p) = moving_penalty(self.model, self.moving) {
+            p.add_forces(Against::Moving(self.moving), x, v, f);
         }
         self.contacts.record_pull(f);
     }
     fn potential_energy(&self, t: f64, x: &[f64]) -> Option<f64> {
-        let moving = self
-            .moving_penalty()
-            .map_or(0.0, |p| p.moving_energy(self.moving, x));
+        let moving = moving_penalty(self.model, self.moving)
+            .map_or(0.0, |p| p.energy(Against::Moving(self.moving), x));
         Some(self.model.potential_energy(t, x)? + moving)
     }
     fn dissipation(&self, x: &[f64], v: &[f64]) -> f64 {
-        let moving = self
-            .moving_penalty()
-            .map_or(0.0, |p| p.moving_dissipation(self.moving, x, v));
+        let moving = moving_penalty(self.model, self.moving)
+            .map_or(0.0, |p| p.dissipation(Against::Moving(self.moving), x, v));
         self.model.dissipation(x, v) + moving
     }
     fn prepare_jacobians(&mut self) -> Result<Option<Arc<Bsr3Pattern>>, SparseError> {
@@ -316,9 +316,10 @@ impl<M: MechModel> Mechanical for Bound<'_, M> {
         let mut dfdv = dfdv;
         self.model
             .force_jacobians(self.work, t, x, v, f, dfdx, dfdv.as_deref_mut())?;
-        if let Some(p) = self.moving_penalty() {
-            p.add_moving_forces(self.moving, x, v, f);
-            p.add_moving_jacobians(self.moving, x, dfdx, dfdv);
+        if let Some(p) = moving_penalty(self.model, self.moving) {
+            let against = Against::Moving(self.moving);
+            p.add_forces(against, x, v, f);
+            p.add_jacobians(against, x, dfdx, dfdv);
         }
         self.contacts.record_pull(f);
         Ok(())
@@ -362,7 +363,7 @@ pub struct MechSimulation<M: MechModel> {
     external_work: f64,
     power: f64,
     /// The moving obstacles' power through collision springs at the end of the last step
-    /// (W; see [`Penalty::moving_power`]), counted in `external_work`.
+    /// (W; see [`Penalty::power`]), counted in `external_work`.
     moving_power: f64,
     /// The model's initial size (m): the diagonal of its vertices' bounding box, at least
     /// 1 m. A vertex moving ten times that in one step is a blow-up.
@@ -685,8 +686,8 @@ impl<M: MechModel> MechSimulation<M> {
         }
         // Moving obstacles met by collision springs work on the model through them (the
         // trapezoidal rule over the step, the obstacles held at their end-of-step poses).
-        if let Some(pen) = self.model.penalty().filter(|_| !self.moving.is_empty()) {
-            let p = pen.moving_power(&self.moving, x, v);
+        if let Some(pen) = moving_penalty(&*self.model, &self.moving) {
+            let p = pen.power(Against::Moving(&self.moving), x, v);
             self.external_work += 0.5 * h * (self.moving_power + p);
             self.moving_power = p;
         }
@@ -900,8 +901,8 @@ impl<M: MechModel> MechSimulation<M> {
                 .model
                 .potential_energy(self.t, self.state.x.as_slice())
                 .unwrap_or(0.0)
-                + self.model.penalty().map_or(0.0, |p| {
-                    p.moving_energy(&self.moving, self.state.x.as_slice())
+                + moving_penalty(&*self.model, &self.moving).map_or(0.0, |p| {
+                    p.energy(Against::Moving(&self.moving), self.state.x.as_slice())
                 }),
             external_work: self.external_work,
         }
