@@ -9,6 +9,7 @@ use super::RenderError;
 use crate::io::Image;
 use crate::simulation::{GridField, GridRef};
 use largestep_kernels::volume::{self as kv, Transfer, View, Volume};
+use rayon::prelude::*;
 
 /// Cells per side of an empty-space skipping block.
 pub const BLOCK: usize = 8;
@@ -59,6 +60,7 @@ pub struct VolumeRenderer {
     light: Vec<f32>,
     solid: Vec<f32>,
     blocks: Vec<f32>,
+    clearance: Vec<u8>,
     solid_blocks: Vec<f32>,
     slab: Vec<f32>,
 }
@@ -91,12 +93,27 @@ impl VolumeRenderer {
             return Ok(());
         }
         let n = g.cells;
-        self.density.clear();
-        self.density.extend(rho.iter().map(|&x| x as f32));
+        // Converted in parallel, a row of cells at a time.
+        self.density.resize(cells, 0.0);
+        self.density
+            .par_chunks_mut(n[0])
+            .zip(rho.par_chunks(n[0]))
+            .for_each(|(out, row)| {
+                for (o, &x) in out.iter_mut().zip(row) {
+                    *o = x as f32;
+                }
+            });
         self.solid.clear();
         if let Some(sol) = g.solid {
+            self.solid.resize(cells, 0.0);
             self.solid
-                .extend(sol.iter().map(|&b| f32::from(u8::from(b))));
+                .par_chunks_mut(n[0])
+                .zip(sol.par_chunks(n[0]))
+                .for_each(|(out, row)| {
+                    for (o, &b) in out.iter_mut().zip(row) {
+                        *o = f32::from(u8::from(b));
+                    }
+                });
         }
         let nb = n.map(|c| c.div_ceil(BLOCK));
         self.blocks.resize(nb.iter().product(), 0.0);
@@ -154,9 +171,18 @@ impl VolumeRenderer {
             background: [[0.08, 0.09, 0.11], [0.22, 0.26, 0.32]],
             table: Vec::new(),
             table_max: 1.0,
+            table_scale: 1.0,
             clear_until: 0.0,
         };
         view.tabulate();
+        self.clearance.resize(self.blocks.len(), 0);
+        kv::clearance(
+            &mut self.clearance,
+            &self.blocks,
+            &self.solid_blocks,
+            nb,
+            &view,
+        );
         let vol = Volume {
             n,
             density: &self.density,
@@ -164,7 +190,7 @@ impl VolumeRenderer {
             solid: &self.solid,
             block: BLOCK,
             blocks: nb,
-            block_max: &self.blocks,
+            clearance: &self.clearance,
             block_solid: &self.solid_blocks,
         };
         if image.width != s.width || image.height != s.height {
