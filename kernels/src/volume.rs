@@ -571,7 +571,10 @@ fn march(vol: &Volume<'_>, view: &View, o: [f32; 3], d: [f32; 3], bg: [f32; 3]) 
     let mut q: [usize; 3] =
         std::array::from_fn(|a| ((((o[a] + mid * d[a]) / blk).max(0.0)) as usize).min(nb[a] - 1));
     let mut m = 0f32;
-    loop {
+    // Each move crosses at least one block face ahead, so an exact walk ends within
+    // nb[0] + nb[1] + nb[2] moves; the bound is twice that, so that rounding at a cube's
+    // edge can never keep a ray going.
+    for _ in 0..2 * (nb[0] + nb[1] + nb[2]) {
         let bi = q[0] + nb[0] * (q[1] + nb[1] * q[2]);
         let clear = vol.clearance[bi];
         // The clear cube around q (just q when it is to be sampled), within the grid.
