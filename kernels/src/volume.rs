@@ -809,13 +809,13 @@ mod tests {
         let mut clear = vec![0u8; 1000];
         clearance(&mut clear, &blocks, &[], nb, &view);
         let at = |b: usize| [b % 10, (b / 10) % 10, b / 100];
-        for b in 0..1000 {
+        for (b, &got) in clear.iter().enumerate() {
             let want = (0..1000)
                 .filter(|&o| !view.clear_below(blocks[o]))
                 .map(|o| (0..3).map(|a| at(b)[a].abs_diff(at(o)[a])).max().unwrap())
                 .min()
                 .unwrap();
-            assert_eq!(usize::from(clear[b]), want, "block {b}");
+            assert_eq!(usize::from(got), want, "block {b}");
         }
         assert!(clear.iter().any(|&c| c >= 3), "some far blocks");
     }
