@@ -11,8 +11,9 @@
 //!   them.
 //! - `fluid/smoke-step/128`: one step of 3-D smoke at 128^3 cells (the smoke scene's
 //!   buoyancy, vorticity confinement and MacCormack advection, from a state 10 steps in).
-//! - `fluid/volume-render/1280x720/128`: one 1280 x 720 volume rendering of that smoke's
-//!   128^3 density (with its light sweep and skipping blocks).
+//! - `fluid/volume-render/1280x720/128`: one 1280 x 720 volume rendering of a 128^3
+//!   plume of Gaussian puffs with a ball beside it (the f32 copies, the light sweep, the
+//!   skipping blocks and their clearance included).
 //!
 //! Run with `cargo bench --bench fluid` (`-- poisson` for one part); the summary is
 //! printed and written to `target/criterion/fluid-summary.md`.
