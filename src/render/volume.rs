@@ -93,27 +93,10 @@ impl VolumeRenderer {
             return Ok(());
         }
         let n = g.cells;
-        // Converted in parallel, a row of cells at a time.
-        self.density.resize(cells, 0.0);
-        self.density
-            .par_chunks_mut(n[0])
-            .zip(rho.par_chunks(n[0]))
-            .for_each(|(out, row)| {
-                for (o, &x) in out.iter_mut().zip(row) {
-                    *o = x as f32;
-                }
-            });
+        to_f32(&mut self.density, rho, n[0], |&x| x as f32);
         self.solid.clear();
         if let Some(sol) = g.solid {
-            self.solid.resize(cells, 0.0);
-            self.solid
-                .par_chunks_mut(n[0])
-                .zip(sol.par_chunks(n[0]))
-                .for_each(|(out, row)| {
-                    for (o, &b) in out.iter_mut().zip(row) {
-                        *o = f32::from(u8::from(b));
-                    }
-                });
+            to_f32(&mut self.solid, sol, n[0], |&b| f32::from(u8::from(b)));
         }
         let nb = n.map(|c| c.div_ceil(BLOCK));
         self.blocks.resize(nb.iter().product(), 0.0);
@@ -199,6 +182,18 @@ impl VolumeRenderer {
         kv::render(&mut image.rgb, &vol, &view);
         Ok(())
     }
+}
+
+/// `out` = `f` of each of `src`, converted in parallel a row of `row` values at a time.
+fn to_f32<T: Sync>(out: &mut Vec<f32>, src: &[T], row: usize, f: impl Fn(&T) -> f32 + Sync) {
+    out.resize(src.len(), 0.0);
+    out.par_chunks_mut(row.max(1))
+        .zip(src.par_chunks(row.max(1)))
+        .for_each(|(o, r)| {
+            for (o, x) in o.iter_mut().zip(r) {
+                *o = f(x);
+            }
+        });
 }
 
 /// Which slice picture.
