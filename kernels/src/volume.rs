@@ -354,9 +354,17 @@ pub fn light_transmittance(
     let mut prev: Option<usize> = None;
     for step in 0..n[a] {
         let ia = if la > 0.0 { n[a] - 1 - step } else { step };
+        let next = (b == 0 && step + 1 < n[a]).then(|| if la > 0.0 { ia - 1 } else { ia + 1 });
         {
             let out = &*out;
             slab.par_chunks_mut(n[b]).enumerate().for_each(|(ic, row)| {
+                if let Some(next) = next {
+                    // This row's density and light in the next slab, towards L2: with
+                    // rows along x, a slab is n[c] short rows far apart, too many
+                    // streams for the hardware prefetcher.
+                    prefetch(&density[cell(next, 0, ic)..][..n[b]]);
+                    prefetch(&out[cell(next, 0, ic)..][..n[b]]);
+                }
                 let Some(pa) = prev else {
                     row.fill(1.0);
                     return;
@@ -387,6 +395,24 @@ pub fn light_transmittance(
         }
         prev = Some(ia);
     }
+}
+
+/// Asks for the cache lines of `v` to be brought into L2 (a hint: nothing on other
+/// targets).
+#[inline(always)]
+fn prefetch(v: &[f32]) {
+    #[cfg(target_arch = "x86_64")]
+    for line in v.chunks(16) {
+        // SAFETY: a prefetch is a hint; it reads no memory architecturally and the
+        // address is that of a live slice element.
+        unsafe {
+            core::arch::x86_64::_mm_prefetch::<{ core::arch::x86_64::_MM_HINT_T1 }>(
+                line.as_ptr().cast(),
+            );
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = v;
 }
 
 /// The fraction `exp(-sigma(d) path)` of light passing `path` cells of density `d`,
