@@ -59,6 +59,18 @@ impl Transfer {
         let last = p[p.len() - 1];
         (last.1, last.2)
     }
+
+    /// The [`TABLE_BINS`] bins over which it is tabulated, evenly from density 0 to its
+    /// last point's (the last bin covers every density beyond): bins per unit density,
+    /// and each bin's colour and extinction.
+    pub fn bins(&self) -> (f32, impl Iterator<Item = ([f32; 3], f32)> + '_) {
+        let top = self.points[self.points.len() - 1].0.max(1e-6);
+        let scale = (TABLE_BINS - 1) as f32 / top;
+        (
+            scale,
+            (0..TABLE_BINS).map(move |i| self.at(i as f32 / scale)),
+        )
+    }
 }
 
 /// A density grid with its acceleration and lighting grids.
@@ -114,11 +126,9 @@ pub struct View {
     pub background: [[f32; 3]; 2],
     /// The transfer function tabulated for the step ([`View::tabulate`]): per density
     /// bin, colour times light colour times opacity, and the opacity
-    /// `1 - exp(-sigma step)`; the last entry covers every density beyond `table_max`.
+    /// `1 - exp(-sigma step)`, over [`Transfer::bins`].
     pub table: Vec<[f32; 4]>,
-    /// Density of the table's last bin.
-    pub table_max: f32,
-    /// Bins per unit density, `(TABLE_BINS - 1) / table_max`.
+    /// Bins per unit density ([`Transfer::bins`]).
     pub table_scale: f32,
     /// The least density with extinction: densities below it are clear.
     pub clear_until: f32,
@@ -131,13 +141,10 @@ impl View {
     /// Tabulates the transfer function for the step and light colour (call after setting
     /// them): a table lookup and no `exp` per sample.
     pub fn tabulate(&mut self) {
-        let p = &self.transfer.points;
-        self.table_max = p[p.len() - 1].0.max(1e-6);
-        self.table_scale = (TABLE_BINS - 1) as f32 / self.table_max;
-        self.table = (0..TABLE_BINS)
-            .map(|i| {
-                let d = self.table_max * i as f32 / (TABLE_BINS - 1) as f32;
-                let (c, sigma) = self.transfer.at(d);
+        let (scale, bins) = self.transfer.bins();
+        self.table_scale = scale;
+        self.table = bins
+            .map(|(c, sigma)| {
                 let a = 1.0 - (-sigma.max(0.0) * self.step).exp();
                 [
                     a * c[0] * self.light_colour[0],
@@ -147,6 +154,7 @@ impl View {
                 ]
             })
             .collect();
+        let p = &self.transfer.points;
         // The clear range: up to the first point with extinction (0 when the first has).
         self.clear_until = if p[0].2 > 0.0 {
             f32::NEG_INFINITY
@@ -267,9 +275,11 @@ pub fn block_max(out: &mut [f32], density: &[f32], n: [usize; 3], block: usize) 
 /// without a sample.
 ///
 /// The distance is separable, `min_q max_a |p_a - q_a|` taken one axis at a time
-/// (`max` is associative), so three passes along the lines of each axis.
+/// (`max` is associative), so three passes along the lines of each axis; `line` is
+/// scratch of at least the longest side's blocks.
 pub fn clearance(
     out: &mut [u8],
+    line: &mut [u8],
     block_max: &[f32],
     block_solid: &[f32],
     blocks: [usize; 3],
@@ -290,15 +300,20 @@ pub fn clearance(
             !view.clear_below(block_max[b]) || (!block_solid.is_empty() && block_solid[b] > 0.0);
         *o = if sampled { 0 } else { u8::MAX };
     }
+    assert!(
+        line.len() >= nb.iter().copied().max().unwrap_or(0),
+        "scratch of one line of blocks"
+    );
     let stride = [1, nb[0], nb[0] * nb[1]];
-    let mut line = Vec::with_capacity(nb.iter().copied().max().unwrap_or(0));
     for a in 0..3 {
+        let line = &mut line[..nb[a]];
         let (b, c) = ((a + 1) % 3, (a + 2) % 3);
         for ib in 0..nb[b] {
             for ic in 0..nb[c] {
                 let first = ib * stride[b] + ic * stride[c];
-                line.clear();
-                line.extend((0..nb[a]).map(|i| out[first + i * stride[a]]));
+                for (i, v) in line.iter_mut().enumerate() {
+                    *v = out[first + i * stride[a]];
+                }
                 for i in 0..nb[a] {
                     let best = line
                         .iter()
@@ -418,24 +433,18 @@ fn prefetch(v: &[f32]) {
 /// The fraction `exp(-sigma(d) path)` of light passing `path` cells of density `d`,
 /// tabulated over the transfer function's densities and interpolated linearly.
 struct Pass {
-    table: Vec<f32>,
+    table: [f32; TABLE_BINS],
     scale: f32,
 }
 
 impl Pass {
     fn new(transfer: &Transfer, path: f32) -> Pass {
-        let p = &transfer.points;
-        let top = p[p.len() - 1].0.max(1e-6);
-        let table = (0..TABLE_BINS)
-            .map(|i| {
-                let d = top * i as f32 / (TABLE_BINS - 1) as f32;
-                (-transfer.at(d).1.max(0.0) * path).exp()
-            })
-            .collect();
-        Pass {
-            table,
-            scale: (TABLE_BINS - 1) as f32 / top,
+        let (scale, bins) = transfer.bins();
+        let mut table = [0f32; TABLE_BINS];
+        for (t, (_, sigma)) in table.iter_mut().zip(bins) {
+            *t = (-sigma.max(0.0) * path).exp();
         }
+        Pass { table, scale }
     }
 
     #[inline(always)]
@@ -799,7 +808,6 @@ mod tests {
             solid_colour: [0.5; 3],
             background: [[0.1; 3], [0.3; 3]],
             table: Vec::new(),
-            table_max: 1.0,
             table_scale: 1.0,
             clear_until: 0.0,
         };
@@ -833,7 +841,7 @@ mod tests {
         block_max(&mut blocks, &density, n, 4);
         let view = smoke_view([20.0, 20.0, 90.0], [20.0, 20.0, 20.0]);
         let mut clear = vec![0u8; 1000];
-        clearance(&mut clear, &blocks, &[], nb, &view);
+        clearance(&mut clear, &mut [0; 10], &blocks, &[], nb, &view);
         let at = |b: usize| [b % 10, (b / 10) % 10, b / 100];
         for (b, &got) in clear.iter().enumerate() {
             let want = (0..1000)
@@ -878,7 +886,7 @@ mod tests {
                 rgb
             };
             let mut clear = vec![0u8; 1000];
-            clearance(&mut clear, &blocks, &[], nb, &view);
+            clearance(&mut clear, &mut [0; 10], &blocks, &[], nb, &view);
             let skipped = image(&clear);
             let full = image(&[0; 1000]);
             assert_eq!(skipped, full, "eye {eye:?}");

@@ -61,6 +61,8 @@ pub struct VolumeRenderer {
     solid: Vec<f32>,
     blocks: Vec<f32>,
     clearance: Vec<u8>,
+    /// Scratch of the clearance: one line of blocks.
+    line: Vec<u8>,
     solid_blocks: Vec<f32>,
     slab: Vec<f32>,
 }
@@ -153,14 +155,15 @@ impl VolumeRenderer {
             solid_colour: [0.55, 0.45, 0.35],
             background: [[0.08, 0.09, 0.11], [0.22, 0.26, 0.32]],
             table: Vec::new(),
-            table_max: 1.0,
             table_scale: 1.0,
             clear_until: 0.0,
         };
         view.tabulate();
         self.clearance.resize(self.blocks.len(), 0);
+        self.line.resize(nb.iter().copied().max().unwrap_or(0), 0);
         kv::clearance(
             &mut self.clearance,
+            &mut self.line,
             &self.blocks,
             &self.solid_blocks,
             nb,
