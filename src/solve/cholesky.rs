@@ -1,8 +1,9 @@
 //! Sparse Cholesky (LL^T) of Bsr3 matrices through faer, with no allocation after setup.
 //!
 //! Built once per pattern: the lower-triangular CSC copy and its value map
-//! ([`FaerCsc`]), faer's symbolic factorization with an AMD fill-reducing ordering
-//! (`factorize_symbolic_cholesky`), the factor's value buffer (`len_val`) and one scratch
+//! ([`FaerCsc`]), faer's symbolic factorization in a fill-reducing order of the vertex
+//! graph (`factorize_symbolic_cholesky`; [`FillOrdering`], by default the better of
+//! minimum degree and nested dissection), the factor's value buffer (`len_val`) and one scratch
 //! buffer sized for both factorization and solve. Each [`SparseCholesky::factorize`] then
 //! refills the CSC values and runs `factorize_numeric_llt` into the owned buffers;
 //! [`SparseCholesky::solve_in_place`] runs the two triangular solves in the owned scratch.
@@ -13,9 +14,11 @@
 //! on the 36,663-unknown bar: 0.49 s on two threads against 0.45 s on one.)
 
 use super::{SolveError, SolveInfo};
+use crate::sparse::order::{dof_permutation, FillOrdering};
 use crate::sparse::{Bsr3, Bsr3Pattern, FaerCsc, Triangle};
 use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
 use faer::linalg::cholesky::llt::factor::LltError as DenseLltError;
+use faer::perm::PermRef;
 use faer::sparse::linalg::cholesky::{
     factorize_symbolic_cholesky, CholeskySymbolicParams, LltRef, SymbolicCholesky,
     SymbolicCholeskyRaw, SymmetricOrdering,
@@ -62,10 +65,19 @@ impl std::fmt::Debug for SparseCholesky {
 }
 
 impl SparseCholesky {
-    /// Symbolic analysis of `pattern` (AMD ordering); allocates every buffer used later.
+    /// Symbolic analysis of `pattern` in the default fill-reducing order
+    /// ([`FillOrdering::Auto`]); allocates every buffer used later.
     pub fn new(pattern: &Bsr3Pattern) -> Result<Self, SolveError> {
+        Self::with_ordering(pattern, FillOrdering::default())
+    }
+
+    /// Symbolic analysis of `pattern` with the fill-reducing ordering `ordering`.
+    pub fn with_ordering(
+        pattern: &Bsr3Pattern,
+        ordering: FillOrdering,
+    ) -> Result<Self, SolveError> {
         let csc = FaerCsc::new(pattern, Triangle::Lower);
-        let core = CholeskyCore::new(csc.symbolic())?;
+        let core = CholeskyCore::for_pattern(csc.symbolic(), pattern, ordering)?;
         Ok(Self { csc, core })
     }
 
@@ -124,10 +136,34 @@ impl CholeskyCore {
     /// Symbolic analysis of the lower triangle `lower` (AMD ordering); allocates every
     /// buffer used later.
     pub(crate) fn new(lower: SymbolicSparseColMatRef<'_, usize>) -> Result<Self, SolveError> {
+        Self::with_ordering(lower, SymmetricOrdering::Amd)
+    }
+
+    /// Symbolic analysis of `lower`, the lower triangle of a matrix over the block
+    /// pattern `pattern` (3 unknowns per vertex), in the order `ordering`.
+    pub(crate) fn for_pattern(
+        lower: SymbolicSparseColMatRef<'_, usize>,
+        pattern: &Bsr3Pattern,
+        ordering: FillOrdering,
+    ) -> Result<Self, SolveError> {
+        match ordering.vertex_order(pattern) {
+            None => Self::new(lower),
+            Some(order) => {
+                let (forward, inverse) = dof_permutation(&order);
+                let perm = PermRef::new_checked(&forward, &inverse, lower.nrows());
+                Self::with_ordering(lower, SymmetricOrdering::Custom(perm))
+            }
+        }
+    }
+
+    fn with_ordering(
+        lower: SymbolicSparseColMatRef<'_, usize>,
+        ordering: SymmetricOrdering<'_, usize>,
+    ) -> Result<Self, SolveError> {
         let symbolic = factorize_symbolic_cholesky(
             lower,
             Side::Lower,
-            SymmetricOrdering::Amd,
+            ordering,
             CholeskySymbolicParams::default(),
         )
         .map_err(|e| SolveError::Factorization(format!("{e:?}")))?;

@@ -45,6 +45,7 @@ use super::{
     dense::{inverse_spd3, positive},
     SolveError,
 };
+use crate::sparse::order::FillOrdering;
 use crate::sparse::{Bsr3, FaerCsc, Triangle};
 use faer::linalg::matmul::matmul;
 use faer::{Accum, Mat, MatMut, MatRef, Par, Side};
@@ -92,6 +93,8 @@ pub struct EigenParams {
     /// crossover between 108 unknowns (dense 1 ms, sparse 3 ms) and 351 (18 against
     /// 14 ms); the dense path's cost grows as the cube.
     pub dense_max: usize,
+    /// The sparse path's fill-reducing ordering of `K - sigma M`.
+    pub ordering: FillOrdering,
 }
 
 impl Default for EigenParams {
@@ -101,6 +104,7 @@ impl Default for EigenParams {
             tolerance: 1e-10,
             shift: None,
             dense_max: 200,
+            ordering: FillOrdering::default(),
         }
     }
 }
@@ -225,7 +229,7 @@ pub fn lowest_modes(
         dense(k, mass, &free, params.count)?
     } else {
         let sigma = params.shift.unwrap_or(-SHIFT * r);
-        let mut solver = ShiftInvert::new(k, mass, is_fixed.clone(), r)?;
+        let mut solver = ShiftInvert::new(k, mass, is_fixed.clone(), r, params.ordering)?;
         let mut modes = solver.run(sigma, params)?;
         if params.shift.is_none() {
             let rigid = modes
@@ -400,10 +404,16 @@ struct ShiftInvert<'a> {
 }
 
 impl<'a> ShiftInvert<'a> {
-    fn new(k: &'a Bsr3, mass: Mass<'a>, fixed: Vec<bool>, scale: f64) -> Result<Self, SolveError> {
+    fn new(
+        k: &'a Bsr3,
+        mass: Mass<'a>,
+        fixed: Vec<bool>,
+        scale: f64,
+        ordering: FillOrdering,
+    ) -> Result<Self, SolveError> {
         let csc = FaerCsc::new(k.pattern(), Triangle::Lower);
         // The block solves are the largest part of the time: split over two threads.
-        let core = CholeskyCore::new(csc.symbolic())?.parallel();
+        let core = CholeskyCore::for_pattern(csc.symbolic(), k.pattern(), ordering)?.parallel();
         Ok(Self {
             k,
             solve_seconds: 0.0,

@@ -10,6 +10,7 @@ mod assembly;
 mod bridge;
 pub mod examples;
 mod mm;
+pub mod order;
 
 pub(crate) use assembly::csr;
 pub use assembly::{ElementAssembly, LocalLayout, RankOneAssembly, Src, VectorGather};
