@@ -346,6 +346,10 @@ fn every_fill_ordering_solves_and_the_default_takes_the_better() {
         pairs_spd(60 + 21 + 3, &pairs),
         pairs_spd(1, &[]),
     ];
+    for ordering in [FillOrdering::NestedDissection, FillOrdering::Auto] {
+        let empty = Bsr3Pattern::diagonal(0);
+        assert!(ordering.vertex_order(&empty).unwrap().is_empty());
+    }
     for a in &matrices {
         let n = a.n();
         let order = nested_dissection(a.pattern());
