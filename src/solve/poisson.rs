@@ -149,19 +149,23 @@ impl Level {
         let inv_h2 = 1.0 / (h * h);
         let cells = kind.len();
         let per = periodic(&sides);
-        let mut diag = vec![0.0; cells];
-        for (idx, d) in diag.iter_mut().enumerate() {
-            if kind[idx] != CellKind::Fluid {
-                continue;
-            }
-            let mut count = open_faces(n, &sides, idx);
-            for_neighbours(n, per, idx, |j| {
-                if kind[j] != CellKind::Solid {
-                    count += 1;
+        // Each array below is one parallel pass over the cells (order-preserving, so the
+        // same on any thread count): the setup is 15% of a 128^3 solve.
+        let diag: Vec<f64> = (0..cells)
+            .into_par_iter()
+            .map(|idx| {
+                if kind[idx] != CellKind::Fluid {
+                    return 0.0;
                 }
-            });
-            *d = count as f64 * inv_h2;
-        }
+                let mut count = open_faces(n, &sides, idx);
+                for_neighbours(n, per, idx, |j| {
+                    if kind[j] != CellKind::Solid {
+                        count += 1;
+                    }
+                });
+                count as f64 * inv_h2
+            })
+            .collect();
         // The band: fluid cells with fewer fluid neighbours than a cell has (six in 3-D,
         // four in 2-D), dilated once.
         let full = 2 * n.iter().filter(|&&c| c > 1).count();
@@ -173,9 +177,11 @@ impl Level {
             fluid < full
         };
         let edge: Vec<bool> = (0..cells)
+            .into_par_iter()
             .map(|i| kind[i] == CellKind::Fluid && near(i))
             .collect();
         let band: Vec<usize> = (0..cells)
+            .into_par_iter()
             .filter(|&i| {
                 kind[i] == CellKind::Fluid && {
                     let mut any = edge[i];
@@ -186,10 +192,11 @@ impl Level {
             .collect();
         let band_r = vec![0.0; band.len()];
         let mask = kind
-            .iter()
+            .par_iter()
             .map(|&k| if k == CellKind::Fluid { 1.0 } else { 0.0 })
             .collect();
         let interior = (0..if coarse { cells } else { 0 })
+            .into_par_iter()
             .map(|idx| {
                 let c = [idx % n[0], (idx / n[0]) % n[1], idx / (n[0] * n[1])];
                 // An axis of one cell (2-D) has no neighbours to check along it. Only z
@@ -217,7 +224,7 @@ impl Level {
             })
             .collect();
         let inv_diag = diag
-            .iter()
+            .par_iter()
             .map(|&d| if d > 0.0 { OMEGA / d } else { 0.0 })
             .collect();
         Level {
@@ -637,19 +644,13 @@ impl GridPoisson {
             )));
         }
         let per = periodic(&sides);
-        let mut singular = true;
-        for (idx, &c) in kind.iter().enumerate() {
-            if c == CellKind::Fluid {
-                if open_faces(n, &sides, idx) > 0 {
-                    singular = false;
-                }
-                for_neighbours(n, per, idx, |j| {
-                    if kind[j] == CellKind::Empty {
-                        singular = false;
-                    }
-                });
+        let singular = !kind.par_iter().enumerate().any(|(idx, &c)| {
+            c == CellKind::Fluid && {
+                let mut open = open_faces(n, &sides, idx) > 0;
+                for_neighbours(n, per, idx, |j| open |= kind[j] == CellKind::Empty);
+                open
             }
-        }
+        });
         let mut levels = vec![Level::new(n, sides, h, kind, false)];
         let mut h = h;
         while levels.last().is_some_and(|l| l.kind.len() > COARSEST_CELLS) {
@@ -660,7 +661,7 @@ impl GridPoisson {
                 break;
             }
             let mut kind = vec![CellKind::Solid; nc[0] * nc[1] * nc[2]];
-            for (c, kc) in kind.iter_mut().enumerate() {
+            kind.par_iter_mut().enumerate().for_each(|(c, kc)| {
                 let (ci, cj, ck) = (c % nc[0], (c / nc[0]) % nc[1], c / (nc[0] * nc[1]));
                 let (mut any_fluid, mut any_empty) = (false, false);
                 for dz in 0..2 {
@@ -684,7 +685,7 @@ impl GridPoisson {
                 } else {
                     CellKind::Solid
                 };
-            }
+            });
             h *= 2.0;
             levels.push(Level::new(nc, sides, h, kind, true));
         }
