@@ -127,6 +127,10 @@ struct Level {
     /// past the last: found once, as finding them costs three integer divisions a cell
     /// (a tenth of a 128^3 solve when done in every band sweep).
     band_nb: Vec<[u32; 6]>,
+    /// Where each z-slab's cells start in `band` (`nz + 1` entries).
+    band_start: Vec<usize>,
+    /// `omega / (d_i / h^2)` of each band cell (0 for a fluid cell with no open face).
+    band_inv: Vec<f64>,
     /// Scratch for the band's sweeps.
     band_r: Vec<f64>,
     /// Fluid cells whose parent on the next level is not interior (the restriction's
@@ -216,6 +220,21 @@ impl Level {
             })
             .collect();
         let band_r = vec![0.0; band.len()];
+        let slab = n[0] * n[1];
+        let band_start = (0..=n[2])
+            .map(|k| band.partition_point(|&i| i < k * slab))
+            .collect();
+        let band_inv = band
+            .par_iter()
+            .map(|&i| {
+                let d = mask_diag(code[i], inv_h2).1;
+                if d > 0.0 {
+                    OMEGA / d
+                } else {
+                    0.0
+                }
+            })
+            .collect();
         let interior = (0..if coarse { cells } else { 0 })
             .into_par_iter()
             .map(|idx| {
@@ -254,6 +273,8 @@ impl Level {
             inv_h2,
             band,
             band_nb,
+            band_start,
+            band_inv,
             band_r,
             edge_cells: Vec::new(),
             edge_start: Vec::new(),
@@ -462,12 +483,14 @@ impl Level {
                         }
                     });
             }
-            for (r, &i) in br.iter().zip(&self.band) {
-                let d = self.diag(i);
-                if d > 0.0 {
-                    self.x[i] += OMEGA * r / d;
+            // The updates, parallel over z-slabs (the band is in cell order).
+            let slab = self.n[0] * self.n[1];
+            let (band, start, inv) = (&self.band, &self.band_start, &self.band_inv);
+            self.x.par_chunks_mut(slab).enumerate().for_each(|(k, xs)| {
+                for m in start[k]..start[k + 1] {
+                    xs[band[m] - k * slab] += inv[m] * br[m];
                 }
-            }
+            });
             self.band_r = br;
         }
     }
@@ -901,64 +924,62 @@ impl GridPoisson {
                     }
                 });
             let (xr, edges, edge_start) = (&f.xr, &f.edge_cells, &f.edge_start);
-            c.b.par_chunks_mut(cslab)
-                .enumerate()
-                .for_each(|(ck, bs)| {
-                    bs.fill(0.0);
-                    let base = ck * cslab;
-                    for k in (2 * ck).saturating_sub(1)..(2 * ck + 3).min(f.n[2]) {
-                        let wz = if flat {
-                            1.0
-                        } else if k / 2 == ck {
-                            0.75
-                        } else {
-                            0.25
-                        };
-                        for j in 0..fny {
-                            let (pj, jy) = (
-                                j / 2,
-                                if j % 2 == 0 {
-                                    (j / 2).wrapping_sub(1)
-                                } else {
-                                    j / 2 + 1
-                                },
-                            );
-                            // No interior parent in a row whose neighbour row is
-                            // missing: nothing to add.
-                            if jy >= cny {
-                                continue;
-                            }
-                            let t = &xr[(k * fny + j) * cnx..][..cnx];
-                            for (row, wy) in [(pj, 0.75), (jy, 0.25)] {
-                                let w = wz * wy;
-                                let b = &mut bs[row * cnx..(row + 1) * cnx];
-                                for (bb, tt) in b.iter_mut().zip(t) {
-                                    *bb += w * tt;
-                                }
-                            }
+            c.b.par_chunks_mut(cslab).enumerate().for_each(|(ck, bs)| {
+                bs.fill(0.0);
+                let base = ck * cslab;
+                for k in (2 * ck).saturating_sub(1)..(2 * ck + 3).min(f.n[2]) {
+                    let wz = if flat {
+                        1.0
+                    } else if k / 2 == ck {
+                        0.75
+                    } else {
+                        0.25
+                    };
+                    for j in 0..fny {
+                        let (pj, jy) = (
+                            j / 2,
+                            if j % 2 == 0 {
+                                (j / 2).wrapping_sub(1)
+                            } else {
+                                j / 2 + 1
+                            },
+                        );
+                        // No interior parent in a row whose neighbour row is
+                        // missing: nothing to add.
+                        if jy >= cny {
+                            continue;
                         }
-                        for &fidx in &edges[edge_start[k]..edge_start[k + 1]] {
-                            let fidx = fidx as usize;
-                            let rf = fr[fidx];
-                            if rf == 0.0 {
-                                continue;
-                            }
-                            let local = fidx - k * fslab;
-                            let (i, j) = (local % fnx, local / fnx);
-                            let (cells, w) = weights([i, j, k], cn, sides, ckind, cint);
-                            for (cc, wc) in cells.iter().zip(&w) {
-                                if (base..base + cslab).contains(cc) {
-                                    bs[cc - base] += wc * rf;
-                                }
+                        let t = &xr[(k * fny + j) * cnx..][..cnx];
+                        for (row, wy) in [(pj, 0.75), (jy, 0.25)] {
+                            let w = wz * wy;
+                            let b = &mut bs[row * cnx..(row + 1) * cnx];
+                            for (bb, tt) in b.iter_mut().zip(t) {
+                                *bb += w * tt;
                             }
                         }
                     }
-                    // Only fluid cells carry unknowns (a fluid child's empty parent got a
-                    // share that the coarse problem has no place for).
-                    for (b, &m) in bs.iter_mut().zip(&ccode[base..base + cslab]) {
-                        *b *= mask_diag(m, 1.0).0 * scale;
+                    for &fidx in &edges[edge_start[k]..edge_start[k + 1]] {
+                        let fidx = fidx as usize;
+                        let rf = fr[fidx];
+                        if rf == 0.0 {
+                            continue;
+                        }
+                        let local = fidx - k * fslab;
+                        let (i, j) = (local % fnx, local / fnx);
+                        let (cells, w) = weights([i, j, k], cn, sides, ckind, cint);
+                        for (cc, wc) in cells.iter().zip(&w) {
+                            if (base..base + cslab).contains(cc) {
+                                bs[cc - base] += wc * rf;
+                            }
+                        }
                     }
-                });
+                }
+                // Only fluid cells carry unknowns (a fluid child's empty parent got a
+                // share that the coarse problem has no place for).
+                for (b, &m) in bs.iter_mut().zip(&ccode[base..base + cslab]) {
+                    *b *= mask_diag(m, 1.0).0 * scale;
+                }
+            });
         }
         self.v_cycle(l + 1);
         {
