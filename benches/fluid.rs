@@ -89,11 +89,11 @@ fn poisson(c: &mut Criterion) -> String {
     }
     let cells_n = b.len() as f64;
     let ns = solve_best * 1e9 / (cells_n * its as f64);
-    // Bytes per cell-iteration, counted: CG's SpMV (x, y, diagonal, mask: 32), its three
-    // vector updates and two dots (about 80), the V-cycle's fine level (6 sweeps of 5
-    // arrays: 240, residual 40, restriction and prolongation 32) and the coarse levels
-    // (1/7 more): about 460 bytes.
-    let bytes = 460.0;
+    // Bytes per cell-iteration, counted: CG's SpMV (x and y, and the one-byte cell code:
+    // 17), its three vector updates and two dots (about 80), the V-cycle's fine level (6
+    // sweeps reading x, b and the code and writing x': 150; the residual 25; restriction
+    // and prolongation 32) and the coarse levels (1/7 more): about 350 bytes.
+    let bytes = 350.0;
     let rate = bytes * cells_n * its as f64 / solve_best / 1e9;
     format!(
         "## Poisson, 128^3 cells to 1e-6 (setup included)\n\n| | value |\n|---|---|\n| time, best of 3 | {best:.3} s (solve {solve_best:.3} s, {its} iterations) |\n| per cell-iteration | {ns:.1} ns, about {bytes:.0} bytes: {rate:.1} GB/s, {:.0}% of the triad bandwidth ({triad:.1} GB/s) |\n\n",
