@@ -54,17 +54,34 @@ pub fn nested_dissection(pattern: &Bsr3Pattern) -> Vec<u32> {
         let levels = g.bfs(start, s);
         let reached = g.queue.len();
         if reached < b - a {
-            // Not connected: this component first, the rest as its own task.
-            let comp = g.queue.clone();
-            let rest: Vec<u32> = order[a..b]
-                .iter()
-                .copied()
-                .filter(|&v| g.level[v as usize] == u32::MAX)
-                .collect();
-            order[a..a + reached].copy_from_slice(&comp);
-            order[a + reached..b].copy_from_slice(&rest);
-            tasks.push((a + reached, b));
-            tasks.push((a, a + reached));
+            // Not connected: every component found at once (peeling one per task would
+            // take quadratic time on many small ones), each its own task.
+            let (row_ptr, col) = (g.row_ptr, g.col);
+            let mut out = g.queue.clone();
+            let mut bounds = vec![a, a + reached];
+            let mut stack = Vec::new();
+            for k in a..b {
+                let v = order[k] as usize;
+                if g.level[v] != u32::MAX {
+                    continue;
+                }
+                g.level[v] = 0;
+                stack.push(v as u32);
+                while let Some(u) = stack.pop() {
+                    out.push(u);
+                    let u = u as usize;
+                    for &w in &col[row_ptr[u] as usize..row_ptr[u + 1] as usize] {
+                        let w = w as usize;
+                        if g.stamp[w] == s && g.level[w] == u32::MAX {
+                            g.level[w] = 0;
+                            stack.push(w as u32);
+                        }
+                    }
+                }
+                bounds.push(a + out.len());
+            }
+            order[a..b].copy_from_slice(&out);
+            tasks.extend(bounds.windows(2).map(|w| (w[0], w[1])));
             continue;
         }
         if b - a <= LEAF || levels < 3 {
