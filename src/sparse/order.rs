@@ -60,8 +60,8 @@ pub fn nested_dissection(pattern: &Bsr3Pattern) -> Vec<u32> {
             let mut out = g.queue.clone();
             let mut bounds = vec![a, a + reached];
             let mut stack = Vec::new();
-            for k in a..b {
-                let v = order[k] as usize;
+            for &v in &order[a..b] {
+                let v = v as usize;
                 if g.level[v] != u32::MAX {
                     continue;
                 }
