@@ -133,7 +133,7 @@ struct Level {
     band_inv: Vec<f64>,
     /// Scratch for the band's sweeps.
     band_r: Vec<f64>,
-    /// Fluid cells whose parent on the next level is not interior (the restriction's
+    /// Fluid cells whose parent on the next level is not interior (the transfers'
     /// boundary rule, `weights`), in order, with each z-slab's start (`nz + 1` entries);
     /// empty on the coarsest level. Set by `GridPoisson::with_sides`.
     edge_cells: Vec<u32>,
@@ -988,6 +988,7 @@ impl GridPoisson {
             let (fnx, fny) = (f.n[0], f.n[1]);
             let fslab = fnx * fny;
             let (cx, fkind, cn, ckind, cint) = (&c.x, &f.kind, c.n, &c.kind, &c.interior);
+            let (edges, edge_start) = (&f.edge_cells, &f.edge_start);
             let sides = &c.sides;
             let (cnx, cny) = (cn[0], cn[1]);
             let flat = cn[2] == 1;
@@ -1028,24 +1029,34 @@ impl GridPoisson {
                                 }
                             }
                         }
-                        for i in 0..fnx {
-                            let local = j * fnx + i;
-                            if fkind[k * fslab + local] != CellKind::Fluid {
-                                continue;
-                            }
-                            let ci = i / 2;
-                            if rows_ok && cint[ci + cnx * (pj + cny * pk)] {
-                                let cs = if i % 2 == 0 { ci - 1 } else { ci + 1 };
-                                xs[local] += 0.75 * r[ci] + 0.25 * r[cs];
-                                continue;
-                            }
-                            let (cells, w) = weights([i, j, k], cn, sides, ckind, cint);
-                            let mut v = 0.0;
-                            for (cc, wc) in cells.iter().zip(&w) {
-                                v += wc * cx[*cc];
-                            }
-                            xs[local] += v;
+                        if !rows_ok {
+                            continue;
                         }
+                        // Fine cells 2q and 2q + 1 of an interior parent q: its
+                        // neighbours q - 1 and q + 1 exist, and so does cell 2q + 1.
+                        let prow = &cint[cnx * (pj + cny * pk)..][..cnx];
+                        let base = k * fslab + j * fnx;
+                        let kinds = &fkind[base..base + fnx];
+                        let xrow = &mut xs[j * fnx..(j + 1) * fnx];
+                        for (q, _) in prow.iter().enumerate().filter(|(_, &inside)| inside) {
+                            if kinds[2 * q] == CellKind::Fluid {
+                                xrow[2 * q] += 0.75 * r[q] + 0.25 * r[q - 1];
+                            }
+                            if kinds[2 * q + 1] == CellKind::Fluid {
+                                xrow[2 * q + 1] += 0.75 * r[q] + 0.25 * r[q + 1];
+                            }
+                        }
+                    }
+                    // The fluid cells whose parent is not interior: the boundary rule.
+                    for &fidx in &edges[edge_start[k]..edge_start[k + 1]] {
+                        let local = fidx as usize - k * fslab;
+                        let (i, j) = (local % fnx, local / fnx);
+                        let (cells, w) = weights([i, j, k], cn, sides, ckind, cint);
+                        let mut v = 0.0;
+                        for (cc, wc) in cells.iter().zip(&w) {
+                            v += wc * cx[*cc];
+                        }
+                        xs[local] += v;
                     }
                 });
         }
