@@ -138,6 +138,10 @@ struct Level {
     /// empty on the coarsest level. Set by `GridPoisson::with_sides`.
     edge_cells: Vec<u32>,
     edge_start: Vec<usize>,
+    /// Each edge cell's eight coarse cells and weights (`weights`; the weights are
+    /// multiples of 1/64, exact in f32): found once, as finding them took most of the
+    /// restriction's time when done in every V-cycle.
+    edge_weights: Vec<([u32; 8], [f32; 8])>,
     /// Scratch of the restriction: each row of `r` restricted along x over the cells
     /// with an interior parent (`nz ny` rows of the next level's width).
     xr: Vec<f64>,
@@ -278,6 +282,7 @@ impl Level {
             band_r,
             edge_cells: Vec::new(),
             edge_start: Vec::new(),
+            edge_weights: Vec::new(),
             xr: Vec::new(),
             kind,
             x: vec![0.0; cells],
@@ -789,6 +794,17 @@ impl GridPoisson {
                 }))
                 .collect();
             f.edge_cells = per_slab.concat();
+            f.edge_weights = f
+                .edge_cells
+                .par_iter()
+                .map(|&idx| {
+                    let idx = idx as usize;
+                    let c3 = [idx % fnx, (idx / fnx) % fny, idx / slab];
+                    let (cells, w) = weights(c3, c.n, &c.sides, &c.kind, &c.interior);
+                    // Coarse indices fit in u32: the fine ones do.
+                    (cells.map(|q| q as u32), w.map(|v| v as f32))
+                })
+                .collect();
             f.xr = vec![0.0; f.n[2] * fny * cnx];
         }
         // Row scratch: a coarse level's restriction rows are its own width, one per own
@@ -895,8 +911,7 @@ impl GridPoisson {
             let cslab = cnx * cny;
             let (fnx, fny) = (f.n[0], f.n[1]);
             let fslab = fnx * fny;
-            let (ckind, cn, ccode, cint) = (&c.kind, c.n, &c.code, &c.interior);
-            let sides = &c.sides;
+            let (ccode, cint) = (&c.code, &c.interior);
             // R = P^T / (children per coarse cell): 8 in 3-D, 4 in 2-D.
             let scale = 1.0 / (1usize << f.n.iter().filter(|&&v| v > 1).count()) as f64;
             let flat = c.n[2] == 1;
@@ -924,6 +939,7 @@ impl GridPoisson {
                     }
                 });
             let (xr, edges, edge_start) = (&f.xr, &f.edge_cells, &f.edge_start);
+            let edge_weights = &f.edge_weights;
             c.b.par_chunks_mut(cslab).enumerate().for_each(|(ck, bs)| {
                 bs.fill(0.0);
                 let base = ck * cslab;
@@ -958,18 +974,17 @@ impl GridPoisson {
                             }
                         }
                     }
-                    for &fidx in &edges[edge_start[k]..edge_start[k + 1]] {
-                        let fidx = fidx as usize;
-                        let rf = fr[fidx];
+                    let range = edge_start[k]..edge_start[k + 1];
+                    for (&fidx, (cells, w)) in edges[range.clone()].iter().zip(&edge_weights[range])
+                    {
+                        let rf = fr[fidx as usize];
                         if rf == 0.0 {
                             continue;
                         }
-                        let local = fidx - k * fslab;
-                        let (i, j) = (local % fnx, local / fnx);
-                        let (cells, w) = weights([i, j, k], cn, sides, ckind, cint);
-                        for (cc, wc) in cells.iter().zip(&w) {
-                            if (base..base + cslab).contains(cc) {
-                                bs[cc - base] += wc * rf;
+                        for (&cc, &wc) in cells.iter().zip(w) {
+                            let cc = cc as usize;
+                            if (base..base + cslab).contains(&cc) {
+                                bs[cc - base] += f64::from(wc) * rf;
                             }
                         }
                     }
@@ -987,9 +1002,8 @@ impl GridPoisson {
             let (f, c) = (&mut fine[l], &coarse[0]);
             let (fnx, fny) = (f.n[0], f.n[1]);
             let fslab = fnx * fny;
-            let (cx, fkind, cn, ckind, cint) = (&c.x, &f.kind, c.n, &c.kind, &c.interior);
-            let (edges, edge_start) = (&f.edge_cells, &f.edge_start);
-            let sides = &c.sides;
+            let (cx, fkind, cn, cint) = (&c.x, &f.kind, c.n, &c.interior);
+            let (edges, edge_start, edge_weights) = (&f.edge_cells, &f.edge_start, &f.edge_weights);
             let (cnx, cny) = (cn[0], cn[1]);
             let flat = cn[2] == 1;
             let frow = f.rows.len() / f.n[2];
@@ -1048,15 +1062,14 @@ impl GridPoisson {
                         }
                     }
                     // The fluid cells whose parent is not interior: the boundary rule.
-                    for &fidx in &edges[edge_start[k]..edge_start[k + 1]] {
-                        let local = fidx as usize - k * fslab;
-                        let (i, j) = (local % fnx, local / fnx);
-                        let (cells, w) = weights([i, j, k], cn, sides, ckind, cint);
+                    let range = edge_start[k]..edge_start[k + 1];
+                    for (&fidx, (cells, w)) in edges[range.clone()].iter().zip(&edge_weights[range])
+                    {
                         let mut v = 0.0;
-                        for (cc, wc) in cells.iter().zip(&w) {
-                            v += wc * cx[*cc];
+                        for (&cc, &wc) in cells.iter().zip(w) {
+                            v += f64::from(wc) * cx[cc as usize];
                         }
-                        xs[local] += v;
+                        xs[fidx as usize - k * fslab] += v;
                     }
                 });
         }
