@@ -500,6 +500,26 @@ impl Level {
         }
     }
 
+    /// `sweeps` damped Jacobi sweeps on `A x = b` from `x = 0`: the first is
+    /// `x = omega D^-1 b` (A x vanishes), one pass over b with no stencil.
+    fn smooth_from_zero(&mut self, sweeps: usize) {
+        if sweeps == 0 {
+            self.x.fill(0.0);
+            return;
+        }
+        let inv_h2 = self.inv_h2;
+        self.x
+            .par_iter_mut()
+            .zip(self.b.par_iter())
+            .zip(self.code.par_iter())
+            .with_min_len(4096)
+            .for_each(|((x, b), &code)| {
+                let d = mask_diag(code, inv_h2).1;
+                *x = if d > 0.0 { OMEGA / d * b } else { 0.0 };
+            });
+        self.smooth(sweeps - 1);
+    }
+
     /// `sweeps` damped Jacobi sweeps on `A x = b` from the present x, each one pass:
     /// `x' = x + omega D^-1 (b - A x)` into the second buffer, then swapped.
     fn smooth(&mut self, sweeps: usize) {
@@ -888,12 +908,11 @@ impl GridPoisson {
 
     /// One V-cycle on level `l` for `A x = b` from `x = 0`.
     fn v_cycle(&mut self, l: usize) {
-        self.levels[l].x.fill(0.0);
         if l + 1 == self.levels.len() {
-            self.levels[l].smooth(COARSE_SWEEPS);
+            self.levels[l].smooth_from_zero(COARSE_SWEEPS);
             return;
         }
-        self.levels[l].smooth(SWEEPS);
+        self.levels[l].smooth_from_zero(SWEEPS);
         self.levels[l].smooth_band(BAND_SWEEPS);
         self.levels[l].residual();
         {
