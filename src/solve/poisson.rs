@@ -151,9 +151,8 @@ struct Level {
     r: Vec<f64>,
     /// The second buffer of the Jacobi sweeps.
     x2: Vec<f64>,
-    /// Scratch rows of the row-wise transfers: one coarse row per z-slab of this level
-    /// (its restriction's x-transposed rows as a coarse level, its prolongation's blended
-    /// coarse rows as a fine one).
+    /// Scratch of the prolongation: one row of the next level per z-slab of this one
+    /// (the coarse rows blended over y and z).
     rows: Vec<f64>,
 }
 
@@ -224,20 +223,10 @@ impl Level {
             })
             .collect();
         let band_r = vec![0.0; band.len()];
-        let slab = n[0] * n[1];
-        let band_start = (0..=n[2])
-            .map(|k| band.partition_point(|&i| i < k * slab))
-            .collect();
+        let band_start = slab_starts(&band, |i| i, n[0] * n[1], n[2]);
         let band_inv = band
             .par_iter()
-            .map(|&i| {
-                let d = mask_diag(code[i], inv_h2).1;
-                if d > 0.0 {
-                    OMEGA / d
-                } else {
-                    0.0
-                }
-            })
+            .map(|&i| smoother_weight(code[i], inv_h2))
             .collect();
         let interior = (0..if coarse { cells } else { 0 })
             .into_par_iter()
@@ -438,8 +427,7 @@ impl Level {
                     );
                     for (t, o) in row.iter_mut().enumerate() {
                         // Dead, and removed, where `f` does not read it (the residual).
-                        let d = mask_diag(code[t], self.inv_h2).1;
-                        let inv = if d > 0.0 { OMEGA / d } else { 0.0 };
+                        let inv = smoother_weight(code[t], self.inv_h2);
                         *o = f(*o, b[t], x[t], inv);
                     }
                 }
@@ -514,8 +502,7 @@ impl Level {
             .zip(self.code.par_iter())
             .with_min_len(4096)
             .for_each(|((x, b), &code)| {
-                let d = mask_diag(code, inv_h2).1;
-                *x = if d > 0.0 { OMEGA / d * b } else { 0.0 };
+                *x = smoother_weight(code, inv_h2) * b;
             });
         self.smooth(sweeps - 1);
     }
@@ -641,6 +628,31 @@ fn weights(
 fn mask_diag(code: u8, inv_h2: f64) -> (f64, f64) {
     let k = f64::from(code);
     (k.min(1.0), (k - 1.0).max(0.0) * inv_h2)
+}
+
+/// The damped Jacobi weight `omega / (d_i / h^2)` of a cell from its code, 0 where the
+/// diagonal is (off the fluid cells, and a fluid cell with no open face).
+#[inline(always)]
+fn smoother_weight(code: u8, inv_h2: f64) -> f64 {
+    let d = mask_diag(code, inv_h2).1;
+    if d > 0.0 {
+        OMEGA / d
+    } else {
+        0.0
+    }
+}
+
+/// Where each z-slab of `slab` cells starts in the ascending cell list `cells`
+/// (`nz + 1` entries).
+fn slab_starts<T: Copy>(
+    cells: &[T],
+    index: impl Fn(T) -> usize,
+    slab: usize,
+    nz: usize,
+) -> Vec<usize> {
+    (0..=nz)
+        .map(|k| cells.partition_point(|&i| index(i) < k * slab))
+        .collect()
 }
 
 /// Which axes are periodic.
@@ -794,26 +806,16 @@ impl GridPoisson {
             let (fnx, fny) = (f.n[0], f.n[1]);
             let (cnx, cny) = (c.n[0], c.n[1]);
             let slab = fnx * fny;
-            let per_slab: Vec<Vec<u32>> = (0..f.n[2])
+            f.edge_cells = (0..f.kind.len())
                 .into_par_iter()
-                .map(|k| {
-                    (k * slab..(k + 1) * slab)
-                        .filter(|&idx| {
-                            let (i, j) = (idx % fnx, (idx / fnx) % fny);
-                            f.kind[idx] == CellKind::Fluid
-                                && !c.interior[i / 2 + cnx * (j / 2 + cny * (k / 2))]
-                        })
-                        .map(|idx| idx as u32)
-                        .collect()
+                .filter(|&idx| {
+                    let (i, j, k) = (idx % fnx, (idx / fnx) % fny, idx / slab);
+                    f.kind[idx] == CellKind::Fluid
+                        && !c.interior[i / 2 + cnx * (j / 2 + cny * (k / 2))]
                 })
+                .map(|idx| idx as u32)
                 .collect();
-            f.edge_start = std::iter::once(0)
-                .chain(per_slab.iter().scan(0, |acc, v| {
-                    *acc += v.len();
-                    Some(*acc)
-                }))
-                .collect();
-            f.edge_cells = per_slab.concat();
+            f.edge_start = slab_starts(&f.edge_cells, |i| i as usize, slab, f.n[2]);
             f.edge_weights = f
                 .edge_cells
                 .par_iter()
@@ -827,14 +829,10 @@ impl GridPoisson {
                 .collect();
             f.xr = vec![0.0; f.n[2] * fny * cnx];
         }
-        // Row scratch: a coarse level's restriction rows are its own width, one per own
-        // slab; a fine level's prolongation rows the next level's width, one per own slab.
-        for l in 0..levels.len() {
-            let width = if l + 1 < levels.len() {
-                levels[l + 1].n[0].max(levels[l].n[0])
-            } else {
-                levels[l].n[0]
-            };
+        // Row scratch of the prolongation: one row of the next level's width per own
+        // slab (none on the coarsest level).
+        for l in 0..levels.len().saturating_sub(1) {
+            let width = levels[l + 1].n[0];
             levels[l].rows = vec![0.0; levels[l].n[2] * width];
         }
         let cells = levels[0].kind.len();

@@ -50,8 +50,8 @@ pub fn nested_dissection(pattern: &Bsr3Pattern) -> Vec<u32> {
             continue;
         }
         let s = g.own(&order[a..b]);
-        let start = g.pseudo_peripheral(order[a], s);
-        let levels = g.bfs(start, s);
+        // The search from the pseudo-peripheral vertex is left in `level` and `queue`.
+        let levels = g.pseudo_peripheral(order[a], s);
         let reached = g.queue.len();
         if reached < b - a {
             // Not connected: every component found at once (peeling one per task would
@@ -92,19 +92,25 @@ pub fn nested_dissection(pattern: &Bsr3Pattern) -> Vec<u32> {
             }
             continue;
         }
-        // Per level: its size, and how many of its vertices touch the next level (the
-        // separator it would give). The separator is the smallest one that leaves each
-        // part at least BALANCE of the subgraph; ties go to the level nearest the median.
+        // Per vertex, whether it touches the next level; per level, its size and how
+        // many of its vertices touch the next (the separator it would give). The
+        // separator is the smallest one that leaves each part at least BALANCE of the
+        // subgraph; ties go to the level nearest the median.
+        let touch: Vec<bool> = g
+            .queue
+            .iter()
+            .map(|&v| {
+                let l = g.level[v as usize];
+                g.neighbours(v)
+                    .any(|w| g.stamp[w as usize] == s && g.level[w as usize] == l + 1)
+            })
+            .collect();
         let mut count = vec![0usize; levels as usize];
         let mut touching = vec![0usize; levels as usize];
-        for &v in &g.queue {
-            let l = g.level[v as usize];
-            count[l as usize] += 1;
-            if g.neighbours(v)
-                .any(|w| g.stamp[w as usize] == s && g.level[w as usize] == l + 1)
-            {
-                touching[l as usize] += 1;
-            }
+        for (&v, &t) in g.queue.iter().zip(&touch) {
+            let l = g.level[v as usize] as usize;
+            count[l] += 1;
+            touching[l] += usize::from(t);
         }
         let size = b - a;
         let mut best: Option<(usize, usize, u32)> = None;
@@ -140,16 +146,11 @@ pub fn nested_dissection(pattern: &Bsr3Pattern) -> Vec<u32> {
         };
         // Separator: the middle level's vertices with a neighbour in the next level.
         let (mut lower, mut upper, mut sep) = (Vec::new(), Vec::new(), Vec::new());
-        for &v in &g.queue {
+        for (&v, &t) in g.queue.iter().zip(&touch) {
             let l = g.level[v as usize];
-            if l < mid {
-                lower.push(v);
-            } else if l > mid {
+            if l > mid {
                 upper.push(v);
-            } else if g
-                .neighbours(v)
-                .any(|w| g.stamp[w as usize] == s && g.level[w as usize] == mid + 1)
-            {
+            } else if l == mid && t {
                 sep.push(v);
             } else {
                 lower.push(v);
@@ -255,9 +256,10 @@ impl Graph<'_> {
             .count()
     }
 
-    /// A pseudo-peripheral vertex of `root`'s component of the subgraph `s` (George and
-    /// Liu's algorithm: restart from a least-degree vertex of the last level while the
-    /// number of levels grows).
+    /// The breadth-first search of `root`'s component of the subgraph `s` from a
+    /// pseudo-peripheral vertex (George and Liu's algorithm: restart from a least-degree
+    /// vertex of the last level while the number of levels grows), left in `level` and
+    /// `queue`; returns its number of levels.
     fn pseudo_peripheral(&mut self, root: u32, s: u32) -> u32 {
         let mut root = root;
         let mut levels = self.bfs(root, s);
@@ -274,16 +276,15 @@ impl Graph<'_> {
             let l = self.bfs(candidate, s);
             if l < levels {
                 // Leave the search from the chosen root in place.
-                self.bfs(root, s);
-                return root;
+                return self.bfs(root, s);
             }
             if l == levels {
-                return candidate;
+                return l;
             }
             root = candidate;
             levels = l;
         }
-        root
+        levels
     }
 }
 
