@@ -24,7 +24,7 @@ use largestep::fluid::scene::FluidSim;
 use largestep::fluid::{Boundary, Buoyancy, Correction, FluidDesc, Source};
 use largestep::io::Image;
 use largestep::render::volume::{VolumeRenderer, VolumeSettings};
-use largestep::solve::{GridPoisson, PoissonParams, Side};
+use largestep::solve::{GridPoisson, PoissonParams, Precision, Side};
 use std::io::Write;
 use std::time::{Duration, Instant};
 
@@ -66,39 +66,61 @@ fn poisson(c: &mut Criterion) -> String {
         }
     }
     let sides = [[Side::Wall; 2], [Side::Wall, Side::Open], [Side::Wall; 2]];
-    let params = PoissonParams::default();
-    let run = || {
+    let run = |precision| {
+        let params = PoissonParams {
+            precision,
+            ..PoissonParams::default()
+        };
+        let t0 = Instant::now();
         let mut g = GridPoisson::with_sides(cells, h, kind.clone(), sides).unwrap();
+        let setup = t0.elapsed().as_secs_f64();
         let mut p = vec![0.0; b.len()];
-        g.solve(&mut p, &b, &params).unwrap()
+        (g.solve(&mut p, &b, &params).unwrap(), setup)
     };
     let triad = largestep::machine::triad_bandwidth(
         largestep::machine::DEFAULT_TRIAD_MIB * (1 << 20) / 8,
         3,
     );
-    c.bench_function("fluid/poisson/multigrid/128", |bch| bch.iter(run));
-    let mut best = f64::INFINITY;
-    let mut its = 0;
-    let mut solve_best = f64::INFINITY;
-    for _ in 0..3 {
-        let t0 = Instant::now();
-        let info = run();
-        best = best.min(t0.elapsed().as_secs_f64());
-        solve_best = solve_best.min(info.seconds);
-        its = info.iterations;
+    c.bench_function("fluid/poisson/multigrid/128", |bch| {
+        bch.iter(|| run(Precision::default()))
+    });
+    let mut md = String::from(
+        "## Poisson, 128^3 cells to 1e-6 (setup included)\n\n| preconditioner | time, best of 3 | per cell-iteration |\n|---|---|---|\n",
+    );
+    // The f64 cycle beside the default f32 one: what single precision pays.
+    for (precision, name) in [
+        (Precision::Single, "V-cycle in f32 (default)"),
+        (Precision::Double, "V-cycle in f64"),
+    ] {
+        let mut best = f64::INFINITY;
+        let mut its = 0;
+        let (mut solve_best, mut setup_best) = (f64::INFINITY, f64::INFINITY);
+        for _ in 0..3 {
+            let t0 = Instant::now();
+            let (info, setup) = run(precision);
+            best = best.min(t0.elapsed().as_secs_f64());
+            solve_best = solve_best.min(info.seconds);
+            setup_best = setup_best.min(setup);
+            its = info.iterations;
+        }
+        let cells_n = b.len() as f64;
+        let ns = solve_best * 1e9 / (cells_n * its as f64);
+        // Bytes per cell-iteration, counted for the f64 cycle: CG's product (x and y,
+        // and the one-byte cell code: 17), its update, dots and direction (about 90),
+        // the V-cycle's fine level (6 sweeps reading x, b and the code and writing x':
+        // 150; the residual 25; restriction and prolongation 32) and the coarse levels
+        // (1/7 more): about 350 bytes. The f32 cycle moves about 230.
+        let bytes = match precision {
+            Precision::Single => 230.0,
+            Precision::Double => 350.0,
+        };
+        let rate = bytes * cells_n * its as f64 / solve_best / 1e9;
+        md += &format!(
+            "| {name} | {best:.3} s (setup {setup_best:.3} s, solve {solve_best:.3} s, {its} iterations) | {ns:.1} ns, about {bytes:.0} bytes: {rate:.1} GB/s, {:.0}% of the triad bandwidth ({triad:.1} GB/s) |\n",
+            100.0 * rate / triad
+        );
     }
-    let cells_n = b.len() as f64;
-    let ns = solve_best * 1e9 / (cells_n * its as f64);
-    // Bytes per cell-iteration, counted: CG's SpMV (x and y, and the one-byte cell code:
-    // 17), its three vector updates and two dots (about 80), the V-cycle's fine level (6
-    // sweeps reading x, b and the code and writing x': 150; the residual 25; restriction
-    // and prolongation 32) and the coarse levels (1/7 more): about 350 bytes.
-    let bytes = 350.0;
-    let rate = bytes * cells_n * its as f64 / solve_best / 1e9;
-    format!(
-        "## Poisson, 128^3 cells to 1e-6 (setup included)\n\n| | value |\n|---|---|\n| time, best of 3 | {best:.3} s (solve {solve_best:.3} s, {its} iterations) |\n| per cell-iteration | {ns:.1} ns, about {bytes:.0} bytes: {rate:.1} GB/s, {:.0}% of the triad bandwidth ({triad:.1} GB/s) |\n\n",
-        100.0 * rate / triad
-    )
+    md + "\n"
 }
 
 fn smoke(c: &mut Criterion) -> String {

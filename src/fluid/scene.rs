@@ -16,6 +16,7 @@
 //! max_substeps = 64             # a step needing more is refused with the dt that fits
 //! tolerance = 1e-6              # pressure (and viscosity) CG, relative residual
 //! preconditioner = "multigrid"  # or "jacobi"
+//! precision = "single"          # the preconditioner's vectors: or "double"
 //! initial = "rest"              # or "taylor-green" (speed), or "uniform" (velocity)
 //! speed = 1.0
 //! [fluid.boundary]              # per axis a name for both sides or [low, high]:
@@ -55,7 +56,7 @@ use crate::scene::shared::{
 };
 use crate::scene::{path, Context, Key, SceneError};
 use crate::simulation::{Energy, FrameData, GridField, GridRef, Simulation, Stage};
-use crate::solve::PoissonPreconditioner;
+use crate::solve::{PoissonPreconditioner, Precision};
 use serde::Deserialize;
 use std::sync::Arc;
 
@@ -89,6 +90,8 @@ pub struct FluidTable {
     pub tolerance: Option<f64>,
     #[serde(default)]
     pub preconditioner: Option<String>,
+    #[serde(default)]
+    pub precision: Option<String>,
     #[serde(default)]
     pub initial: Option<String>,
     #[serde(default)]
@@ -329,6 +332,14 @@ pub fn desc(ctx: &Context<'_>, t: &FluidTable) -> Result<FluidDesc, SceneError> 
             ("jacobi", PoissonPreconditioner::Jacobi),
         ],
     )?;
+    let precision = one_of(
+        ctx,
+        &at("precision"),
+        "precision",
+        t.precision.as_deref(),
+        Precision::Single,
+        &[("single", Precision::Single), ("double", Precision::Double)],
+    )?;
     let initial = match t.initial.as_deref() {
         None | Some("rest") => Initial::Rest,
         Some("taylor-green") => {
@@ -484,6 +495,7 @@ pub fn desc(ctx: &Context<'_>, t: &FluidTable) -> Result<FluidDesc, SceneError> 
             tolerance: t.tolerance.unwrap_or(1e-6),
             max_iterations: 1000,
             preconditioner,
+            precision,
         },
         sources,
         initial,
@@ -778,9 +790,10 @@ impl Simulation for FluidSim {
             Stage::built(
                 "pressure projection",
                 format!(
-                    "{:?}-preconditioned CG to {:e}, {} multigrid levels",
+                    "{:?}-preconditioned CG to {:e} ({:?} precision preconditioner), {} multigrid levels",
                     d.poisson.preconditioner,
                     d.poisson.tolerance,
+                    d.poisson.precision,
                     self.work.poisson.levels()
                 ),
             ),

@@ -27,7 +27,7 @@ pub use filter::{Approach, Filter};
 pub use multigrid::Multigrid;
 pub use newton::{Newton, NewtonParams, NewtonProblem};
 pub use pcg::{Pcg, PcgParams, Preconditioner};
-pub use poisson::{CellKind, GridPoisson, PoissonParams, PoissonPreconditioner, Side};
+pub use poisson::{CellKind, GridPoisson, PoissonParams, PoissonPreconditioner, Precision, Side};
 
 /// What a solver reports on success.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]

@@ -32,7 +32,6 @@
 //! order (`largestep_kernels::vec::dot_par`): the same bits on any thread count.
 
 use super::{SolveError, SolveInfo};
-use largestep_kernels::vec::dot_par;
 use rayon::prelude::*;
 use std::time::Instant;
 
@@ -70,6 +69,17 @@ pub enum PoissonPreconditioner {
     Multigrid,
 }
 
+/// The floating-point precision of the preconditioner's vectors (CG's own vectors,
+/// and so the residual the tolerance is checked on, are `f64` either way).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Precision {
+    /// `f32`: half the bytes a sweep moves (McAdams et al. 2010).
+    #[default]
+    Single,
+    /// `f64`.
+    Double,
+}
+
 /// Settings of [`GridPoisson::solve`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PoissonParams {
@@ -78,6 +88,8 @@ pub struct PoissonParams {
     /// Give up after this many iterations.
     pub max_iterations: usize,
     pub preconditioner: PoissonPreconditioner,
+    /// The preconditioner's precision.
+    pub precision: Precision,
 }
 
 impl Default for PoissonParams {
@@ -86,6 +98,7 @@ impl Default for PoissonParams {
             tolerance: 1e-6,
             max_iterations: 1000,
             preconditioner: PoissonPreconditioner::Multigrid,
+            precision: Precision::default(),
         }
     }
 }
@@ -112,7 +125,7 @@ struct Level {
     inv_h2: f64,
     kind: Vec<CellKind>,
     /// 0 off the fluid cells, `1 + d_i` on them: the diagonal `d_i / h^2`
-    /// ([`Level::diag`]), the fluid mask and the smoother's `omega / (d_i / h^2)` are
+    /// (`mask_diag`), the fluid mask and the smoother's `omega / (d_i / h^2)` are
     /// computed from it where used. One byte a cell instead of three f64 arrays: the
     /// sweeps read 17 bytes a cell instead of 40 (a fine sweep over 128^3 cells ran at
     /// about a quarter of the triad bandwidth with the arrays).
@@ -131,8 +144,6 @@ struct Level {
     band_start: Vec<usize>,
     /// `omega / (d_i / h^2)` of each band cell (0 for a fluid cell with no open face).
     band_inv: Vec<f64>,
-    /// Scratch for the band's sweeps.
-    band_r: Vec<f64>,
     /// Fluid cells whose parent on the next level is not interior (the transfers'
     /// boundary rule, `weights`), in order, with each z-slab's start (`nz + 1` entries);
     /// empty on the coarsest level. Set by `GridPoisson::with_sides`.
@@ -142,18 +153,119 @@ struct Level {
     /// multiples of 1/64, exact in f32): found once, as finding them took most of the
     /// restriction's time when done in every V-cycle.
     edge_weights: Vec<([u32; 8], [f32; 8])>,
-    /// Scratch of the restriction: each row of `r` restricted along x over the cells
-    /// with an interior parent (`nz ny` rows of the next level's width).
-    xr: Vec<f64>,
-    /// Scratch: the correction, right side and residual of this level.
-    x: Vec<f64>,
-    b: Vec<f64>,
-    r: Vec<f64>,
+}
+
+/// The vectors of one level's part of a V-cycle, in the cycle's precision `T`.
+#[derive(Clone, Debug)]
+struct Work<T> {
+    /// The correction, right side and residual of this level.
+    x: Vec<T>,
+    b: Vec<T>,
+    r: Vec<T>,
     /// The second buffer of the Jacobi sweeps.
-    x2: Vec<f64>,
+    x2: Vec<T>,
+    /// The band's residuals.
+    band_r: Vec<T>,
+    /// Scratch of the restriction: each row of `r` restricted along x over the cells
+    /// with an interior parent (`nz ny` rows of the next level's width); empty on the
+    /// coarsest level.
+    xr: Vec<T>,
     /// Scratch of the prolongation: one row of the next level per z-slab of this one
-    /// (the coarse rows blended over y and z).
-    rows: Vec<f64>,
+    /// (the coarse rows blended over y and z); empty on the coarsest level.
+    rows: Vec<T>,
+}
+
+impl<T: Real> Work<T> {
+    /// The vectors of every level of `levels`.
+    fn for_levels(levels: &[Level]) -> Vec<Work<T>> {
+        (0..levels.len())
+            .map(|l| {
+                let f = &levels[l];
+                let cells = f.kind.len();
+                let (xr, rows) = match levels.get(l + 1) {
+                    Some(c) => (f.n[2] * f.n[1] * c.n[0], f.n[2] * c.n[0]),
+                    None => (0, 0),
+                };
+                Work {
+                    x: vec![T::ZERO; cells],
+                    b: vec![T::ZERO; cells],
+                    r: vec![T::ZERO; cells],
+                    x2: vec![T::ZERO; cells],
+                    band_r: vec![T::ZERO; f.band.len()],
+                    xr: vec![T::ZERO; xr],
+                    rows: vec![T::ZERO; rows],
+                }
+            })
+            .collect()
+    }
+}
+
+/// The numbers a V-cycle runs in: `f64`, or `f32`, which halves the bytes each sweep
+/// moves (McAdams et al. 2010 run their whole solver in single precision; here only
+/// the preconditioner is, and CG's own vectors stay `f64`).
+trait Real:
+    Copy
+    + Send
+    + Sync
+    + PartialOrd
+    + std::fmt::Debug
+    + std::ops::Add<Output = Self>
+    + std::ops::Sub<Output = Self>
+    + std::ops::Mul<Output = Self>
+    + std::ops::Div<Output = Self>
+    + std::ops::AddAssign
+    + std::ops::MulAssign
+    + 'static
+{
+    const ZERO: Self;
+    /// The nearest value to `v`.
+    fn of(v: f64) -> Self;
+    /// The value as `f64` (exact).
+    fn get(self) -> f64;
+    /// The smaller of two (neither NaN).
+    fn min(self, o: Self) -> Self;
+    /// The larger of two (neither NaN).
+    fn max(self, o: Self) -> Self;
+}
+
+impl Real for f64 {
+    const ZERO: Self = 0.0;
+    #[inline(always)]
+    fn of(v: f64) -> Self {
+        v
+    }
+    #[inline(always)]
+    fn get(self) -> f64 {
+        self
+    }
+    #[inline(always)]
+    fn min(self, o: Self) -> Self {
+        f64::min(self, o)
+    }
+    #[inline(always)]
+    fn max(self, o: Self) -> Self {
+        f64::max(self, o)
+    }
+}
+
+impl Real for f32 {
+    const ZERO: Self = 0.0;
+    #[inline(always)]
+    fn of(v: f64) -> Self {
+        v as f32
+    }
+    #[inline(always)]
+    fn get(self) -> f64 {
+        f64::from(self)
+    }
+    #[inline(always)]
+    fn min(self, o: Self) -> Self {
+        f32::min(self, o)
+    }
+    #[inline(always)]
+    fn max(self, o: Self) -> Self {
+        f32::max(self, o)
+    }
 }
 
 impl Level {
@@ -222,7 +334,6 @@ impl Level {
                 nb
             })
             .collect();
-        let band_r = vec![0.0; band.len()];
         let band_start = slab_starts(&band, |i| i, n[0] * n[1], n[2]);
         let band_inv = band
             .par_iter()
@@ -259,8 +370,6 @@ impl Level {
         Level {
             code,
             interior,
-            x2: vec![0.0; cells],
-            rows: Vec::new(),
             n,
             sides,
             inv_h2,
@@ -268,15 +377,10 @@ impl Level {
             band_nb,
             band_start,
             band_inv,
-            band_r,
             edge_cells: Vec::new(),
             edge_start: Vec::new(),
             edge_weights: Vec::new(),
-            xr: Vec::new(),
             kind,
-            x: vec![0.0; cells],
-            b: vec![0.0; cells],
-            r: vec![0.0; cells],
         }
     }
 
@@ -286,10 +390,10 @@ impl Level {
     /// away from the grid's edge need no bounds checks either, so the row's interior is
     /// one loop over seven shifted slices, which the compiler vectorises.
     #[inline]
-    fn row_into(&self, k: usize, j: usize, x: &[f64], out: &mut [f64]) {
+    fn row_into<T: Real>(&self, k: usize, j: usize, x: &[T], out: &mut [T]) {
         let [nx, ny, nz] = self.n;
         let s = nx * ny;
-        let c = self.inv_h2;
+        let c = T::of(self.inv_h2);
         let base = k * s + j * nx;
         let per = periodic(&self.sides);
         // The rows beside this one along y and z (start index), wrapped along periodic
@@ -317,7 +421,7 @@ impl Level {
         // and the rows beside.
         let end = |i: usize| {
             let idx = base + i;
-            let mut off = 0.0;
+            let mut off = T::ZERO;
             if i > 0 {
                 off += x[idx - 1];
             } else if per[0] && nx > 1 {
@@ -373,7 +477,7 @@ impl Level {
                 }
                 for r in [rows.0, rows.1, rows.2, rows.3].into_iter().flatten() {
                     for (ot, xr) in o.iter_mut().zip(row(r)) {
-                        *ot += xr;
+                        *ot += *xr;
                     }
                 }
                 for (t, ot) in o.iter_mut().enumerate() {
@@ -385,7 +489,7 @@ impl Level {
     }
 
     /// `y = A x` (zero off the fluid cells; x zero there).
-    fn apply(&self, y: &mut [f64], x: &[f64]) {
+    fn apply<T: Real>(&self, y: &mut [T], x: &[T]) {
         let (nx, ny) = (self.n[0], self.n[1]);
         let rows = self.task_rows();
         y.par_chunks_mut(rows * nx).enumerate().for_each(|(t, ys)| {
@@ -394,6 +498,27 @@ impl Level {
                 self.row_into(r / ny, r % ny, x, row);
             }
         });
+    }
+
+    /// `y = A x` for CG's vectors, returning `x . y` (one partial sum per task in
+    /// `partial`, added in task order).
+    fn apply_dot(&self, y: &mut [f64], x: &[f64], partial: &mut [f64]) -> f64 {
+        let (nx, ny) = (self.n[0], self.n[1]);
+        let rows = self.task_rows();
+        let tasks = y.len().div_ceil(rows * nx);
+        partial[..tasks]
+            .par_iter_mut()
+            .zip(y.par_chunks_mut(rows * nx))
+            .enumerate()
+            .for_each(|(t, (s, ys))| {
+                for (lr, row) in ys.chunks_mut(nx).enumerate() {
+                    let r = t * rows + lr;
+                    self.row_into(r / ny, r % ny, x, row);
+                }
+                let base = t * rows * nx;
+                *s = dot_lanes(&x[base..base + ys.len()], ys);
+            });
+        partial[..tasks].iter().sum()
     }
 
     /// Rows of x per parallel task: a z-slab in 3-D, in 2-D (one slab) enough rows for a
@@ -408,26 +533,33 @@ impl Level {
         }
     }
 
-    /// `out = f(A x, b, x, inverse diagonal)` row by row for level vectors (the residual
-    /// and the fused Jacobi sweep).
-    fn rows_with(&self, out: &mut [f64], f: impl Fn(f64, f64, f64, f64) -> f64 + Sync) {
+    /// `out = f(A x, b, x, omega D^-1)` row by row for level vectors (the residual and
+    /// the fused Jacobi sweep).
+    fn rows_with<T: Real>(
+        &self,
+        x: &[T],
+        b: &[T],
+        out: &mut [T],
+        f: impl Fn(T, T, T, T) -> T + Sync,
+    ) {
         let (nx, ny) = (self.n[0], self.n[1]);
         let rows = self.task_rows();
+        let inv_h2 = T::of(self.inv_h2);
         out.par_chunks_mut(rows * nx)
             .enumerate()
             .for_each(|(t, os)| {
                 for (lr, row) in os.chunks_mut(nx).enumerate() {
                     let r = t * rows + lr;
-                    self.row_into(r / ny, r % ny, &self.x, row);
+                    self.row_into(r / ny, r % ny, x, row);
                     let base = r * nx;
                     let (b, x, code) = (
-                        &self.b[base..base + nx],
-                        &self.x[base..base + nx],
+                        &b[base..base + nx],
+                        &x[base..base + nx],
                         &self.code[base..base + nx],
                     );
                     for (t, o) in row.iter_mut().enumerate() {
                         // Dead, and removed, where `f` does not read it (the residual).
-                        let inv = smoother_weight(code[t], self.inv_h2);
+                        let inv = smoother_weight(code[t], inv_h2);
                         *o = f(*o, b[t], x[t], inv);
                     }
                 }
@@ -436,84 +568,71 @@ impl Level {
 
     /// `(A x)_idx` for a fluid cell `idx` with the face neighbours `nb` (`band_nb`).
     #[inline]
-    fn row(&self, idx: usize, nb: &[u32; 6], x: &[f64]) -> f64 {
-        let mut off = 0.0;
+    fn row<T: Real>(&self, idx: usize, nb: &[u32; 6], x: &[T]) -> T {
+        let mut off = T::ZERO;
         for &j in nb.iter().take_while(|&&j| j != u32::MAX) {
             off += x[j as usize];
         }
-        self.diag(idx) * x[idx] - self.inv_h2 * off
-    }
-
-    /// `d_i / h^2` of cell `idx` (0 off the fluid cells, and for a fluid cell with no
-    /// open face).
-    #[inline]
-    fn diag(&self, idx: usize) -> f64 {
-        mask_diag(self.code[idx], self.inv_h2).1
+        let c = T::of(self.inv_h2);
+        mask_diag(self.code[idx], c).1 * x[idx] - c * off
     }
 
     /// `r = b - A x` (b is zero off the fluid cells, and so is A x).
-    fn residual(&mut self) {
-        let mut r = std::mem::take(&mut self.r);
-        self.rows_with(&mut r, |ax, b, _, _| b - ax);
-        self.r = r;
+    fn residual<T: Real>(&self, w: &mut Work<T>) {
+        self.rows_with(&w.x, &w.b, &mut w.r, |ax, b, _, _| b - ax);
     }
 
     /// `sweeps` damped Jacobi sweeps on `A x = b` over the boundary band only.
-    fn smooth_band(&mut self, sweeps: usize) {
+    fn smooth_band<T: Real>(&self, w: &mut Work<T>, sweeps: usize) {
         // Band cells per parallel task (the residuals, then the updates; fixed chunks, so
         // the bits do not depend on the thread count).
         const CHUNK: usize = 4096;
         for _ in 0..sweeps {
-            let mut br = std::mem::take(&mut self.band_r);
-            {
-                let this = &*self;
-                br.par_chunks_mut(CHUNK)
-                    .zip(this.band.par_chunks(CHUNK))
-                    .zip(this.band_nb.par_chunks(CHUNK))
-                    .for_each(|((rs, cells), nbs)| {
-                        for ((r, &i), nb) in rs.iter_mut().zip(cells).zip(nbs) {
-                            *r = this.b[i] - this.row(i, nb, &this.x);
-                        }
-                    });
-            }
+            let (x, b) = (&w.x, &w.b);
+            w.band_r
+                .par_chunks_mut(CHUNK)
+                .zip(self.band.par_chunks(CHUNK))
+                .zip(self.band_nb.par_chunks(CHUNK))
+                .for_each(|((rs, cells), nbs)| {
+                    for ((r, &i), nb) in rs.iter_mut().zip(cells).zip(nbs) {
+                        *r = b[i] - self.row(i, nb, x);
+                    }
+                });
             // The updates, parallel over z-slabs (the band is in cell order).
             let slab = self.n[0] * self.n[1];
-            let (band, start, inv) = (&self.band, &self.band_start, &self.band_inv);
-            self.x.par_chunks_mut(slab).enumerate().for_each(|(k, xs)| {
+            let (band, start, inv, br) = (&self.band, &self.band_start, &self.band_inv, &w.band_r);
+            w.x.par_chunks_mut(slab).enumerate().for_each(|(k, xs)| {
                 for m in start[k]..start[k + 1] {
-                    xs[band[m] - k * slab] += inv[m] * br[m];
+                    xs[band[m] - k * slab] += T::of(inv[m]) * br[m];
                 }
             });
-            self.band_r = br;
         }
     }
 
     /// `sweeps` damped Jacobi sweeps on `A x = b` from `x = 0`: the first is
     /// `x = omega D^-1 b` (A x vanishes), one pass over b with no stencil.
-    fn smooth_from_zero(&mut self, sweeps: usize) {
+    fn smooth_from_zero<T: Real>(&self, w: &mut Work<T>, sweeps: usize) {
         if sweeps == 0 {
-            self.x.fill(0.0);
+            w.x.fill(T::ZERO);
             return;
         }
-        let inv_h2 = self.inv_h2;
-        self.x
-            .par_iter_mut()
-            .zip(self.b.par_iter())
+        let inv_h2 = T::of(self.inv_h2);
+        w.x.par_iter_mut()
+            .zip(w.b.par_iter())
             .zip(self.code.par_iter())
             .with_min_len(4096)
-            .for_each(|((x, b), &code)| {
+            .for_each(|((x, &b), &code)| {
                 *x = smoother_weight(code, inv_h2) * b;
             });
-        self.smooth(sweeps - 1);
+        self.smooth(w, sweeps - 1);
     }
 
     /// `sweeps` damped Jacobi sweeps on `A x = b` from the present x, each one pass:
     /// `x' = x + omega D^-1 (b - A x)` into the second buffer, then swapped.
-    fn smooth(&mut self, sweeps: usize) {
+    fn smooth<T: Real>(&self, w: &mut Work<T>, sweeps: usize) {
         for _ in 0..sweeps {
-            let mut x2 = std::mem::take(&mut self.x2);
-            self.rows_with(&mut x2, |ax, b, x, inv| x + inv * (b - ax));
-            self.x2 = std::mem::replace(&mut self.x, x2);
+            self.rows_with(&w.x, &w.b, &mut w.x2, |ax, b, x, inv| x + inv * (b - ax));
+            std::mem::swap(&mut w.x, &mut w.x2);
         }
     }
 }
@@ -625,20 +744,21 @@ fn weights(
 /// on fluid cells, 0 elsewhere; [`Level::code`]) and `1 / h^2`: branch-free, so the row
 /// loops stay vectorised. `(code - 1) inv_h2` is `d_i inv_h2` exactly.
 #[inline(always)]
-fn mask_diag(code: u8, inv_h2: f64) -> (f64, f64) {
-    let k = f64::from(code);
-    (k.min(1.0), (k - 1.0).max(0.0) * inv_h2)
+fn mask_diag<T: Real>(code: u8, inv_h2: T) -> (T, T) {
+    let k = T::of(f64::from(code));
+    let one = T::of(1.0);
+    (k.min(one), (k - one).max(T::ZERO) * inv_h2)
 }
 
 /// The damped Jacobi weight `omega / (d_i / h^2)` of a cell from its code, 0 where the
 /// diagonal is (off the fluid cells, and a fluid cell with no open face).
 #[inline(always)]
-fn smoother_weight(code: u8, inv_h2: f64) -> f64 {
+fn smoother_weight<T: Real>(code: u8, inv_h2: T) -> T {
     let d = mask_diag(code, inv_h2).1;
-    if d > 0.0 {
-        OMEGA / d
+    if d > T::ZERO {
+        T::of(OMEGA) / d
     } else {
-        0.0
+        T::ZERO
     }
 }
 
@@ -703,10 +823,20 @@ pub struct GridPoisson {
     levels: Vec<Level>,
     /// No fluid cell touches an empty one: the constant null space.
     singular: bool,
+    /// The number of fluid cells.
+    fluid: usize,
+    /// CG's residual, search direction and its product with A (the preconditioned
+    /// residual is the fine level's `Work::x`).
     r: Vec<f64>,
-    z: Vec<f64>,
     p: Vec<f64>,
     q: Vec<f64>,
+    /// Partial sums of the reductions, one per fixed chunk (the same bits on any thread
+    /// count).
+    partial: Vec<f64>,
+    /// The V-cycle's vectors in each precision: the default's made with the problem, the
+    /// other's by the first solve that asks for it.
+    work32: Vec<Work<f32>>,
+    work64: Vec<Work<f64>>,
 }
 
 impl GridPoisson {
@@ -827,22 +957,37 @@ impl GridPoisson {
                     (cells.map(|q| q as u32), w.map(|v| v as f32))
                 })
                 .collect();
-            f.xr = vec![0.0; f.n[2] * fny * cnx];
         }
-        // Row scratch of the prolongation: one row of the next level's width per own
-        // slab (none on the coarsest level).
-        for l in 0..levels.len().saturating_sub(1) {
-            let width = levels[l + 1].n[0];
-            levels[l].rows = vec![0.0; levels[l].n[2] * width];
-        }
-        let cells = levels[0].kind.len();
+        let l0 = &levels[0];
+        let cells = l0.kind.len();
+        let fluid = l0
+            .kind
+            .par_iter()
+            .filter(|&&k| k == CellKind::Fluid)
+            .count();
+        // One partial sum per chunk of the CG passes and per task of the fine level's
+        // product.
+        let tasks = (l0.n[1] * l0.n[2]).div_ceil(l0.task_rows());
+        // (Twice over: `cg_dots` keeps two sums a chunk.)
+        let partial = vec![0.0; 2 * cells.div_ceil(CG_CHUNK).max(tasks)];
+        let work32 = match PoissonParams::default().precision {
+            Precision::Single => Work::for_levels(&levels),
+            Precision::Double => Vec::new(),
+        };
+        let work64 = match PoissonParams::default().precision {
+            Precision::Single => Vec::new(),
+            Precision::Double => Work::for_levels(&levels),
+        };
         Ok(Self {
             levels,
             singular,
+            fluid,
             r: vec![0.0; cells],
-            z: vec![0.0; cells],
             p: vec![0.0; cells],
             q: vec![0.0; cells],
+            partial,
+            work32,
+            work64,
         })
     }
 
@@ -860,238 +1005,6 @@ impl GridPoisson {
     /// [`GridPoisson::solve`] returns is).
     pub fn apply(&self, y: &mut [f64], x: &[f64]) {
         self.levels[0].apply(y, x);
-    }
-
-    /// Sets the mean of `v` over the fluid cells to zero (singular problems).
-    fn zero_mean(&self, v: &mut [f64]) {
-        if !self.singular {
-            return;
-        }
-        let kind = &self.levels[0].kind;
-        let (sum, count) = kind
-            .iter()
-            .zip(v.iter())
-            .filter(|(k, _)| **k == CellKind::Fluid)
-            .fold((0.0, 0usize), |(s, c), (_, v)| (s + v, c + 1));
-        if count > 0 {
-            let mean = sum / count as f64;
-            for (vi, k) in v.iter_mut().zip(kind) {
-                if *k == CellKind::Fluid {
-                    *vi -= mean;
-                }
-            }
-        }
-    }
-
-    /// `z = M^-1 r` for the preconditioner `pre`.
-    fn precondition(&mut self, pre: PoissonPreconditioner) {
-        match pre {
-            PoissonPreconditioner::Jacobi => {
-                let l0 = &self.levels[0];
-                for (i, (z, r)) in self.z.iter_mut().zip(&self.r).enumerate() {
-                    let d = l0.diag(i);
-                    *z = if d > 0.0 { r / d } else { 0.0 };
-                }
-            }
-            PoissonPreconditioner::Multigrid => {
-                self.levels[0].b.copy_from_slice(&self.r);
-                self.v_cycle(0);
-                std::mem::swap(&mut self.z, &mut self.levels[0].x);
-            }
-        }
-        let mut z = std::mem::take(&mut self.z);
-        self.zero_mean(&mut z);
-        self.z = z;
-    }
-
-    /// One V-cycle on level `l` for `A x = b` from `x = 0`.
-    fn v_cycle(&mut self, l: usize) {
-        if l + 1 == self.levels.len() {
-            self.levels[l].smooth_from_zero(COARSE_SWEEPS);
-            return;
-        }
-        self.levels[l].smooth_from_zero(SWEEPS);
-        self.levels[l].smooth_band(BAND_SWEEPS);
-        self.levels[l].residual();
-        {
-            // Coarse right side: R r with R = P^T / 8 (module docs; / 4 in 2-D), in two
-            // passes. First each fine row's cells with an interior parent are restricted
-            // along x (3/4 to the parent, 1/4 to its neighbour towards the cell), once
-            // per row; then each coarse slab adds the x-restricted rows of the four fine
-            // slabs that reach it (3/4 from its children's, 1/4 from a neighbour's; 1 in
-            // 2-D) over y (3/4 to the parent's row, 1/4 to its neighbour row), and the
-            // cells with a parent that is not interior (`edge_cells`) scatter through
-            // `weights`. Fixed orders throughout: the same bits on any thread count.
-            let (fine, coarse) = self.levels.split_at_mut(l + 1);
-            let (f, c) = (&mut fine[l], &mut coarse[0]);
-            let (cnx, cny) = (c.n[0], c.n[1]);
-            let cslab = cnx * cny;
-            let (fnx, fny) = (f.n[0], f.n[1]);
-            let fslab = fnx * fny;
-            let (ccode, cint) = (&c.code, &c.interior);
-            // R = P^T / (children per coarse cell): 8 in 3-D, 4 in 2-D.
-            let scale = 1.0 / (1usize << f.n.iter().filter(|&&v| v > 1).count()) as f64;
-            let flat = c.n[2] == 1;
-            let fr = &f.r;
-            f.xr.par_chunks_mut(fny * cnx)
-                .enumerate()
-                .for_each(|(k, xs)| {
-                    for (j, t) in xs.chunks_mut(cnx).enumerate() {
-                        let prow = &cint[cnx * (j / 2 + cny * (k / 2))..][..cnx];
-                        let r = &fr[k * fslab + j * fnx..][..fnx];
-                        let at = |i: usize| r.get(i).copied().unwrap_or(0.0);
-                        let inside = |q: usize| if prow[q] { 1.0 } else { 0.0 };
-                        for (q, tq) in t.iter_mut().enumerate() {
-                            // An interior parent q has both neighbours in the grid, so
-                            // the terms of q - 1 and q + 1 are zero at the row's ends.
-                            let mut v = 0.75 * inside(q) * (at(2 * q) + at(2 * q + 1));
-                            if q > 0 {
-                                v += 0.25 * inside(q - 1) * at(2 * q - 1);
-                            }
-                            if q + 1 < cnx {
-                                v += 0.25 * inside(q + 1) * at(2 * q + 2);
-                            }
-                            *tq = v;
-                        }
-                    }
-                });
-            let (xr, edges, edge_start) = (&f.xr, &f.edge_cells, &f.edge_start);
-            let edge_weights = &f.edge_weights;
-            c.b.par_chunks_mut(cslab).enumerate().for_each(|(ck, bs)| {
-                bs.fill(0.0);
-                let base = ck * cslab;
-                for k in (2 * ck).saturating_sub(1)..(2 * ck + 3).min(f.n[2]) {
-                    let wz = if flat {
-                        1.0
-                    } else if k / 2 == ck {
-                        0.75
-                    } else {
-                        0.25
-                    };
-                    for j in 0..fny {
-                        let (pj, jy) = (
-                            j / 2,
-                            if j % 2 == 0 {
-                                (j / 2).wrapping_sub(1)
-                            } else {
-                                j / 2 + 1
-                            },
-                        );
-                        // No interior parent in a row whose neighbour row is
-                        // missing: nothing to add.
-                        if jy >= cny {
-                            continue;
-                        }
-                        let t = &xr[(k * fny + j) * cnx..][..cnx];
-                        for (row, wy) in [(pj, 0.75), (jy, 0.25)] {
-                            let w = wz * wy;
-                            let b = &mut bs[row * cnx..(row + 1) * cnx];
-                            for (bb, tt) in b.iter_mut().zip(t) {
-                                *bb += w * tt;
-                            }
-                        }
-                    }
-                    let range = edge_start[k]..edge_start[k + 1];
-                    for (&fidx, (cells, w)) in edges[range.clone()].iter().zip(&edge_weights[range])
-                    {
-                        let rf = fr[fidx as usize];
-                        if rf == 0.0 {
-                            continue;
-                        }
-                        for (&cc, &wc) in cells.iter().zip(w) {
-                            let cc = cc as usize;
-                            if (base..base + cslab).contains(&cc) {
-                                bs[cc - base] += f64::from(wc) * rf;
-                            }
-                        }
-                    }
-                }
-                // Only fluid cells carry unknowns (a fluid child's empty parent got a
-                // share that the coarse problem has no place for).
-                for (b, &m) in bs.iter_mut().zip(&ccode[base..base + cslab]) {
-                    *b *= mask_diag(m, 1.0).0 * scale;
-                }
-            });
-        }
-        self.v_cycle(l + 1);
-        {
-            let (fine, coarse) = self.levels.split_at_mut(l + 1);
-            let (f, c) = (&mut fine[l], &coarse[0]);
-            let (fnx, fny) = (f.n[0], f.n[1]);
-            let fslab = fnx * fny;
-            let (cx, fkind, cn, cint) = (&c.x, &f.kind, c.n, &c.interior);
-            let (edges, edge_start, edge_weights) = (&f.edge_cells, &f.edge_start, &f.edge_weights);
-            let (cnx, cny) = (cn[0], cn[1]);
-            let flat = cn[2] == 1;
-            let frow = f.rows.len() / f.n[2];
-            f.x.par_chunks_mut(fslab)
-                .zip(f.rows.par_chunks_mut(frow))
-                .enumerate()
-                .for_each(|(k, (xs, r))| {
-                    let pk = k / 2;
-                    let kz = if k % 2 == 0 {
-                        pk.wrapping_sub(1)
-                    } else {
-                        pk + 1
-                    };
-                    for j in 0..fny {
-                        let pj = j / 2;
-                        let jy = if j % 2 == 0 {
-                            pj.wrapping_sub(1)
-                        } else {
-                            pj + 1
-                        };
-                        // The coarse rows blended over y and z (9/16, 3/16, 3/16, 1/16;
-                        // 3/4 and 1/4 in 2-D), when they exist: cells with an interior
-                        // parent then take 3/4 and 1/4 of two of its entries.
-                        let rows_ok = jy < cny && (flat || kz < cn[2]);
-                        if rows_ok {
-                            let row = |y: usize, z: usize| &cx[cnx * (y + cny * z)..][..cnx];
-                            if flat {
-                                let (a, b) = (row(pj, 0), row(jy, 0));
-                                for (ri, (aa, bb)) in r[..cnx].iter_mut().zip(a.iter().zip(b)) {
-                                    *ri = 0.75 * aa + 0.25 * bb;
-                                }
-                            } else {
-                                let (a, b) = (row(pj, pk), row(jy, pk));
-                                let (c2, d) = (row(pj, kz), row(jy, kz));
-                                for (t, ri) in r[..cnx].iter_mut().enumerate() {
-                                    *ri = 0.5625 * a[t] + 0.1875 * (b[t] + c2[t]) + 0.0625 * d[t];
-                                }
-                            }
-                        }
-                        if !rows_ok {
-                            continue;
-                        }
-                        // Fine cells 2q and 2q + 1 of an interior parent q: its
-                        // neighbours q - 1 and q + 1 exist, and so does cell 2q + 1.
-                        let prow = &cint[cnx * (pj + cny * pk)..][..cnx];
-                        let base = k * fslab + j * fnx;
-                        let kinds = &fkind[base..base + fnx];
-                        let xrow = &mut xs[j * fnx..(j + 1) * fnx];
-                        for (q, _) in prow.iter().enumerate().filter(|(_, &inside)| inside) {
-                            if kinds[2 * q] == CellKind::Fluid {
-                                xrow[2 * q] += 0.75 * r[q] + 0.25 * r[q - 1];
-                            }
-                            if kinds[2 * q + 1] == CellKind::Fluid {
-                                xrow[2 * q + 1] += 0.75 * r[q] + 0.25 * r[q + 1];
-                            }
-                        }
-                    }
-                    // The fluid cells whose parent is not interior: the boundary rule.
-                    let range = edge_start[k]..edge_start[k + 1];
-                    for (&fidx, (cells, w)) in edges[range.clone()].iter().zip(&edge_weights[range])
-                    {
-                        let mut v = 0.0;
-                        for (&cc, &wc) in cells.iter().zip(w) {
-                            v += f64::from(wc) * cx[cc as usize];
-                        }
-                        xs[fidx as usize - k * fslab] += v;
-                    }
-                });
-        }
-        self.levels[l].smooth_band(BAND_SWEEPS);
-        self.levels[l].smooth(SWEEPS);
     }
 
     /// Solves `A p = b` from the initial guess in `p` (values off the fluid cells are
@@ -1118,29 +1031,85 @@ impl GridPoisson {
                 b[i]
             )));
         }
-        let kind = &self.levels[0].kind;
-        for (pi, k) in p.iter_mut().zip(kind) {
-            if *k != CellKind::Fluid || !pi.is_finite() {
-                *pi = 0.0;
+        match params.precision {
+            Precision::Single => {
+                if self.work32.is_empty() {
+                    self.work32 = Work::for_levels(&self.levels);
+                }
+                let mut work = std::mem::take(&mut self.work32);
+                let out = self.cg(&mut work, p, b, params, start);
+                self.work32 = work;
+                out
+            }
+            Precision::Double => {
+                if self.work64.is_empty() {
+                    self.work64 = Work::for_levels(&self.levels);
+                }
+                let mut work = std::mem::take(&mut self.work64);
+                let out = self.cg(&mut work, p, b, params, start);
+                self.work64 = work;
+                out
             }
         }
-        // r = b - A p, with b restricted to the fluid cells (and to zero mean).
-        let mut rhs = std::mem::take(&mut self.q);
-        for ((q, bi), k) in rhs.iter_mut().zip(b).zip(kind) {
-            *q = if *k == CellKind::Fluid { *bi } else { 0.0 };
-        }
-        self.zero_mean(&mut rhs);
-        let bnorm = dot_par(&rhs, &rhs).sqrt();
-        self.levels[0].apply(&mut self.r, p);
-        for (r, q) in self.r.iter_mut().zip(&rhs) {
-            *r = q - *r;
-        }
-        self.q = rhs;
-        let mut r = std::mem::take(&mut self.r);
-        self.zero_mean(&mut r);
-        self.r = r;
+    }
+
+    /// [`GridPoisson::solve`] after its checks, with the preconditioner's vectors in `T`.
+    ///
+    /// The search directions take the Polak-Ribiere `beta = z_k+1 . (r_k+1 - r_k) /
+    /// z_k . r_k` (here `-alpha z_k+1 . A p_k / z_k . r_k`), which equals the usual
+    /// `z_k+1 . r_k+1 / z_k . r_k` for a fixed preconditioner and keeps CG converging
+    /// when the preconditioner varies a little from one application to the next, as one
+    /// rounded to `f32` does (Notay 2000, "Flexible conjugate gradients").
+    fn cg<T: Real>(
+        &mut self,
+        work: &mut [Work<T>],
+        p: &mut [f64],
+        b: &[f64],
+        params: &PoissonParams,
+        start: Instant,
+    ) -> Result<SolveInfo, SolveError> {
+        let GridPoisson {
+            levels,
+            singular,
+            fluid,
+            r,
+            p: d,
+            q,
+            partial,
+            ..
+        } = self;
+        let (levels, partial) = (&levels[..], &mut partial[..]);
+        let (singular, fluid) = (*singular, *fluid);
+        let mean = |v: &mut [f64], partial: &mut [f64]| {
+            if singular {
+                zero_mean(&levels[0], fluid, v, partial);
+            }
+        };
+        let code = &levels[0].code;
+        // p zero off the fluid cells (and where not finite), and q = b there.
+        p.par_iter_mut()
+            .zip(q.par_iter_mut())
+            .zip(b.par_iter())
+            .zip(code.par_iter())
+            .with_min_len(CG_CHUNK)
+            .for_each(|(((p, q), &b), &c)| {
+                let fluid = c > 0;
+                if !fluid || !p.is_finite() {
+                    *p = 0.0;
+                }
+                *q = if fluid { b } else { 0.0 };
+            });
+        mean(q, partial);
+        let bnorm = dot_chunks(q, q, partial).sqrt();
+        // r = b - A p.
+        levels[0].apply(r, p);
+        r.par_iter_mut()
+            .zip(q.par_iter())
+            .with_min_len(CG_CHUNK)
+            .for_each(|(r, q)| *r = q - *r);
+        mean(r, partial);
         let target = params.tolerance * bnorm;
-        let mut rnorm = dot_par(&self.r, &self.r).sqrt();
+        let mut rnorm = dot_chunks(r, r, partial).sqrt();
         if rnorm <= target || bnorm == 0.0 {
             return Ok(SolveInfo {
                 iterations: 0,
@@ -1148,12 +1117,27 @@ impl GridPoisson {
                 seconds: start.elapsed().as_secs_f64(),
             });
         }
-        self.precondition(params.preconditioner);
-        self.p.copy_from_slice(&self.z);
-        let mut rz = dot_par(&self.r, &self.z);
+        work[0]
+            .b
+            .par_iter_mut()
+            .zip(r.par_iter())
+            .with_min_len(CG_CHUNK)
+            .for_each(|(b, &r)| *b = T::of(r));
+        precondition(
+            levels,
+            work,
+            params.preconditioner,
+            singular,
+            fluid,
+            partial,
+        );
+        d.par_iter_mut()
+            .zip(work[0].x.par_iter())
+            .with_min_len(CG_CHUNK)
+            .for_each(|(d, &z)| *d = z.get());
+        let mut rz = dot_chunks(r, &work[0].x, partial);
         for it in 1..=params.max_iterations {
-            self.levels[0].apply(&mut self.q, &self.p);
-            let pq = dot_par(&self.p, &self.q);
+            let pq = levels[0].apply_dot(q, d, partial);
             if pq.is_nan() || pq <= 0.0 {
                 return Err(SolveError::NotPositiveDefinite {
                     what: "curvature p.Ap",
@@ -1162,13 +1146,7 @@ impl GridPoisson {
                 });
             }
             let alpha = rz / pq;
-            for (x, d) in p.iter_mut().zip(&self.p) {
-                *x += alpha * d;
-            }
-            for (r, q) in self.r.iter_mut().zip(&self.q) {
-                *r -= alpha * q;
-            }
-            rnorm = dot_par(&self.r, &self.r).sqrt();
+            rnorm = cg_update(p, r, &mut work[0].b, d, q, alpha, partial).sqrt();
             if !rnorm.is_finite() {
                 return Err(SolveError::NonFinite {
                     what: "Poisson residual",
@@ -1176,20 +1154,32 @@ impl GridPoisson {
                 });
             }
             if rnorm <= target {
-                self.zero_mean(p);
+                mean(p, partial);
                 return Ok(SolveInfo {
                     iterations: it,
                     residual: rnorm / bnorm,
                     seconds: start.elapsed().as_secs_f64(),
                 });
             }
-            self.precondition(params.preconditioner);
-            let rz_new = dot_par(&self.r, &self.z);
-            let beta = rz_new / rz;
+            precondition(
+                levels,
+                work,
+                params.preconditioner,
+                singular,
+                fluid,
+                partial,
+            );
+            let z = &work[0].x;
+            let [rz_new, zq] = cg_dots(r, q, z, partial);
+            let beta = -alpha * zq / rz;
             rz = rz_new;
-            for (d, z) in self.p.iter_mut().zip(&self.z) {
-                *d = z + beta * *d;
-            }
+            d.par_chunks_mut(CG_CHUNK)
+                .zip(z.par_chunks(CG_CHUNK))
+                .for_each(|(d, z)| {
+                    for (d, &z) in d.iter_mut().zip(z) {
+                        *d = z.get() + beta * *d;
+                    }
+                });
         }
         Err(SolveError::NotConverged {
             iterations: params.max_iterations,
@@ -1197,4 +1187,341 @@ impl GridPoisson {
             tolerance: params.tolerance,
         })
     }
+}
+
+/// Cells per chunk of CG's vector passes: the partial sums of each chunk are added in
+/// chunk order, so the bits do not depend on the thread count.
+const CG_CHUNK: usize = 16_384;
+
+/// `sum a_i b_i` with eight running sums, added in a fixed order (so the loop
+/// vectorises and the result is the same wherever the slices are cut from).
+#[inline]
+fn dot_lanes<T: Real, U: Real>(a: &[T], b: &[U]) -> f64 {
+    let mut acc = [0.0f64; 8];
+    let (ac, bc) = (a.chunks_exact(8), b.chunks_exact(8));
+    let mut s = 0.0;
+    for (x, y) in ac.remainder().iter().zip(bc.remainder()) {
+        s += x.get() * y.get();
+    }
+    for (x, y) in ac.zip(bc) {
+        for k in 0..8 {
+            acc[k] += x[k].get() * y[k].get();
+        }
+    }
+    acc.iter().sum::<f64>() + s
+}
+
+/// `a . b` over chunks of [`CG_CHUNK`], in parallel and deterministic.
+fn dot_chunks<T: Real, U: Real>(a: &[T], b: &[U], partial: &mut [f64]) -> f64 {
+    let n = a.len().div_ceil(CG_CHUNK);
+    partial[..n]
+        .par_iter_mut()
+        .zip(a.par_chunks(CG_CHUNK).zip(b.par_chunks(CG_CHUNK)))
+        .for_each(|(s, (a, b))| *s = dot_lanes(a, b));
+    partial[..n].iter().sum()
+}
+
+/// One pass of CG: `x += alpha p`, `r -= alpha q`, the preconditioner's right side
+/// `b = r` rounded to `T`; returns `r . r`.
+fn cg_update<T: Real>(
+    x: &mut [f64],
+    r: &mut [f64],
+    b: &mut [T],
+    p: &[f64],
+    q: &[f64],
+    alpha: f64,
+    partial: &mut [f64],
+) -> f64 {
+    let n = x.len().div_ceil(CG_CHUNK);
+    partial[..n]
+        .par_iter_mut()
+        .zip(x.par_chunks_mut(CG_CHUNK).zip(r.par_chunks_mut(CG_CHUNK)))
+        .zip(b.par_chunks_mut(CG_CHUNK))
+        .zip(p.par_chunks(CG_CHUNK).zip(q.par_chunks(CG_CHUNK)))
+        .for_each(|(((s, (x, r)), b), (p, q))| {
+            for (x, p) in x.iter_mut().zip(p) {
+                *x += alpha * p;
+            }
+            for ((r, b), q) in r.iter_mut().zip(b.iter_mut()).zip(q) {
+                *r -= alpha * q;
+                *b = T::of(*r);
+            }
+            // The chunk is still in cache.
+            *s = dot_lanes(r, r);
+        });
+    partial[..n].iter().sum()
+}
+
+/// `[r . z, z . q]` in one pass (the two partial sums of each chunk side by side).
+fn cg_dots<T: Real>(r: &[f64], q: &[f64], z: &[T], partial: &mut [f64]) -> [f64; 2] {
+    let n = r.len().div_ceil(CG_CHUNK);
+    let (rz, zq) = partial.split_at_mut(partial.len() / 2);
+    debug_assert!(rz.len() >= n && zq.len() >= n);
+    rz[..n]
+        .par_iter_mut()
+        .zip(zq[..n].par_iter_mut())
+        .zip(r.par_chunks(CG_CHUNK).zip(q.par_chunks(CG_CHUNK)))
+        .zip(z.par_chunks(CG_CHUNK))
+        .for_each(|(((a, b), (r, q)), z)| {
+            *a = dot_lanes(r, z);
+            *b = dot_lanes(z, q);
+        });
+    [rz[..n].iter().sum(), zq[..n].iter().sum()]
+}
+
+/// Sets the mean of `v` over the `fluid` fluid cells of `level` to zero (singular
+/// problems: the constant null space).
+fn zero_mean<T: Real>(level: &Level, fluid: usize, v: &mut [T], partial: &mut [f64]) {
+    if fluid == 0 {
+        return;
+    }
+    let n = v.len().div_ceil(CG_CHUNK);
+    partial[..n]
+        .par_iter_mut()
+        .zip(v.par_chunks(CG_CHUNK).zip(level.code.par_chunks(CG_CHUNK)))
+        .for_each(|(s, (v, c))| {
+            *s = v
+                .iter()
+                .zip(c)
+                .filter(|(_, &c)| c > 0)
+                .map(|(v, _)| v.get())
+                .sum()
+        });
+    let mean = T::of(partial[..n].iter().sum::<f64>() / fluid as f64);
+    v.par_chunks_mut(CG_CHUNK)
+        .zip(level.code.par_chunks(CG_CHUNK))
+        .for_each(|(v, c)| {
+            for (v, &c) in v.iter_mut().zip(c) {
+                if c > 0 {
+                    *v = *v - mean;
+                }
+            }
+        });
+}
+
+/// `z = M^-1 b` for the preconditioner `pre`, from the fine level's right side into its
+/// correction (`work[0].b` to `work[0].x`), with zero mean for a singular problem.
+fn precondition<T: Real>(
+    levels: &[Level],
+    work: &mut [Work<T>],
+    pre: PoissonPreconditioner,
+    singular: bool,
+    fluid: usize,
+    partial: &mut [f64],
+) {
+    match pre {
+        PoissonPreconditioner::Jacobi => {
+            let l0 = &levels[0];
+            let c = T::of(l0.inv_h2);
+            let w = &mut work[0];
+            w.x.par_iter_mut()
+                .zip(w.b.par_iter())
+                .zip(l0.code.par_iter())
+                .with_min_len(CG_CHUNK)
+                .for_each(|((x, &b), &code)| {
+                    let d = mask_diag(code, c).1;
+                    *x = if d > T::ZERO { b / d } else { T::ZERO };
+                });
+        }
+        PoissonPreconditioner::Multigrid => v_cycle(levels, work, 0),
+    }
+    if singular {
+        zero_mean(&levels[0], fluid, &mut work[0].x, partial);
+    }
+}
+
+/// One V-cycle on level `l` of `levels` for `A x = b` from `x = 0`, in the vectors
+/// `work` (one per level).
+fn v_cycle<T: Real>(levels: &[Level], work: &mut [Work<T>], l: usize) {
+    let lv = &levels[l];
+    if l + 1 == levels.len() {
+        lv.smooth_from_zero(&mut work[l], COARSE_SWEEPS);
+        return;
+    }
+    lv.smooth_from_zero(&mut work[l], SWEEPS);
+    lv.smooth_band(&mut work[l], BAND_SWEEPS);
+    lv.residual(&mut work[l]);
+    {
+        // Coarse right side: R r with R = P^T / 8 (module docs; / 4 in 2-D), in two
+        // passes. First each fine row's cells with an interior parent are restricted
+        // along x (3/4 to the parent, 1/4 to its neighbour towards the cell), once
+        // per row; then each coarse slab adds the x-restricted rows of the four fine
+        // slabs that reach it (3/4 from its children's, 1/4 from a neighbour's; 1 in
+        // 2-D) over y (3/4 to the parent's row, 1/4 to its neighbour row), and the
+        // cells with a parent that is not interior (`edge_cells`) scatter through
+        // `weights`. Fixed orders throughout: the same bits on any thread count.
+        let (f, c) = (lv, &levels[l + 1]);
+        let (wf, wc) = work.split_at_mut(l + 1);
+        let (wf, wc) = (&mut wf[l], &mut wc[0]);
+        let (cnx, cny) = (c.n[0], c.n[1]);
+        let cslab = cnx * cny;
+        let (fnx, fny) = (f.n[0], f.n[1]);
+        let fslab = fnx * fny;
+        let (ccode, cint) = (&c.code, &c.interior);
+        // R = P^T / (children per coarse cell): 8 in 3-D, 4 in 2-D.
+        let scale = T::of(1.0 / (1usize << f.n.iter().filter(|&&v| v > 1).count()) as f64);
+        let flat = c.n[2] == 1;
+        let fr = &wf.r;
+        let (w34, w14) = (T::of(0.75), T::of(0.25));
+        wf.xr
+            .par_chunks_mut(fny * cnx)
+            .enumerate()
+            .for_each(|(k, xs)| {
+                for (j, t) in xs.chunks_mut(cnx).enumerate() {
+                    let prow = &cint[cnx * (j / 2 + cny * (k / 2))..][..cnx];
+                    let r = &fr[k * fslab + j * fnx..][..fnx];
+                    let at = |i: usize| r.get(i).copied().unwrap_or(T::ZERO);
+                    let inside = |q: usize| if prow[q] { T::of(1.0) } else { T::ZERO };
+                    for (q, tq) in t.iter_mut().enumerate() {
+                        // An interior parent q has both neighbours in the grid, so
+                        // the terms of q - 1 and q + 1 are zero at the row's ends.
+                        let mut v = w34 * inside(q) * (at(2 * q) + at(2 * q + 1));
+                        if q > 0 {
+                            v += w14 * inside(q - 1) * at(2 * q - 1);
+                        }
+                        if q + 1 < cnx {
+                            v += w14 * inside(q + 1) * at(2 * q + 2);
+                        }
+                        *tq = v;
+                    }
+                }
+            });
+        let (xr, edges, edge_start) = (&wf.xr, &f.edge_cells, &f.edge_start);
+        let edge_weights = &f.edge_weights;
+        wc.b.par_chunks_mut(cslab).enumerate().for_each(|(ck, bs)| {
+            bs.fill(T::ZERO);
+            let base = ck * cslab;
+            for k in (2 * ck).saturating_sub(1)..(2 * ck + 3).min(f.n[2]) {
+                let wz = if flat {
+                    T::of(1.0)
+                } else if k / 2 == ck {
+                    w34
+                } else {
+                    w14
+                };
+                for j in 0..fny {
+                    let (pj, jy) = (
+                        j / 2,
+                        if j % 2 == 0 {
+                            (j / 2).wrapping_sub(1)
+                        } else {
+                            j / 2 + 1
+                        },
+                    );
+                    // No interior parent in a row whose neighbour row is
+                    // missing: nothing to add.
+                    if jy >= cny {
+                        continue;
+                    }
+                    let t = &xr[(k * fny + j) * cnx..][..cnx];
+                    for (row, wy) in [(pj, w34), (jy, w14)] {
+                        let w = wz * wy;
+                        let b = &mut bs[row * cnx..(row + 1) * cnx];
+                        for (bb, tt) in b.iter_mut().zip(t) {
+                            *bb += w * *tt;
+                        }
+                    }
+                }
+                let range = edge_start[k]..edge_start[k + 1];
+                for (&fidx, (cells, w)) in edges[range.clone()].iter().zip(&edge_weights[range]) {
+                    let rf = fr[fidx as usize];
+                    if rf == T::ZERO {
+                        continue;
+                    }
+                    for (&cc, &wc) in cells.iter().zip(w) {
+                        let cc = cc as usize;
+                        if (base..base + cslab).contains(&cc) {
+                            bs[cc - base] += T::of(f64::from(wc)) * rf;
+                        }
+                    }
+                }
+            }
+            // Only fluid cells carry unknowns (a fluid child's empty parent got a
+            // share that the coarse problem has no place for).
+            for (b, &m) in bs.iter_mut().zip(&ccode[base..base + cslab]) {
+                *b *= mask_diag(m, T::of(1.0)).0 * scale;
+            }
+        });
+    }
+    v_cycle(levels, work, l + 1);
+    {
+        let (f, c) = (lv, &levels[l + 1]);
+        let (wf, wc) = work.split_at_mut(l + 1);
+        let (wf, wc) = (&mut wf[l], &wc[0]);
+        let (fnx, fny) = (f.n[0], f.n[1]);
+        let fslab = fnx * fny;
+        let (cx, fkind, cn, cint) = (&wc.x, &f.kind, c.n, &c.interior);
+        let (edges, edge_start, edge_weights) = (&f.edge_cells, &f.edge_start, &f.edge_weights);
+        let (cnx, cny) = (cn[0], cn[1]);
+        let flat = cn[2] == 1;
+        let frow = wf.rows.len() / f.n[2];
+        let (w916, w316, w116) = (T::of(0.5625), T::of(0.1875), T::of(0.0625));
+        let (w34, w14) = (T::of(0.75), T::of(0.25));
+        wf.x.par_chunks_mut(fslab)
+            .zip(wf.rows.par_chunks_mut(frow))
+            .enumerate()
+            .for_each(|(k, (xs, r))| {
+                let pk = k / 2;
+                let kz = if k % 2 == 0 {
+                    pk.wrapping_sub(1)
+                } else {
+                    pk + 1
+                };
+                for j in 0..fny {
+                    let pj = j / 2;
+                    let jy = if j % 2 == 0 {
+                        pj.wrapping_sub(1)
+                    } else {
+                        pj + 1
+                    };
+                    // The coarse rows blended over y and z (9/16, 3/16, 3/16, 1/16;
+                    // 3/4 and 1/4 in 2-D), when they exist: cells with an interior
+                    // parent then take 3/4 and 1/4 of two of its entries.
+                    let rows_ok = jy < cny && (flat || kz < cn[2]);
+                    if rows_ok {
+                        let row = |y: usize, z: usize| &cx[cnx * (y + cny * z)..][..cnx];
+                        if flat {
+                            let (a, b) = (row(pj, 0), row(jy, 0));
+                            for (ri, (aa, bb)) in r[..cnx].iter_mut().zip(a.iter().zip(b)) {
+                                *ri = w34 * *aa + w14 * *bb;
+                            }
+                        } else {
+                            let (a, b) = (row(pj, pk), row(jy, pk));
+                            let (c2, d) = (row(pj, kz), row(jy, kz));
+                            for (t, ri) in r[..cnx].iter_mut().enumerate() {
+                                *ri = w916 * a[t] + w316 * (b[t] + c2[t]) + w116 * d[t];
+                            }
+                        }
+                    }
+                    if !rows_ok {
+                        continue;
+                    }
+                    // Fine cells 2q and 2q + 1 of an interior parent q: its
+                    // neighbours q - 1 and q + 1 exist, and so does cell 2q + 1.
+                    let prow = &cint[cnx * (pj + cny * pk)..][..cnx];
+                    let base = k * fslab + j * fnx;
+                    let kinds = &fkind[base..base + fnx];
+                    let xrow = &mut xs[j * fnx..(j + 1) * fnx];
+                    for (q, _) in prow.iter().enumerate().filter(|(_, &inside)| inside) {
+                        if kinds[2 * q] == CellKind::Fluid {
+                            xrow[2 * q] += w34 * r[q] + w14 * r[q - 1];
+                        }
+                        if kinds[2 * q + 1] == CellKind::Fluid {
+                            xrow[2 * q + 1] += w34 * r[q] + w14 * r[q + 1];
+                        }
+                    }
+                }
+                // The fluid cells whose parent is not interior: the boundary rule.
+                let range = edge_start[k]..edge_start[k + 1];
+                for (&fidx, (cells, w)) in edges[range.clone()].iter().zip(&edge_weights[range]) {
+                    let mut v = T::ZERO;
+                    for (&cc, &wc) in cells.iter().zip(w) {
+                        v += T::of(f64::from(wc)) * cx[cc as usize];
+                    }
+                    xs[fidx as usize - k * fslab] += v;
+                }
+            });
+    }
+    lv.smooth_band(&mut work[l], BAND_SWEEPS);
+    lv.smooth(&mut work[l], SWEEPS);
 }

@@ -8,7 +8,7 @@ use crate::fluid::scene::FluidSim;
 use crate::fluid::validation::{self, centerlines, profile_error, GHIA_RE100_U, GHIA_RE100_V};
 use crate::fluid::{Boundary, Correction, Interp};
 use crate::plot::{Curve, Panel, Scale};
-use crate::solve::{CellKind, GridPoisson, PoissonParams, PoissonPreconditioner};
+use crate::solve::{CellKind, GridPoisson, PoissonParams, PoissonPreconditioner, Precision};
 use serde::Serialize;
 use std::f64::consts::PI;
 use std::fmt::Write as _;
@@ -403,13 +403,23 @@ pub(super) fn poisson(
     } else {
         vec![16, 32, 64, 128]
     };
+    // Jacobi in f64 only: its iteration count checks the matrix against SciPy's.
     let pres = [
-        (PoissonPreconditioner::Jacobi, "Jacobi"),
-        (PoissonPreconditioner::Multigrid, "multigrid"),
+        (PoissonPreconditioner::Jacobi, Precision::Double, "Jacobi"),
+        (
+            PoissonPreconditioner::Multigrid,
+            Precision::Double,
+            "multigrid, f64 cycle",
+        ),
+        (
+            PoissonPreconditioner::Multigrid,
+            Precision::Single,
+            "multigrid, f32 cycle",
+        ),
     ];
     progress.expect(ns.len() * pres.len());
     let mut sweeps: Vec<(&str, Vec<PoissonPoint>)> = Vec::new();
-    for (pre, name) in pres {
+    for (pre, precision, name) in pres {
         let mut pts = Vec::new();
         for &n in &ns {
             let (cells, h, kind, b) = poisson_problem(n);
@@ -430,6 +440,7 @@ pub(super) fn poisson(
                         tolerance: 1e-6,
                         max_iterations: 10_000,
                         preconditioner: pre,
+                        precision,
                     },
                 )
                 .expect("the solve converges");
