@@ -19,17 +19,23 @@
 //! is empty if any child is, else fluid if any child is, else solid), the operator
 //! rediscretised on each level, trilinear (cell-centred; bilinear in 2-D) prolongation P
 //! and restriction `P^T / 8` (`P^T / 4` in 2-D), applied row by row with the separable
-//! weights where the parent cell is interior, damped Jacobi smoothing (omega = 6/7, three sweeps before and after) with
-//! four more sweeps over a band of cells near walls and open boundaries (after the
-//! pre-smoothing, before the post-smoothing), and a fixed number of sweeps on the
-//! coarsest level, so the cycle is a fixed symmetric positive definite operator.
+//! weights where the parent cell is interior, damped Jacobi smoothing (omega = 6/7, three
+//! sweeps before and after) with one more sweep over a band of cells near walls and open
+//! boundaries (after the pre-smoothing, before the post-smoothing), and a fixed number
+//! of sweeps on the coarsest level, so the cycle is a fixed symmetric positive definite
+//! operator. By default the cycle runs in `f32` ([`Precision`]; McAdams et al. run
+//! their whole solver so): half the bytes per sweep, the same iteration counts (8 at
+//! 128^3 to 1e-6 in either precision). CG's own vectors stay `f64`, and its `beta` is
+//! the Polak-Ribiere form, which tolerates the rounding's small change of the
+//! preconditioner from one application to the next.
 //! Measured on the unit cube with open faces (`tests/poisson.rs`, rough right side,
-//! relative residual 1e-8): 7, 6 and 6 iterations at 15^3, 31^3 and 63^3 cells.
+//! relative residual 1e-8): 8, 7 and 7 iterations at 15^3, 31^3 and 63^3 cells (7, 6
+//! and 6 with four band sweeps in `f64`).
 //! Earlier versions, measured on the smooth right side (the sine of that test) to 1e-10:
 //! piecewise-constant transfers took 19, 27 and 38 iterations (the orders of the two
 //! transfers add up to two, the operator's order, which is not enough for a V-cycle);
 //! trilinear ones with two sweeps at omega = 2/3 and no band, 15, 18 and 21. Work is parallel over z-slabs with reductions in a fixed
-//! order (`largestep_kernels::vec::dot_par`): the same bits on any thread count.
+//! order (fixed chunks of cells): the same bits on any thread count.
 
 use super::{SolveError, SolveInfo};
 use rayon::prelude::*;
@@ -110,8 +116,12 @@ const COARSE_SWEEPS: usize = 60;
 /// Smoothing sweeps before and after the coarse correction.
 const SWEEPS: usize = 3;
 /// Extra sweeps on the boundary band, after the pre-smoothing and before the
-/// post-smoothing (so the cycle stays symmetric).
-const BAND_SWEEPS: usize = 4;
+/// post-smoothing (so the cycle stays symmetric). Measured on 32^3, 64^3 and 128^3 cells
+/// to 1e-6 (the bench's problem, and a wavy free surface over a ball): none, 8-9 and 7-8
+/// iterations; one, 8 and 7-8; two, 7-8 and 7; four, 7-8 and 6-7. A band sweep costs
+/// about half a full sweep (gathers through stored neighbours), so one pays best:
+/// 0.32-0.37 s against 0.35-0.46 s with four for the 128^3 solve with setup.
+const BAND_SWEEPS: usize = 1;
 /// Jacobi damping.
 const OMEGA: f64 = 6.0 / 7.0;
 
