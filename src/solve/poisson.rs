@@ -238,45 +238,32 @@ trait Real:
     fn max(self, o: Self) -> Self;
 }
 
-impl Real for f64 {
-    const ZERO: Self = 0.0;
-    #[inline(always)]
-    fn of(v: f64) -> Self {
-        v
-    }
-    #[inline(always)]
-    fn get(self) -> f64 {
-        self
-    }
-    #[inline(always)]
-    fn min(self, o: Self) -> Self {
-        f64::min(self, o)
-    }
-    #[inline(always)]
-    fn max(self, o: Self) -> Self {
-        f64::max(self, o)
-    }
+/// `Real` for a primitive float type.
+macro_rules! real {
+    ($t:ty) => {
+        impl Real for $t {
+            const ZERO: Self = 0.0;
+            #[inline(always)]
+            fn of(v: f64) -> Self {
+                v as $t
+            }
+            #[inline(always)]
+            fn get(self) -> f64 {
+                f64::from(self)
+            }
+            #[inline(always)]
+            fn min(self, o: Self) -> Self {
+                <$t>::min(self, o)
+            }
+            #[inline(always)]
+            fn max(self, o: Self) -> Self {
+                <$t>::max(self, o)
+            }
+        }
+    };
 }
-
-impl Real for f32 {
-    const ZERO: Self = 0.0;
-    #[inline(always)]
-    fn of(v: f64) -> Self {
-        v as f32
-    }
-    #[inline(always)]
-    fn get(self) -> f64 {
-        f64::from(self)
-    }
-    #[inline(always)]
-    fn min(self, o: Self) -> Self {
-        f32::min(self, o)
-    }
-    #[inline(always)]
-    fn max(self, o: Self) -> Self {
-        f32::max(self, o)
-    }
-}
+real!(f64);
+real!(f32);
 
 impl Level {
     /// A level; `coarse`: one that finer levels interpolate from (it needs `interior`).
@@ -1142,25 +1129,29 @@ impl GridPoisson {
             )));
         }
         match params.precision {
-            Precision::Single => {
-                if self.work32.is_empty() {
-                    self.work32 = Work::for_levels(&self.levels);
-                }
-                let mut work = std::mem::take(&mut self.work32);
-                let out = self.cg(&mut work, p, b, params, start);
-                self.work32 = work;
-                out
-            }
-            Precision::Double => {
-                if self.work64.is_empty() {
-                    self.work64 = Work::for_levels(&self.levels);
-                }
-                let mut work = std::mem::take(&mut self.work64);
-                let out = self.cg(&mut work, p, b, params, start);
-                self.work64 = work;
-                out
-            }
+            Precision::Single => self.cg_in(|g| &mut g.work32, p, b, params, start),
+            Precision::Double => self.cg_in(|g| &mut g.work64, p, b, params, start),
         }
+    }
+
+    /// [`GridPoisson::cg`] in the V-cycle vectors that `slot` picks, made first if this
+    /// is the first solve in their precision.
+    fn cg_in<T: Real>(
+        &mut self,
+        slot: fn(&mut GridPoisson) -> &mut Vec<Work<T>>,
+        p: &mut [f64],
+        b: &[f64],
+        params: &PoissonParams,
+        start: Instant,
+    ) -> Result<SolveInfo, SolveError> {
+        if slot(self).is_empty() {
+            let made = Work::for_levels(&self.levels);
+            *slot(self) = made;
+        }
+        let mut work = std::mem::take(slot(self));
+        let out = self.cg(&mut work, p, b, params, start);
+        *slot(self) = work;
+        out
     }
 
     /// [`GridPoisson::solve`] after its checks, with the preconditioner's vectors in `T`.
@@ -1233,14 +1224,11 @@ impl GridPoisson {
             .zip(r.par_iter())
             .with_min_len(CG_CHUNK)
             .for_each(|(b, &r)| *b = T::of(r));
-        precondition(
-            levels,
-            work,
-            params.preconditioner,
-            singular,
-            fluid,
-            partial,
-        );
+        let pre = params.preconditioner;
+        let precondition = |work: &mut [Work<T>], partial: &mut [f64]| {
+            precondition(levels, work, pre, singular, fluid, partial)
+        };
+        precondition(work, partial);
         d.par_iter_mut()
             .zip(work[0].x.par_iter())
             .with_min_len(CG_CHUNK)
@@ -1271,14 +1259,7 @@ impl GridPoisson {
                     seconds: start.elapsed().as_secs_f64(),
                 });
             }
-            precondition(
-                levels,
-                work,
-                params.preconditioner,
-                singular,
-                fluid,
-                partial,
-            );
+            precondition(work, partial);
             let z = &work[0].x;
             let [rz_new, zq] = cg_dots(r, q, z, partial);
             let beta = -alpha * zq / rz;
