@@ -905,7 +905,8 @@ fn for_neighbours(n: [usize; 3], per: [bool; 3], idx: usize, mut f: impl FnMut(u
 }
 
 /// A Poisson problem on a cell grid, with its multigrid hierarchy and CG vectors (built
-/// once; solves allocate nothing).
+/// once; solves allocate nothing, except that the first solve in the precision that is
+/// not the default makes its V-cycle vectors).
 #[derive(Clone, Debug)]
 pub struct GridPoisson {
     levels: Vec<Level>,
