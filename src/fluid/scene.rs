@@ -337,7 +337,7 @@ pub fn desc(ctx: &Context<'_>, t: &FluidTable) -> Result<FluidDesc, SceneError> 
         &at("precision"),
         "precision",
         t.precision.as_deref(),
-        Precision::Single,
+        Precision::default(),
         &[("single", Precision::Single), ("double", Precision::Double)],
     )?;
     let initial = match t.initial.as_deref() {

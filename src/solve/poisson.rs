@@ -38,6 +38,8 @@
 //! order (fixed chunks of cells): the same bits on any thread count.
 
 use super::{SolveError, SolveInfo};
+use largestep_kernels::par::{chunk_count, chunk_range, par_reduce, Disjoint};
+use largestep_kernels::vec::{axpy, dot, dot_par};
 use rayon::prelude::*;
 use std::time::Instant;
 
@@ -480,25 +482,24 @@ impl Level {
         });
     }
 
-    /// `y = A x` for CG's vectors, returning `x . y` (one partial sum per task in
-    /// `partial`, added in task order).
-    fn apply_dot(&self, y: &mut [f64], x: &[f64], partial: &mut [f64]) -> f64 {
+    /// `y = A x` for CG's vectors, returning `x . y` (per task, added over
+    /// `par_reduce`'s fixed tree).
+    fn apply_dot(&self, y: &mut [f64], x: &[f64]) -> f64 {
         let (nx, ny) = (self.n[0], self.n[1]);
-        let rows = self.task_rows();
-        let tasks = y.len().div_ceil(rows * nx);
-        partial[..tasks]
-            .par_iter_mut()
-            .zip(y.par_chunks_mut(rows * nx))
-            .enumerate()
-            .for_each(|(t, (s, ys))| {
-                for (lr, row) in ys.chunks_mut(nx).enumerate() {
-                    let r = t * rows + lr;
-                    self.row_into(r / ny, r % ny, x, row);
-                }
-                let base = t * rows * nx;
-                *s = dot_lanes(&x[base..base + ys.len()], ys);
-            });
-        partial[..tasks].iter().sum()
+        let task = self.task_rows() * nx;
+        let len = y.len();
+        let yd = Disjoint::new(y);
+        let [s] = par_reduce(chunk_count(len, task), &|t| {
+            let range = chunk_range(t, len, task);
+            // SAFETY: the tasks' ranges are disjoint.
+            let ys = unsafe { yd.slice(range.clone()) };
+            for (lr, row) in ys.chunks_mut(nx).enumerate() {
+                let r = range.start / nx + lr;
+                self.row_into(r / ny, r % ny, x, row);
+            }
+            [dot_lanes(&x[range], ys)]
+        });
+        s
     }
 
     /// Rows of x per parallel task: a z-slab in 3-D, in 2-D (one slab) enough rows for a
@@ -919,9 +920,6 @@ pub struct GridPoisson {
     r: Vec<f64>,
     p: Vec<f64>,
     q: Vec<f64>,
-    /// Partial sums of the reductions, one per fixed chunk (the same bits on any thread
-    /// count).
-    partial: Vec<f64>,
     /// The V-cycle's vectors in each precision: the default's made with the problem, the
     /// other's by the first solve that asks for it.
     work32: Vec<Work<f32>>,
@@ -1063,18 +1061,9 @@ impl GridPoisson {
             .par_iter()
             .filter(|&&k| k == CellKind::Fluid)
             .count();
-        // One partial sum per chunk of the CG passes and per task of the fine level's
-        // product.
-        let tasks = (l0.n[1] * l0.n[2]).div_ceil(l0.task_rows());
-        // (Twice over: `cg_dots` keeps two sums a chunk.)
-        let partial = vec![0.0; 2 * cells.div_ceil(CG_CHUNK).max(tasks)];
-        let work32 = match PoissonParams::default().precision {
-            Precision::Single => Work::for_levels(&levels),
-            Precision::Double => Vec::new(),
-        };
-        let work64 = match PoissonParams::default().precision {
-            Precision::Single => Vec::new(),
-            Precision::Double => Work::for_levels(&levels),
+        let (work32, work64) = match Precision::default() {
+            Precision::Single => (Work::for_levels(&levels), Vec::new()),
+            Precision::Double => (Vec::new(), Work::for_levels(&levels)),
         };
         Ok(Self {
             levels,
@@ -1083,7 +1072,6 @@ impl GridPoisson {
             r: vec![0.0; cells],
             p: vec![0.0; cells],
             q: vec![0.0; cells],
-            partial,
             work32,
             work64,
         })
@@ -1177,14 +1165,13 @@ impl GridPoisson {
             r,
             p: d,
             q,
-            partial,
             ..
         } = self;
-        let (levels, partial) = (&levels[..], &mut partial[..]);
+        let levels = &levels[..];
         let (singular, fluid) = (*singular, *fluid);
-        let mean = |v: &mut [f64], partial: &mut [f64]| {
+        let mean = |v: &mut [f64]| {
             if singular {
-                zero_mean(&levels[0], fluid, v, partial);
+                zero_mean(&levels[0], fluid, v);
             }
         };
         let code = &levels[0].code;
@@ -1201,17 +1188,17 @@ impl GridPoisson {
                 }
                 *q = if fluid { b } else { 0.0 };
             });
-        mean(q, partial);
-        let bnorm = dot_chunks(q, q, partial).sqrt();
+        mean(q);
+        let bnorm = dot_par(q, q).sqrt();
         // r = b - A p.
         levels[0].apply(r, p);
         r.par_iter_mut()
             .zip(q.par_iter())
             .with_min_len(CG_CHUNK)
             .for_each(|(r, q)| *r = q - *r);
-        mean(r, partial);
+        mean(r);
         let target = params.tolerance * bnorm;
-        let mut rnorm = dot_chunks(r, r, partial).sqrt();
+        let mut rnorm = dot_par(r, r).sqrt();
         if rnorm <= target || bnorm == 0.0 {
             return Ok(SolveInfo {
                 iterations: 0,
@@ -1226,17 +1213,15 @@ impl GridPoisson {
             .with_min_len(CG_CHUNK)
             .for_each(|(b, &r)| *b = T::of(r));
         let pre = params.preconditioner;
-        let precondition = |work: &mut [Work<T>], partial: &mut [f64]| {
-            precondition(levels, work, pre, singular, fluid, partial)
-        };
-        precondition(work, partial);
+        let precondition = |work: &mut [Work<T>]| precondition(levels, work, pre, singular, fluid);
+        precondition(work);
         d.par_iter_mut()
             .zip(work[0].x.par_iter())
             .with_min_len(CG_CHUNK)
             .for_each(|(d, &z)| *d = z.get());
-        let mut rz = dot_chunks(r, &work[0].x, partial);
+        let [mut rz, _] = cg_dots(r, q, &work[0].x);
         for it in 1..=params.max_iterations {
-            let pq = levels[0].apply_dot(q, d, partial);
+            let pq = levels[0].apply_dot(q, d);
             if pq.is_nan() || pq <= 0.0 {
                 return Err(SolveError::NotPositiveDefinite {
                     what: "curvature p.Ap",
@@ -1245,7 +1230,7 @@ impl GridPoisson {
                 });
             }
             let alpha = rz / pq;
-            rnorm = cg_update(p, r, &mut work[0].b, d, q, alpha, partial).sqrt();
+            rnorm = cg_update(p, r, &mut work[0].b, d, q, alpha).sqrt();
             if !rnorm.is_finite() {
                 return Err(SolveError::NonFinite {
                     what: "Poisson residual",
@@ -1253,16 +1238,16 @@ impl GridPoisson {
                 });
             }
             if rnorm <= target {
-                mean(p, partial);
+                mean(p);
                 return Ok(SolveInfo {
                     iterations: it,
                     residual: rnorm / bnorm,
                     seconds: start.elapsed().as_secs_f64(),
                 });
             }
-            precondition(work, partial);
+            precondition(work);
             let z = &work[0].x;
-            let [rz_new, zq] = cg_dots(r, q, z, partial);
+            let [rz_new, zq] = cg_dots(r, q, z);
             let beta = -alpha * zq / rz;
             rz = rz_new;
             d.par_chunks_mut(CG_CHUNK)
@@ -1281,12 +1266,12 @@ impl GridPoisson {
     }
 }
 
-/// Cells per chunk of CG's vector passes: the partial sums of each chunk are added in
-/// chunk order, so the bits do not depend on the thread count.
+/// Cells per chunk of CG's vector passes, whose sums `par_reduce` adds over a fixed
+/// tree: the same bits on any thread count.
 const CG_CHUNK: usize = 16_384;
 
 /// `sum a_i b_i` with eight running sums, added in a fixed order (so the loop
-/// vectorises and the result is the same wherever the slices are cut from).
+/// vectorises, whichever of `f32` and `f64` each side is).
 #[inline]
 fn dot_lanes<T: Real, U: Real>(a: &[T], b: &[U]) -> f64 {
     let mut acc = [0.0f64; 8];
@@ -1303,16 +1288,6 @@ fn dot_lanes<T: Real, U: Real>(a: &[T], b: &[U]) -> f64 {
     acc.iter().sum::<f64>() + s
 }
 
-/// `a . b` over chunks of [`CG_CHUNK`], in parallel and deterministic.
-fn dot_chunks<T: Real, U: Real>(a: &[T], b: &[U], partial: &mut [f64]) -> f64 {
-    let n = a.len().div_ceil(CG_CHUNK);
-    partial[..n]
-        .par_iter_mut()
-        .zip(a.par_chunks(CG_CHUNK).zip(b.par_chunks(CG_CHUNK)))
-        .for_each(|(s, (a, b))| *s = dot_lanes(a, b));
-    partial[..n].iter().sum()
-}
-
 /// One pass of CG: `x += alpha p`, `r -= alpha q`, the preconditioner's right side
 /// `b = r` rounded to `T`; returns `r . r`.
 fn cg_update<T: Real>(
@@ -1322,64 +1297,57 @@ fn cg_update<T: Real>(
     p: &[f64],
     q: &[f64],
     alpha: f64,
-    partial: &mut [f64],
 ) -> f64 {
-    let n = x.len().div_ceil(CG_CHUNK);
-    partial[..n]
-        .par_iter_mut()
-        .zip(x.par_chunks_mut(CG_CHUNK).zip(r.par_chunks_mut(CG_CHUNK)))
-        .zip(b.par_chunks_mut(CG_CHUNK))
-        .zip(p.par_chunks(CG_CHUNK).zip(q.par_chunks(CG_CHUNK)))
-        .for_each(|(((s, (x, r)), b), (p, q))| {
-            for (x, p) in x.iter_mut().zip(p) {
-                *x += alpha * p;
-            }
-            for ((r, b), q) in r.iter_mut().zip(b.iter_mut()).zip(q) {
-                *r -= alpha * q;
-                *b = T::of(*r);
-            }
-            // The chunk is still in cache.
-            *s = dot_lanes(r, r);
-        });
-    partial[..n].iter().sum()
+    let len = x.len();
+    let (xd, rd, bd) = (Disjoint::new(x), Disjoint::new(r), Disjoint::new(b));
+    let [s] = par_reduce(chunk_count(len, CG_CHUNK), &|c| {
+        let range = chunk_range(c, len, CG_CHUNK);
+        // SAFETY: the chunks' ranges are disjoint.
+        let (x, r, b) = unsafe {
+            (
+                xd.slice(range.clone()),
+                rd.slice(range.clone()),
+                bd.slice(range.clone()),
+            )
+        };
+        axpy(x, alpha, &p[range.clone()]);
+        axpy(r, -alpha, &q[range]);
+        for (b, &r) in b.iter_mut().zip(r.iter()) {
+            *b = T::of(r);
+        }
+        // The chunk is still in cache.
+        [dot(r, r)]
+    });
+    s
 }
 
-/// `[r . z, z . q]` in one pass (the two partial sums of each chunk side by side).
-fn cg_dots<T: Real>(r: &[f64], q: &[f64], z: &[T], partial: &mut [f64]) -> [f64; 2] {
-    let n = r.len().div_ceil(CG_CHUNK);
-    let (rz, zq) = partial.split_at_mut(partial.len() / 2);
-    debug_assert!(rz.len() >= n && zq.len() >= n);
-    rz[..n]
-        .par_iter_mut()
-        .zip(zq[..n].par_iter_mut())
-        .zip(r.par_chunks(CG_CHUNK).zip(q.par_chunks(CG_CHUNK)))
-        .zip(z.par_chunks(CG_CHUNK))
-        .for_each(|(((a, b), (r, q)), z)| {
-            *a = dot_lanes(r, z);
-            *b = dot_lanes(z, q);
-        });
-    [rz[..n].iter().sum(), zq[..n].iter().sum()]
+/// `[r . z, z . q]` in one pass.
+fn cg_dots<T: Real>(r: &[f64], q: &[f64], z: &[T]) -> [f64; 2] {
+    let len = r.len();
+    par_reduce(chunk_count(len, CG_CHUNK), &|c| {
+        let range = chunk_range(c, len, CG_CHUNK);
+        let z = &z[range.clone()];
+        [dot_lanes(&r[range.clone()], z), dot_lanes(z, &q[range])]
+    })
 }
 
 /// Sets the mean of `v` over the `fluid` fluid cells of `level` to zero (singular
 /// problems: the constant null space).
-fn zero_mean<T: Real>(level: &Level, fluid: usize, v: &mut [T], partial: &mut [f64]) {
+fn zero_mean<T: Real>(level: &Level, fluid: usize, v: &mut [T]) {
     if fluid == 0 {
         return;
     }
-    let n = v.len().div_ceil(CG_CHUNK);
-    partial[..n]
-        .par_iter_mut()
-        .zip(v.par_chunks(CG_CHUNK).zip(level.code.par_chunks(CG_CHUNK)))
-        .for_each(|(s, (v, c))| {
-            *s = v
-                .iter()
-                .zip(c)
-                .filter(|(_, &c)| c > 0)
-                .map(|(v, _)| v.get())
-                .sum()
-        });
-    let mean = T::of(partial[..n].iter().sum::<f64>() / fluid as f64);
+    let len = v.len();
+    let [sum] = par_reduce(chunk_count(len, CG_CHUNK), &|c| {
+        let range = chunk_range(c, len, CG_CHUNK);
+        [v[range.clone()]
+            .iter()
+            .zip(&level.code[range])
+            .filter(|(_, &c)| c > 0)
+            .map(|(v, _)| v.get())
+            .sum()]
+    });
+    let mean = T::of(sum / fluid as f64);
     v.par_chunks_mut(CG_CHUNK)
         .zip(level.code.par_chunks(CG_CHUNK))
         .for_each(|(v, c)| {
@@ -1399,7 +1367,6 @@ fn precondition<T: Real>(
     pre: PoissonPreconditioner,
     singular: bool,
     fluid: usize,
-    partial: &mut [f64],
 ) {
     match pre {
         PoissonPreconditioner::Jacobi => {
@@ -1418,7 +1385,7 @@ fn precondition<T: Real>(
         PoissonPreconditioner::Multigrid => v_cycle(levels, work, 0),
     }
     if singular {
-        zero_mean(&levels[0], fluid, &mut work[0].x, partial);
+        zero_mean(&levels[0], fluid, &mut work[0].x);
     }
 }
 
