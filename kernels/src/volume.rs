@@ -1348,6 +1348,15 @@ mod tests {
         view
     }
 
+    /// Eyes and targets around the two balls' grid: straight on, oblique, inside the
+    /// grid, and from below.
+    const FOUR_VIEWS: [([f32; 3], [f32; 3]); 4] = [
+        ([20.0, 20.0, 90.0], [20.0, 20.0, 20.0]),
+        ([-30.0, 55.0, 70.0], [18.0, 18.0, 18.0]),
+        ([20.0, 20.0, 20.0], [0.0, 40.0, 0.0]),
+        ([75.0, -20.0, -35.0], [12.0, 24.0, 14.0]),
+    ];
+
     /// The light from straight above through the two balls' grid, with the test view's
     /// transfer function.
     fn light_from_above(n: [usize; 3], density: &[f32]) -> Vec<f32> {
@@ -1405,12 +1414,7 @@ mod tests {
         block_max(&mut blocks, &density, n, 4);
         let mut solid_blocks = vec![0.0; 1000];
         block_max(&mut solid_blocks, &solid, n, 4);
-        for (eye, target) in [
-            ([20.0, 20.0, 90.0], [20.0, 20.0, 20.0]),
-            ([-30.0, 55.0, 70.0], [18.0, 18.0, 18.0]),
-            ([20.0, 20.0, 20.0], [0.0, 40.0, 0.0]),
-            ([75.0, -20.0, -35.0], [12.0, 24.0, 14.0]),
-        ] {
+        for (eye, target) in FOUR_VIEWS {
             let view = smoke_view(eye, target);
             let mut clear = vec![0u8; 1000];
             clearance(&mut clear, &mut [0; 10], &blocks, &solid_blocks, nb, &view);
@@ -1510,12 +1514,7 @@ mod tests {
         let nb = [10, 10, 10];
         let mut blocks = vec![0.0; 1000];
         block_max(&mut blocks, &density, n, 4);
-        for (eye, target) in [
-            ([20.0, 20.0, 90.0], [20.0, 20.0, 20.0]),
-            ([-30.0, 55.0, 70.0], [18.0, 18.0, 18.0]),
-            ([20.0, 20.0, 20.0], [0.0, 40.0, 0.0]),
-            ([75.0, -20.0, -35.0], [12.0, 24.0, 14.0]),
-        ] {
+        for (eye, target) in FOUR_VIEWS {
             let view = smoke_view(eye, target);
             let image = |clearance: &[u8]| {
                 let mut rgb = vec![0u8; 64 * 48 * 3];
