@@ -792,7 +792,6 @@ fn march<const LANES: bool>(
         col: [0.0; 3],
         trans: 1.0,
         m: 0.0,
-        opaque_from: lattice.opaque_from,
     };
     let blk = vol.block as f32;
     // Exact for the power-of-two blocks in use; otherwise a rounding that only moves a
@@ -939,8 +938,6 @@ struct Ray {
     col: [f32; 3],
     trans: f32,
     m: f32,
-    /// The first bin of the view's table with opacity ([`View::opaque_from`]).
-    opaque_from: i32,
 }
 
 impl Ray {
@@ -962,20 +959,18 @@ impl Ray {
         if LANES && lattice.lanes {
             return self.sample_eights(vol, lattice, view, end, solid);
         }
-        let (o, d, step) = (self.o, self.d, view.step);
-        let mut t = self.t0 + (self.m + 0.5) * step;
+        let (o, d) = (self.o, self.d);
+        let mut t = self.t(view.step);
         while t < end {
             let p = [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
             let corner = Corner::new(lattice, p);
-            if solid && corner.sample(vol.solid) >= 0.5 {
-                return Some(surface(vol, view, o, d, t, self.trans, self.col));
-            }
-            let rho = corner.sample(vol.density);
-            if let Some(c) = self.composite(view, rho, || corner.sample(vol.light)) {
+            let hit = solid && corner.sample(vol.solid) >= 0.5;
+            let rho = || corner.sample(vol.density);
+            if let Some(c) = self.take(vol, lattice, view, t, hit, rho, || corner.sample(vol.light))
+            {
                 return Some(c);
             }
-            self.m += 1.0;
-            t = self.t0 + (self.m + 0.5) * step;
+            t = self.t(view.step);
         }
         None
     }
@@ -991,41 +986,67 @@ impl Ray {
         end: f32,
         solid: bool,
     ) -> Option<[f32; 3]> {
-        let (o, d, step) = (self.o, self.d, view.step);
-        let mut t = self.t0 + (self.m + 0.5) * step;
+        let step = view.step;
+        let mut t = self.t(step);
         while t < end {
             let e = lanes::eight(
                 vol,
                 lattice,
-                [o, d],
+                [self.o, self.d],
                 [self.t0, self.m, step],
                 solid,
-                (view, self.opaque_from),
+                view,
             );
             if !e.opaque && !solid {
                 // No sample with extinction: move past them.
                 let left = ((end - t) / step).ceil();
                 if left > 8.0 {
                     self.m += 8.0;
-                    t = self.t0 + (self.m + 0.5) * step;
+                    t = self.t(step);
                     continue;
                 }
             }
             for k in 0..8 {
-                if solid && e.solid[k] >= 0.5 {
-                    return Some(surface(vol, view, o, d, t, self.trans, self.col));
-                }
-                if let Some(c) = self.composite(view, e.rho[k], || e.lit[k]) {
+                let hit = solid && e.solid[k] >= 0.5;
+                if let Some(c) = self.take(vol, lattice, view, t, hit, || e.rho[k], || e.lit[k]) {
                     return Some(c);
                 }
-                self.m += 1.0;
-                t = self.t0 + (self.m + 0.5) * step;
+                t = self.t(step);
                 if t >= end {
                     break;
                 }
             }
         }
         None
+    }
+
+    /// The ray parameter of the next lattice point.
+    #[inline(always)]
+    fn t(&self, step: f32) -> f32 {
+        self.t0 + (self.m + 0.5) * step
+    }
+
+    /// Takes the lattice point at `t`: the solid's surface if `hit` (the occupancy
+    /// there is at least one half), otherwise the sample of density `rho()` lit by
+    /// `lit()`, then moves to the next point. `Some(colour)` when the ray ends there.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn take(
+        &mut self,
+        vol: &Volume<'_>,
+        lattice: &Lattice,
+        view: &View,
+        t: f32,
+        hit: bool,
+        rho: impl FnOnce() -> f32,
+        lit: impl FnOnce() -> f32,
+    ) -> Option<[f32; 3]> {
+        if hit {
+            return Some(surface(vol, lattice, view, self, t));
+        }
+        let c = self.composite(view, rho(), lit);
+        self.m += 1.0;
+        c
     }
 
     /// Moves on to the first lattice point at or past `t` (from one not past it).
@@ -1114,7 +1135,7 @@ mod lanes {
         [o, d]: [[f32; 3]; 2],
         [t0, m, step]: [f32; 3],
         solid: bool,
-        (view, opaque_from): (&View, i32),
+        view: &View,
     ) -> Eight {
         let density = &vol.density[..l.cells];
         let light = &vol.light[..l.cells];
@@ -1203,7 +1224,7 @@ mod lanes {
                 _mm256_set1_ps((TABLE_BINS - 1) as f32),
             );
             let bin = _mm256_cvttps_epi32(_mm256_add_ps(x, half));
-            let past = _mm256_cmpgt_epi32(bin, _mm256_set1_epi32(opaque_from - 1));
+            let past = _mm256_cmpgt_epi32(bin, _mm256_set1_epi32(l.opaque_from - 1));
             e.opaque = _mm256_movemask_epi8(past) != 0;
             if e.opaque {
                 _mm256_storeu_ps(e.lit.as_mut_ptr(), trilinear(light));
@@ -1216,24 +1237,18 @@ mod lanes {
     }
 }
 
-/// The colour `col` plus the solid surface met between the samples at `t - step` and
+/// The ray's colour plus the solid surface met between the samples at `t - step` and
 /// `t`: found by bisection, then shaded by Lambert with the occupancy's gradient as the
-/// normal and the light reaching it, seen through the transmittance `trans`.
+/// normal and the light reaching it, seen through the ray's transmittance.
 #[cold]
-fn surface(
-    vol: &Volume<'_>,
-    view: &View,
-    o: [f32; 3],
-    d: [f32; 3],
-    t: f32,
-    trans: f32,
-    mut col: [f32; 3],
-) -> [f32; 3] {
+fn surface(vol: &Volume<'_>, lattice: &Lattice, view: &View, ray: &Ray, t: f32) -> [f32; 3] {
+    let (o, d, trans, mut col) = (ray.o, ray.d, ray.trans, ray.col);
+    let trilinear = |f: &[f32], p: [f32; 3]| Corner::new(lattice, p).sample(f);
     let (mut lo, mut hi) = (t - view.step, t);
     for _ in 0..5 {
         let mid = 0.5 * (lo + hi);
         let q = [o[0] + mid * d[0], o[1] + mid * d[1], o[2] + mid * d[2]];
-        if trilinear(vol.solid, vol.n, q) >= 0.5 {
+        if trilinear(vol.solid, q) >= 0.5 {
             hi = mid;
         } else {
             lo = mid;
@@ -1246,12 +1261,12 @@ fn surface(
         let mut lo = p;
         hi[a] += e;
         lo[a] -= e;
-        trilinear(vol.solid, vol.n, lo) - trilinear(vol.solid, vol.n, hi)
+        trilinear(vol.solid, lo) - trilinear(vol.solid, hi)
     });
     let gl = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt().max(1e-6);
     let ndl = ((g[0] * view.to_light[0] + g[1] * view.to_light[1] + g[2] * view.to_light[2]) / gl)
         .max(0.0);
-    let lit = trilinear(vol.light, vol.n, p);
+    let lit = trilinear(vol.light, p);
     let shade = view.ambient + (1.0 - view.ambient) * ndl * lit;
     for (ck, sk) in col.iter_mut().zip(view.solid_colour) {
         *ck += trans * sk * shade;
