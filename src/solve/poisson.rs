@@ -18,8 +18,12 @@
 //! multigrid V-cycle (McAdams et al.): cells coarsened two by two by two (a coarse cell
 //! is empty if any child is, else fluid if any child is, else solid), the operator
 //! rediscretised on each level, trilinear (cell-centred; bilinear in 2-D) prolongation P
-//! and restriction `P^T / 8` (`P^T / 4` in 2-D), applied row by row with the separable
-//! weights where the parent cell is interior, damped Jacobi smoothing (omega = 6/7, three
+//! and restriction `P^T / 8` (`P^T / 4` in 2-D), the value beyond a wall mirrored and
+//! beyond an open side zero (`taps`), applied row by row with the separable weights
+//! where the parent cell's neighbours in the grid are all fluid (`box_interior`: the
+//! grid's walls and open sides need no cell-by-cell rule, which cut the transfers'
+//! boundary cells from 211,000 to 21,000 of the bench's 2.1 million and the transfers'
+//! time by about 60%), damped Jacobi smoothing (omega = 6/7, three
 //! sweeps before and after) with one more sweep over a band of cells near walls and open
 //! boundaries (after the pre-smoothing, before the post-smoothing), and a fixed number
 //! of sweeps on the coarsest level, so the cycle is a fixed symmetric positive definite
@@ -34,8 +38,10 @@
 //! Earlier versions, measured on the smooth right side (the sine of that test) to 1e-10:
 //! piecewise-constant transfers took 19, 27 and 38 iterations (the orders of the two
 //! transfers add up to two, the operator's order, which is not enough for a V-cycle);
-//! trilinear ones with two sweeps at omega = 2/3 and no band, 15, 18 and 21. Work is parallel over z-slabs with reductions in a fixed
-//! order (fixed chunks of cells): the same bits on any thread count.
+//! trilinear ones with two sweeps at omega = 2/3 and no band, 15, 18 and 21.
+//! Work is parallel over z-slabs, in tasks of at least `TASK_CELLS` cells (so the
+//! coarsest levels run on one thread), with reductions in a fixed order (fixed chunks of
+//! cells): the same bits on any thread count.
 
 use super::{SolveError, SolveInfo};
 use largestep_kernels::par::{chunk_count, chunk_range, par_reduce, Disjoint};
@@ -127,6 +133,17 @@ const BAND_SWEEPS: usize = 1;
 /// Jacobi damping.
 const OMEGA: f64 = 6.0 / 7.0;
 
+/// Cells a parallel task of the V-cycle takes at least: on the coarse levels, handing
+/// out smaller tasks costs more than running them (the 60 sweeps of the 8^3 level took
+/// 0.7-0.9 ms in parallel slabs, about 12 us a sweep).
+const TASK_CELLS: usize = 16_384;
+
+/// The least number of items of `cells` cells each that makes a task of the V-cycle
+/// (`TASK_CELLS`), for rayon's `with_min_len`: a level below it runs on one thread.
+fn grain(cells: usize) -> usize {
+    TASK_CELLS.div_ceil(cells.max(1))
+}
+
 /// One level of the hierarchy.
 #[derive(Clone, Debug)]
 struct Level {
@@ -142,8 +159,9 @@ struct Level {
     /// sweeps read 17 bytes a cell instead of 40 (a fine sweep over 128^3 cells ran at
     /// about a quarter of the triad bandwidth with the arrays).
     code: Vec<u8>,
-    /// Fluid cells whose 26 neighbours are all fluid cells of the grid: interpolation
-    /// from them needs no boundary rule.
+    /// Fluid cells whose neighbours in the grid (26 away from its edge) are all fluid
+    /// cells, not at the end of a periodic axis (`box_interior`): interpolation from
+    /// them is the product of each axis's `taps`, with no look at cell kinds.
     interior: Vec<bool>,
     /// Fluid cells within two cells of a non-fluid cell or the grid's edge, in order:
     /// the band that gets extra smoothing (McAdams et al. 2010, section 4).
@@ -347,7 +365,7 @@ impl Level {
         } else if n[0] == 1 || n[1] == 1 {
             vec![false; cells]
         } else {
-            box_interior(n, &fluid)
+            box_interior(n, &sides, &fluid)
         };
         Level {
             code,
@@ -528,6 +546,7 @@ impl Level {
         let inv_h2 = T::of(self.inv_h2);
         out.par_chunks_mut(rows * nx)
             .enumerate()
+            .with_min_len(grain(rows * nx))
             .for_each(|(t, os)| {
                 for (lr, row) in os.chunks_mut(nx).enumerate() {
                     let r = t * rows + lr;
@@ -574,6 +593,7 @@ impl Level {
                 .par_chunks_mut(CHUNK)
                 .zip(self.band.par_chunks(CHUNK))
                 .zip(self.band_nb.par_chunks(CHUNK))
+                .with_min_len(grain(CHUNK))
                 .for_each(|((rs, cells), nbs)| {
                     for ((r, &i), nb) in rs.iter_mut().zip(cells).zip(nbs) {
                         *r = b[i] - self.row(i, nb, x);
@@ -582,11 +602,14 @@ impl Level {
             // The updates, parallel over z-slabs (the band is in cell order).
             let slab = self.n[0] * self.n[1];
             let (band, start, inv, br) = (&self.band, &self.band_start, &self.band_inv, &w.band_r);
-            w.x.par_chunks_mut(slab).enumerate().for_each(|(k, xs)| {
-                for m in start[k]..start[k + 1] {
-                    xs[band[m] - k * slab] += T::of(inv[m]) * br[m];
-                }
-            });
+            w.x.par_chunks_mut(slab)
+                .enumerate()
+                .with_min_len(grain(slab))
+                .for_each(|(k, xs)| {
+                    for m in start[k]..start[k + 1] {
+                        xs[band[m] - k * slab] += T::of(inv[m]) * br[m];
+                    }
+                });
         }
     }
 
@@ -601,7 +624,7 @@ impl Level {
         w.x.par_iter_mut()
             .zip(w.b.par_iter())
             .zip(self.code.par_iter())
-            .with_min_len(4096)
+            .with_min_len(TASK_CELLS)
             .for_each(|((x, &b), &code)| {
                 *x = smoother_weight(code, inv_h2) * b;
             });
@@ -619,103 +642,37 @@ impl Level {
 }
 
 /// The trilinear (cell-centred) interpolation of fine cell `c` of a grid `fine` from the
-/// coarse grid `coarse` with kinds `ckind`: its parent's weight 27/64 and the parent's
-/// neighbours towards the cell 9/64, 3/64 and 1/64 (3/4 and 1/4 along each axis). A
-/// neighbour that is empty or beyond an open side contributes zero (p = 0 there); one
-/// that is solid or beyond a wall hands its weight to the parent (the value reflected);
-/// beyond a periodic side it is the cell at the other end. Returns eight coarse indices
-/// and weights (repeats allowed).
+/// coarse grid `coarse` with kinds `ckind`: the product of each axis's `taps` (its
+/// parent's weight 27/64 and the parent's neighbours towards the cell 9/64, 3/64 and
+/// 1/64 inside the grid; mirrored beyond a wall, zero beyond an open side, wrapped
+/// across a periodic one). A coarse cell that is empty contributes zero (p = 0 there);
+/// one that is solid hands its weight to the parent (the value reflected). Returns
+/// eight coarse indices and weights (repeats allowed).
 #[inline]
 fn weights(
     c: [usize; 3],
+    fine: [usize; 3],
     coarse: [usize; 3],
     sides: &[[Side; 2]; 3],
     ckind: &[CellKind],
-    cinterior: &[bool],
 ) -> ([usize; 8], [f64; 8]) {
-    // Weight of combination m (bit a set: the neighbour along axis a), 64ths.
-    const TENSOR: [f64; 8] = [
-        27.0 / 64.0,
-        9.0 / 64.0,
-        9.0 / 64.0,
-        3.0 / 64.0,
-        9.0 / 64.0,
-        3.0 / 64.0,
-        3.0 / 64.0,
-        1.0 / 64.0,
-    ];
-    let parent = c.map(|v| v / 2);
-    let pidx = parent[0] + coarse[0] * (parent[1] + coarse[1] * parent[2]);
-    if cinterior[pidx] {
-        // Every neighbour is a fluid cell of the grid: no boundary rule. In 2-D (one
-        // coarse cell along z) the z neighbours' weights go to the plane's cells.
-        let flat = coarse[2] == 1;
-        let step = [1isize, coarse[0] as isize, (coarse[0] * coarse[1]) as isize];
-        let sign = c.map(|v| if v % 2 == 0 { -1isize } else { 1 });
-        let cells = std::array::from_fn(|m| {
-            let mut q = pidx as isize;
-            for a in 0..if flat { 2 } else { 3 } {
-                if m >> a & 1 == 1 {
-                    q += sign[a] * step[a];
-                }
-            }
-            q as usize
-        });
-        if flat {
-            let w = std::array::from_fn(|m| {
-                if m < 4 {
-                    TENSOR[m] + TENSOR[m + 4]
-                } else {
-                    0.0
-                }
-            });
-            return (cells, w);
-        }
-        return (cells, TENSOR);
-    }
+    let t: [[(usize, f64); 2]; 3] =
+        std::array::from_fn(|a| taps(c[a], fine[a], coarse[a], sides[a]));
+    let index = |q: [usize; 3]| q[0] + coarse[0] * (q[1] + coarse[1] * q[2]);
+    let pidx = index(c.map(|v| v / 2));
     let mut cells = [pidx; 8];
     let mut w = [0.0; 8];
     for (m, (cm, wm)) in cells.iter_mut().zip(w.iter_mut()).enumerate() {
-        let mut q = parent;
-        let mut weight = 1.0;
-        // Beyond a side: which one.
-        let mut beyond = None;
-        for a in 0..3 {
-            if m >> a & 1 == 1 {
-                weight *= 0.25;
-                if c[a] % 2 == 0 {
-                    if q[a] > 0 {
-                        q[a] -= 1;
-                    } else if sides[a][0] == Side::Periodic && coarse[a] > 1 {
-                        q[a] = coarse[a] - 1;
-                    } else {
-                        beyond = Some(sides[a][0]);
-                    }
-                } else if q[a] + 1 < coarse[a] {
-                    q[a] += 1;
-                } else if sides[a][1] == Side::Periodic && coarse[a] > 1 {
-                    q[a] = 0;
-                } else {
-                    beyond = Some(sides[a][1]);
-                }
-            } else {
-                weight *= 0.75;
-            }
+        let pick: [(usize, f64); 3] = std::array::from_fn(|a| t[a][m >> a & 1]);
+        *wm = pick[0].1 * pick[1].1 * pick[2].1;
+        if *wm == 0.0 {
+            continue;
         }
-        *wm = weight;
-        match beyond {
-            Some(Side::Open) => {
-                *wm = 0.0;
-                continue;
-            }
-            Some(_) => continue, // a wall: the parent's
-            None => {}
-        }
-        let qidx = q[0] + coarse[0] * (q[1] + coarse[1] * q[2]);
+        let qidx = index(pick.map(|p| p.0));
         match ckind[qidx] {
             CellKind::Fluid => *cm = qidx,
             CellKind::Empty => *wm = 0.0,
-            CellKind::Solid => {}
+            CellKind::Solid => {} // the parent's
         }
     }
     (cells, w)
@@ -761,58 +718,64 @@ fn periodic(sides: &[[Side; 2]; 3]) -> [bool; 3] {
     sides.map(|s| s[0] == Side::Periodic)
 }
 
-/// Which cells of the grid `n` (at least two cells along x and y) are away from its
-/// edge along each axis of more than one cell and have the fluid mask `fluid` set on
-/// their whole 3 x 3 x 3 block (3 x 3 on a plane): the box sum of the mask, one axis
-/// at a time over shifted rows (a cell-by-cell walk over the 27 took most of the
-/// coarse levels' setup).
-fn box_interior(n: [usize; 3], fluid: &[u8]) -> Vec<bool> {
+/// Which cells of the grid `n` (at least two cells along x and y; `sides` beyond it)
+/// have only fluid cells (`fluid` set) in their 3 x 3 x 3 block (3 x 3 on a plane) as
+/// far as it lies in the grid, and are not at the end of a periodic axis: the transfers
+/// then need no boundary rule but each axis's `taps`. The box sum of the cells that are
+/// not fluid, one axis at a time over shifted rows (a cell-by-cell walk over the 27
+/// took most of the coarse levels' setup).
+fn box_interior(n: [usize; 3], sides: &[[Side; 2]; 3], fluid: &[u8]) -> Vec<bool> {
     let [nx, ny, nz] = n;
     let s = nx * ny;
     let rows = (4096 / nx).max(1);
-    // Along x, at the cells with both x neighbours.
+    let per = periodic(sides);
+    // Along x: the cell and its neighbours in the row.
     let mut sx = vec![0u8; fluid.len()];
     sx.par_chunks_mut(nx)
         .zip(fluid.par_chunks(nx))
         .with_min_len(rows)
         .for_each(|(o, m)| {
-            for i in 1..nx - 1 {
-                o[i] = m[i - 1] + m[i] + m[i + 1];
+            for (i, o) in o.iter_mut().enumerate() {
+                *o = (i.saturating_sub(1)..(i + 2).min(nx))
+                    .map(|j| 1 - m[j])
+                    .sum();
             }
         });
-    // Along y, at the rows with both y neighbours.
+    // Along y, the rows in the grid.
     let mut sy = vec![0u8; fluid.len()];
     sy.par_chunks_mut(nx)
         .enumerate()
         .with_min_len(rows)
         .for_each(|(r, o)| {
-            let j = r % ny;
-            if j > 0 && j + 1 < ny {
-                let b = r * nx;
-                for (i, o) in o.iter_mut().enumerate() {
-                    *o = sx[b - nx + i] + sx[b + i] + sx[b + nx + i];
+            let (j, k) = (r % ny, r / ny);
+            for y in j.saturating_sub(1)..(j + 2).min(ny) {
+                let b = (k * ny + y) * nx;
+                for (o, v) in o.iter_mut().zip(&sx[b..b + nx]) {
+                    *o += v;
                 }
             }
         });
     // Along z (none on a plane), and the test.
-    let (flat, want) = if nz > 1 { (false, 27) } else { (true, 9) };
+    let flat = nz == 1;
     let mut out = vec![false; fluid.len()];
     out.par_chunks_mut(nx)
         .enumerate()
         .with_min_len(rows)
         .for_each(|(r, o)| {
             let (j, k) = (r % ny, r / ny);
-            if j == 0 || j + 1 == ny || (!flat && (k == 0 || k + 1 == nz)) {
+            let end = |v: usize, n: usize, a: usize| per[a] && (v == 0 || v + 1 == n);
+            if end(j, ny, 1) || (!flat && end(k, nz, 2)) {
                 return;
             }
             let b = r * nx;
-            for (i, o) in o.iter_mut().enumerate().take(nx - 1).skip(1) {
-                let sum = if flat {
-                    sy[b + i]
-                } else {
-                    sy[b - s + i] + sy[b + i] + sy[b + s + i]
-                };
-                *o = sum == want;
+            let zs = if flat {
+                k..k + 1
+            } else {
+                k.saturating_sub(1)..(k + 2).min(nz)
+            };
+            for (i, o) in o.iter_mut().enumerate() {
+                let sum: u8 = zs.clone().map(|z| sy[b - k * s + z * s + i]).sum();
+                *o = sum == 0 && !end(i, nx, 0);
             }
         });
     out
@@ -1048,7 +1011,7 @@ impl GridPoisson {
                 .map(|&idx| {
                     let idx = idx as usize;
                     let c3 = [idx % fnx, (idx / fnx) % fny, idx / slab];
-                    let (cells, w) = weights(c3, c.n, &c.sides, &c.kind, &c.interior);
+                    let (cells, w) = weights(c3, f.n, c.n, &c.sides, &c.kind);
                     // Coarse indices fit in u32: the fine ones do.
                     (cells.map(|q| q as u32), w.map(|v| v as f32))
                 })
@@ -1400,84 +1363,140 @@ fn v_cycle<T: Real>(levels: &[Level], work: &mut [Work<T>], l: usize) {
     lv.smooth_from_zero(&mut work[l], SWEEPS);
     lv.smooth_band(&mut work[l], BAND_SWEEPS);
     lv.residual(&mut work[l]);
-    {
-        // Coarse right side: R r with R = P^T / 8 (module docs; / 4 in 2-D), in two
-        // passes. First each fine row's cells with an interior parent are restricted
-        // along x (3/4 to the parent, 1/4 to its neighbour towards the cell), once
-        // per row; then each coarse slab adds the x-restricted rows of the four fine
-        // slabs that reach it (3/4 from its children's, 1/4 from a neighbour's; 1 in
-        // 2-D) over y (3/4 to the parent's row, 1/4 to its neighbour row), and the
-        // cells with a parent that is not interior (`edge_cells`) scatter through
-        // `weights`. Fixed orders throughout: the same bits on any thread count.
-        let (f, c) = (lv, &levels[l + 1]);
-        let (wf, wc) = work.split_at_mut(l + 1);
-        let (wf, wc) = (&mut wf[l], &mut wc[0]);
-        let (cnx, cny) = (c.n[0], c.n[1]);
-        let cslab = cnx * cny;
-        let (fnx, fny) = (f.n[0], f.n[1]);
-        let fslab = fnx * fny;
-        let (ccode, cint) = (&c.code, &c.interior);
-        // R = P^T / (children per coarse cell): 8 in 3-D, 4 in 2-D.
-        let scale = T::of(1.0 / (1usize << f.n.iter().filter(|&&v| v > 1).count()) as f64);
-        let flat = c.n[2] == 1;
-        let fr = &wf.r;
-        let (w34, w14) = (T::of(0.75), T::of(0.25));
-        wf.xr
-            .par_chunks_mut(fny * cnx)
-            .enumerate()
-            .for_each(|(k, xs)| {
-                for (j, t) in xs.chunks_mut(cnx).enumerate() {
-                    let prow = &cint[cnx * (j / 2 + cny * (k / 2))..][..cnx];
-                    let r = &fr[k * fslab + j * fnx..][..fnx];
-                    let at = |i: usize| r.get(i).copied().unwrap_or(T::ZERO);
-                    let inside = |q: usize| if prow[q] { T::of(1.0) } else { T::ZERO };
-                    for (q, tq) in t.iter_mut().enumerate() {
-                        // An interior parent q has both neighbours in the grid, so
-                        // the terms of q - 1 and q + 1 are zero at the row's ends.
-                        let mut v = w34 * inside(q) * (at(2 * q) + at(2 * q + 1));
-                        if q > 0 {
-                            v += w14 * inside(q - 1) * at(2 * q - 1);
+    restrict(levels, work, l);
+    v_cycle(levels, work, l + 1);
+    prolong(levels, work, l);
+    lv.smooth_band(&mut work[l], BAND_SWEEPS);
+    lv.smooth(&mut work[l], SWEEPS);
+}
+
+/// Along one axis, the two coarse cells that fine cell `i` of a row of `fine` cells
+/// interpolates from (a grid of `coarse` cells along it, `sides` beyond its ends), with
+/// their weights: its parent `i / 2` with 3/4 and the parent's neighbour towards the
+/// cell with 1/4. Beyond a wall the neighbour is the parent mirrored (weights 1 and 0),
+/// beyond an open side it is zero (3/4 and 0), beyond a periodic side the cell at the
+/// other end; an axis of one fine cell (2-D) has no neighbour (1 and 0). A neighbour
+/// with weight 0 is named as the parent.
+#[inline]
+fn taps(i: usize, fine: usize, coarse: usize, sides: [Side; 2]) -> [(usize, f64); 2] {
+    let q = i / 2;
+    if fine == 1 {
+        return [(q, 1.0), (q, 0.0)];
+    }
+    let (inside, side) = if i % 2 == 0 {
+        (q.checked_sub(1), sides[0])
+    } else {
+        ((q + 1 < coarse).then_some(q + 1), sides[1])
+    };
+    match (inside, side) {
+        (Some(nb), _) => [(q, 0.75), (nb, 0.25)],
+        (None, Side::Periodic) if coarse > 1 => {
+            [(q, 0.75), (if i % 2 == 0 { coarse - 1 } else { 0 }, 0.25)]
+        }
+        (None, Side::Open) => [(q, 0.75), (q, 0.0)],
+        // A wall, or a periodic axis of one coarse cell: the parent itself.
+        (None, _) => [(q, 1.0), (q, 0.0)],
+    }
+}
+
+/// `taps` of fine cell `i` along `axis` of level `f` into level `c`, in `T`.
+#[inline]
+fn taps_of<T: Real>(f: &Level, c: &Level, axis: usize, i: usize) -> [(usize, T); 2] {
+    taps(i, f.n[axis], c.n[axis], f.sides[axis]).map(|(q, w)| (q, T::of(w)))
+}
+
+/// The coarse right side of level `l + 1`: R r with R = P^T / 8 (module docs; / 4 in
+/// 2-D) of level `l`'s residual, in two passes. First each fine row's cells with an
+/// interior parent are restricted along x (`taps`), once per row; then each coarse
+/// slab adds the x-restricted rows of the fine slabs that reach it over y and z (the
+/// same taps), and the cells with a parent that is not interior (`edge_cells`) scatter
+/// through `weights`. Fixed orders throughout: the same bits on any thread count.
+fn restrict<T: Real>(levels: &[Level], work: &mut [Work<T>], l: usize) {
+    let (f, c) = (&levels[l], &levels[l + 1]);
+    let (wf, wc) = work.split_at_mut(l + 1);
+    let (wf, wc) = (&mut wf[l], &mut wc[0]);
+    let (cnx, cny) = (c.n[0], c.n[1]);
+    let cslab = cnx * cny;
+    let (fnx, fny) = (f.n[0], f.n[1]);
+    let fslab = fnx * fny;
+    let (ccode, cint) = (&c.code, &c.interior);
+    // R = P^T / (children per coarse cell): 8 in 3-D, 4 in 2-D.
+    let scale = T::of(1.0 / (1usize << f.n.iter().filter(|&&v| v > 1).count()) as f64);
+    let fr = &wf.r;
+    let (w34, w14) = (T::of(0.75), T::of(0.25));
+    let one = T::of(1.0);
+    wf.xr
+        .par_chunks_mut(fny * cnx)
+        .enumerate()
+        .with_min_len(grain(fslab))
+        .for_each(|(k, xs)| {
+            for (j, t) in xs.chunks_mut(cnx).enumerate() {
+                let prow = &cint[cnx * (j / 2 + cny * (k / 2))..][..cnx];
+                let r = &fr[k * fslab + j * fnx..][..fnx];
+                // A row's end: the fine cells that reach coarse cell q, by their taps.
+                let end = |q: usize| {
+                    let mut v = T::ZERO;
+                    for i in (2 * q).saturating_sub(1)..(2 * q + 3).min(fnx) {
+                        if prow[i / 2] {
+                            for (cq, w) in taps_of::<T>(f, c, 0, i) {
+                                if cq == q {
+                                    v += w * r[i];
+                                }
+                            }
                         }
-                        if q + 1 < cnx {
-                            v += w14 * inside(q + 1) * at(2 * q + 2);
-                        }
-                        *tq = v;
                     }
+                    v
+                };
+                if cnx < 3 {
+                    for (q, tq) in t.iter_mut().enumerate() {
+                        *tq = end(q);
+                    }
+                    continue;
                 }
-            });
-        let (xr, edges, edge_start) = (&wf.xr, &f.edge_cells, &f.edge_start);
-        let edge_weights = &f.edge_weights;
-        wc.b.par_chunks_mut(cslab).enumerate().for_each(|(ck, bs)| {
+                t[0] = end(0);
+                t[cnx - 1] = end(cnx - 1);
+                // The row's middle, q in 1..cnx - 1: cells 2q - 1 to 2q + 2 are in the
+                // row and their neighbours towards q too, so the taps are 3/4 and 1/4.
+                // Branch-free (the masks as factors), so the loop vectorises.
+                let m = cnx - 2;
+                let (pl, pc, pr) = (&prow[..m], &prow[1..=m], &prow[2..m + 2]);
+                let (ra, rb) = (&r[2..2 * m + 2], &r[1..2 * m + 3]);
+                let mask = |b: bool| if b { one } else { T::ZERO };
+                for (q, tq) in t[1..=m].iter_mut().enumerate() {
+                    let mut v = w34 * mask(pc[q]) * (ra[2 * q] + ra[2 * q + 1]);
+                    v += w14 * mask(pl[q]) * rb[2 * q];
+                    v += w14 * mask(pr[q]) * rb[2 * q + 3];
+                    *tq = v;
+                }
+            }
+        });
+    let (xr, edges, edge_start) = (&wf.xr, &f.edge_cells, &f.edge_start);
+    let edge_weights = &f.edge_weights;
+    // Each coarse slab reads up to four fine ones.
+    wc.b.par_chunks_mut(cslab)
+        .enumerate()
+        .with_min_len(grain(4 * fslab))
+        .for_each(|(ck, bs)| {
             bs.fill(T::ZERO);
             let base = ck * cslab;
             for k in (2 * ck).saturating_sub(1)..(2 * ck + 3).min(f.n[2]) {
-                let wz = if flat {
-                    T::of(1.0)
-                } else if k / 2 == ck {
-                    w34
-                } else {
-                    w14
-                };
-                for j in 0..fny {
-                    let (pj, jy) = (
-                        j / 2,
-                        if j % 2 == 0 {
-                            (j / 2).wrapping_sub(1)
-                        } else {
-                            j / 2 + 1
-                        },
-                    );
-                    // No interior parent in a row whose neighbour row is
-                    // missing: nothing to add.
-                    if jy >= cny {
-                        continue;
-                    }
-                    let t = &xr[(k * fny + j) * cnx..][..cnx];
-                    for (row, wy) in [(pj, w34), (jy, w14)] {
-                        let w = wz * wy;
-                        let b = &mut bs[row * cnx..(row + 1) * cnx];
-                        for (bb, tt) in b.iter_mut().zip(t) {
-                            *bb += w * *tt;
+                // Fine slab k's weight in coarse slab ck (z's taps).
+                let wz = taps_of::<T>(f, c, 2, k)
+                    .into_iter()
+                    .filter(|&(q, _)| q == ck)
+                    .fold(T::ZERO, |a, (_, w)| a + w);
+                if wz != T::ZERO {
+                    for j in 0..fny {
+                        let t = &xr[(k * fny + j) * cnx..][..cnx];
+                        for (row, wy) in taps_of::<T>(f, c, 1, j) {
+                            if wy == T::ZERO {
+                                continue;
+                            }
+                            let w = wz * wy;
+                            let b = &mut bs[row * cnx..(row + 1) * cnx];
+                            for (bb, tt) in b.iter_mut().zip(t) {
+                                *bb += w * *tt;
+                            }
                         }
                     }
                 }
@@ -1501,86 +1520,227 @@ fn v_cycle<T: Real>(levels: &[Level], work: &mut [Work<T>], l: usize) {
                 *b *= mask_diag(m, T::of(1.0)).0 * scale;
             }
         });
-    }
-    v_cycle(levels, work, l + 1);
-    {
-        let (f, c) = (lv, &levels[l + 1]);
-        let (wf, wc) = work.split_at_mut(l + 1);
-        let (wf, wc) = (&mut wf[l], &wc[0]);
-        let (fnx, fny) = (f.n[0], f.n[1]);
-        let fslab = fnx * fny;
-        let (cx, fkind, cn, cint) = (&wc.x, &f.kind, c.n, &c.interior);
-        let (edges, edge_start, edge_weights) = (&f.edge_cells, &f.edge_start, &f.edge_weights);
-        let (cnx, cny) = (cn[0], cn[1]);
-        let flat = cn[2] == 1;
-        let frow = wf.rows.len() / f.n[2];
-        let (w916, w316, w116) = (T::of(0.5625), T::of(0.1875), T::of(0.0625));
-        let (w34, w14) = (T::of(0.75), T::of(0.25));
-        wf.x.par_chunks_mut(fslab)
-            .zip(wf.rows.par_chunks_mut(frow))
-            .enumerate()
-            .for_each(|(k, (xs, r))| {
-                let pk = k / 2;
-                let kz = if k % 2 == 0 {
-                    pk.wrapping_sub(1)
+}
+
+/// Level `l`'s correction plus P times level `l + 1`'s: row by row, the coarse rows
+/// blended over y and z (`taps`) into one row of the next level's width, then the fine
+/// cells with an interior parent take their x taps of it; the cells whose parent is not
+/// interior (`edge_cells`) gather through `weights`.
+fn prolong<T: Real>(levels: &[Level], work: &mut [Work<T>], l: usize) {
+    let (f, c) = (&levels[l], &levels[l + 1]);
+    let (wf, wc) = work.split_at_mut(l + 1);
+    let (wf, wc) = (&mut wf[l], &wc[0]);
+    let (fnx, fny) = (f.n[0], f.n[1]);
+    let fslab = fnx * fny;
+    let (cx, fcode, cint) = (&wc.x, &f.code, &c.interior);
+    let (edges, edge_start, edge_weights) = (&f.edge_cells, &f.edge_start, &f.edge_weights);
+    let (cnx, cny) = (c.n[0], c.n[1]);
+    let frow = wf.rows.len() / f.n[2];
+    let (w916, w316, w116) = (T::of(0.5625), T::of(0.1875), T::of(0.0625));
+    let (w34, w14) = (T::of(0.75), T::of(0.25));
+    wf.x.par_chunks_mut(fslab)
+        .zip(wf.rows.par_chunks_mut(frow))
+        .enumerate()
+        .with_min_len(grain(fslab))
+        .for_each(|(k, (xs, r))| {
+            let tz = taps_of::<T>(f, c, 2, k);
+            let pk = tz[0].0;
+            for j in 0..fny {
+                let ty = taps_of::<T>(f, c, 1, j);
+                let pj = ty[0].0;
+                let row = |y: usize, z: usize| &cx[cnx * (y + cny * z)..][..cnx];
+                let r = &mut r[..cnx];
+                if ty[1].1 == w14 && tz[1].1 == w14 {
+                    // Away from the grid's edge: 9/16, 3/16, 3/16 and 1/16.
+                    let (a, b) = (row(pj, pk), row(ty[1].0, pk));
+                    let (c2, d) = (row(pj, tz[1].0), row(ty[1].0, tz[1].0));
+                    for (t, ri) in r.iter_mut().enumerate() {
+                        *ri = w916 * a[t] + w316 * (b[t] + c2[t]) + w116 * d[t];
+                    }
                 } else {
-                    pk + 1
+                    r.fill(T::ZERO);
+                    for (z, wz) in tz {
+                        for (y, wy) in ty {
+                            let w = wy * wz;
+                            if w != T::ZERO {
+                                for (ri, v) in r.iter_mut().zip(row(y, z)) {
+                                    *ri += w * *v;
+                                }
+                            }
+                        }
+                    }
+                }
+                let prow = &cint[cnx * (pj + cny * pk)..][..cnx];
+                let base = k * fslab + j * fnx;
+                let code = &fcode[base..base + fnx];
+                let xrow = &mut xs[j * fnx..(j + 1) * fnx];
+                // A row's end: fine cell i by its x taps.
+                let mut end = |i: usize| {
+                    if prow[i / 2] && code[i] > 0 {
+                        let [(a, wa), (b, wb)] = taps_of::<T>(f, c, 0, i);
+                        xrow[i] += wa * r[a] + wb * r[b];
+                    }
                 };
-                for j in 0..fny {
-                    let pj = j / 2;
-                    let jy = if j % 2 == 0 {
-                        pj.wrapping_sub(1)
+                if cnx < 3 {
+                    (0..fnx).for_each(end);
+                    continue;
+                }
+                (0..2).for_each(&mut end);
+                (2 * cnx - 2..fnx).for_each(&mut end);
+                // The row's middle, fine cells 2 to 2 cnx - 3: parents 1 to cnx - 2,
+                // whose neighbours are in the row. Branch-free, so it vectorises.
+                let m = cnx - 2;
+                let code = &code[2..2 * m + 2];
+                let xm = &mut xrow[2..2 * m + 2];
+                let (pc, rl, rc, rr) = (&prow[1..=m], &r[..m], &r[1..=m], &r[2..m + 2]);
+                for q in 0..m {
+                    let e = w34 * rc[q] + w14 * rl[q];
+                    let o = w34 * rc[q] + w14 * rr[q];
+                    let fe = pc[q] & (code[2 * q] > 0);
+                    let fo = pc[q] & (code[2 * q + 1] > 0);
+                    xm[2 * q] += if fe { e } else { T::ZERO };
+                    xm[2 * q + 1] += if fo { o } else { T::ZERO };
+                }
+            }
+            // The fluid cells whose parent is not interior: the boundary rule.
+            let range = edge_start[k]..edge_start[k + 1];
+            for (&fidx, (cells, w)) in edges[range.clone()].iter().zip(&edge_weights[range]) {
+                let mut v = T::ZERO;
+                for (&cc, &wc) in cells.iter().zip(w) {
+                    v += T::of(f64::from(wc)) * cx[cc as usize];
+                }
+                xs[fidx as usize - k * fslab] += v;
+            }
+        });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A few problems: walls, an open side, a periodic axis, odd sizes, solid and empty
+    /// cells, a plane.
+    fn problems() -> Vec<GridPoisson> {
+        let ball = |n: [usize; 3], centre: [f64; 3], radius: f64| -> Vec<CellKind> {
+            (0..n[0] * n[1] * n[2])
+                .map(|i| {
+                    let c = [i % n[0], (i / n[0]) % n[1], i / (n[0] * n[1])];
+                    let d: f64 = (0..3)
+                        .map(|a| (c[a] as f64 + 0.5 - centre[a]).powi(2))
+                        .sum();
+                    if d < radius * radius {
+                        CellKind::Solid
                     } else {
-                        pj + 1
-                    };
-                    // The coarse rows blended over y and z (9/16, 3/16, 3/16, 1/16;
-                    // 3/4 and 1/4 in 2-D), when they exist: cells with an interior
-                    // parent then take 3/4 and 1/4 of two of its entries.
-                    let rows_ok = jy < cny && (flat || kz < cn[2]);
-                    if rows_ok {
-                        let row = |y: usize, z: usize| &cx[cnx * (y + cny * z)..][..cnx];
-                        if flat {
-                            let (a, b) = (row(pj, 0), row(jy, 0));
-                            for (ri, (aa, bb)) in r[..cnx].iter_mut().zip(a.iter().zip(b)) {
-                                *ri = w34 * *aa + w14 * *bb;
-                            }
-                        } else {
-                            let (a, b) = (row(pj, pk), row(jy, pk));
-                            let (c2, d) = (row(pj, kz), row(jy, kz));
-                            for (t, ri) in r[..cnx].iter_mut().enumerate() {
-                                *ri = w916 * a[t] + w316 * (b[t] + c2[t]) + w116 * d[t];
-                            }
-                        }
+                        CellKind::Fluid
                     }
-                    if !rows_ok {
-                        continue;
-                    }
-                    // Fine cells 2q and 2q + 1 of an interior parent q: its
-                    // neighbours q - 1 and q + 1 exist, and so does cell 2q + 1.
-                    let prow = &cint[cnx * (pj + cny * pk)..][..cnx];
-                    let base = k * fslab + j * fnx;
-                    let kinds = &fkind[base..base + fnx];
-                    let xrow = &mut xs[j * fnx..(j + 1) * fnx];
-                    for (q, _) in prow.iter().enumerate().filter(|(_, &inside)| inside) {
-                        if kinds[2 * q] == CellKind::Fluid {
-                            xrow[2 * q] += w34 * r[q] + w14 * r[q - 1];
-                        }
-                        if kinds[2 * q + 1] == CellKind::Fluid {
-                            xrow[2 * q + 1] += w34 * r[q] + w14 * r[q + 1];
-                        }
-                    }
-                }
-                // The fluid cells whose parent is not interior: the boundary rule.
-                let range = edge_start[k]..edge_start[k + 1];
-                for (&fidx, (cells, w)) in edges[range.clone()].iter().zip(&edge_weights[range]) {
-                    let mut v = T::ZERO;
-                    for (&cc, &wc) in cells.iter().zip(w) {
-                        v += T::of(f64::from(wc)) * cx[cc as usize];
-                    }
-                    xs[fidx as usize - k * fslab] += v;
-                }
-            });
+                })
+                .collect()
+        };
+        let mut out = Vec::new();
+        let w = [Side::Wall; 2];
+        let (o, p) = ([Side::Open; 2], [Side::Periodic; 2]);
+        out.push(GridPoisson::with_sides(
+            [12, 10, 9],
+            0.1,
+            ball([12, 10, 9], [0.0; 3], 0.0),
+            [w; 3],
+        ));
+        out.push(GridPoisson::with_sides(
+            [16, 16, 16],
+            0.1,
+            ball([16; 3], [8.0; 3], 3.5),
+            [w, [Side::Wall, Side::Open], w],
+        ));
+        // Periodic along x, the top rows empty (a free surface).
+        let n = [16, 8, 8];
+        let mut kind = ball(n, [5.0, 3.0, 4.0], 2.0);
+        for (i, k) in kind.iter_mut().enumerate() {
+            if (i / n[0]) % n[1] >= 6 {
+                *k = CellKind::Empty;
+            }
+        }
+        out.push(GridPoisson::with_sides(n, 0.1, kind, [p, w, w]));
+        out.push(GridPoisson::with_sides(
+            [20, 14, 1],
+            0.1,
+            ball([20, 14, 1], [9.0, 7.0, 0.5], 3.0),
+            [o, w, w],
+        ));
+        // Odd sizes, an open low x side, scattered solid and empty cells.
+        let n = [9, 7, 5];
+        let kind = (0..n[0] * n[1] * n[2])
+            .map(|i| match (i * 2_654_435_761) % 97 {
+                0..=8 => CellKind::Solid,
+                9..=12 => CellKind::Empty,
+                _ => CellKind::Fluid,
+            })
+            .collect();
+        out.push(GridPoisson::with_sides(
+            n,
+            0.1,
+            kind,
+            [[Side::Open, Side::Wall], w, [Side::Wall, Side::Open]],
+        ));
+        out.into_iter()
+            .map(|g| g.expect("a valid problem"))
+            .collect()
     }
-    lv.smooth_band(&mut work[l], BAND_SWEEPS);
-    lv.smooth(&mut work[l], SWEEPS);
+
+    /// Values in [-1, 1) from a hash of the index, zero off the cells `keep`.
+    fn field(len: usize, seed: usize, keep: impl Fn(usize) -> bool) -> Vec<f64> {
+        (0..len)
+            .map(|i| {
+                if keep(i) {
+                    (((i + seed).wrapping_mul(2_654_435_761) >> 5) % 1000) as f64 / 500.0 - 1.0
+                } else {
+                    0.0
+                }
+            })
+            .collect()
+    }
+
+    /// The row-by-row prolongation is the boundary rule (`weights`) applied cell by
+    /// cell, and the restriction is its transpose over the children per coarse cell,
+    /// on every level of every problem: so the V-cycle is symmetric.
+    #[test]
+    fn the_transfers_are_the_boundary_rule_and_its_transpose() {
+        for (pi, g) in problems().iter().enumerate() {
+            let levels = &g.levels;
+            let mut work: Vec<Work<f64>> = Work::for_levels(levels);
+            for l in 0..levels.len() - 1 {
+                let (f, c) = (&levels[l], &levels[l + 1]);
+                let xc = field(c.kind.len(), 7, |i| c.code[i] > 0);
+                // P xc, row by row and cell by cell.
+                work[l + 1].x.copy_from_slice(&xc);
+                work[l].x.fill(0.0);
+                prolong(levels, &mut work, l);
+                let px = work[l].x.clone();
+                let (nx, ny) = (f.n[0], f.n[1]);
+                for (i, &v) in px.iter().enumerate() {
+                    let want = if f.code[i] > 0 {
+                        let c3 = [i % nx, (i / nx) % ny, i / (nx * ny)];
+                        let (cells, w) = weights(c3, f.n, c.n, &f.sides, &c.kind);
+                        cells.iter().zip(w).map(|(&q, w)| w * xc[q]).sum()
+                    } else {
+                        0.0
+                    };
+                    assert!(
+                        (v - want).abs() <= 1e-12,
+                        "problem {pi}, level {l}, cell {i}: prolonged {v}, the rule gives {want}"
+                    );
+                }
+                // R r . xc = (P xc . r) / children.
+                let r = field(f.kind.len(), 3, |i| f.code[i] > 0);
+                work[l].r.copy_from_slice(&r);
+                restrict(levels, &mut work, l);
+                let children = (1usize << f.n.iter().filter(|&&v| v > 1).count()) as f64;
+                let lhs: f64 = work[l + 1].b.iter().zip(&xc).map(|(a, b)| a * b).sum();
+                let rhs: f64 = px.iter().zip(&r).map(|(a, b)| a * b).sum::<f64>() / children;
+                assert!(
+                    (lhs - rhs).abs() <= 1e-12 * rhs.abs().max(1.0),
+                    "problem {pi}, level {l}: R r . x = {lhs}, P x . r / {children} = {rhs}"
+                );
+            }
+        }
+    }
 }
