@@ -133,6 +133,10 @@ const BAND_SWEEPS: usize = 1;
 /// Jacobi damping.
 const OMEGA: f64 = 6.0 / 7.0;
 
+/// Cells of a row that `Level::row_into` takes at a time (with their two x neighbours,
+/// on the stack of each task).
+const ROW_PIECE: usize = 512;
+
 /// Cells a parallel task of the V-cycle takes at least: on the coarse levels, handing
 /// out smaller tasks costs more than running them (the 60 sweeps of the 8^3 level took
 /// 0.7-0.9 ms in parallel slabs, about 12 us a sweep).
@@ -384,17 +388,33 @@ impl Level {
         }
     }
 
-    /// Writes `(A x)` of the cells of row j of slab k into `out` (nx values; zero off the
-    /// fluid cells), x zero off the fluid cells (every vector the solver hands in is):
-    /// then the sum over a cell's neighbours needs no look at their kinds, and cells
-    /// away from the grid's edge need no bounds checks either, so the row's interior is
-    /// one loop over seven shifted slices, which the compiler vectorises.
+    /// Writes `emit(A x, b, x, code)` of the cells of row r (row `r % ny` of slab
+    /// `r / ny`) into `out` (nx values, with `b` the row's values of a second vector and
+    /// `code` the cells' `Level::code`; `A x` is zero off the fluid cells), x zero off
+    /// the fluid cells (every vector the solver hands in is): then the sum over a
+    /// cell's neighbours needs no look at their kinds. The row goes in pieces of at most
+    /// `ROW_PIECE` cells, each copied into `pad` between its x neighbours (zero beyond
+    /// a wall or an open side, wrapped across a periodic one), so every cell is one
+    /// loop over zipped shifted slices, which the compiler vectorises with no scalar
+    /// ends and no bounds checks; `emit` fuses the sweep's or the residual's update
+    /// into the same pass. Counted by cachegrind on 64^3 cells: a sweep went from 20
+    /// to 10.4 instructions a cell (the two ends of each row, cell by cell, took an
+    /// eighth of it; indexed loops kept a scalar twin running), the V-cycle 28% fewer.
     #[inline]
-    fn row_into<T: Real>(&self, k: usize, j: usize, x: &[T], out: &mut [T]) {
+    fn row_into<T: Real>(
+        &self,
+        r: usize,
+        x: &[T],
+        out: &mut [T],
+        b: &[T],
+        pad: &mut [T; ROW_PIECE + 2],
+        emit: impl Fn(T, T, T, u8) -> T,
+    ) {
         let [nx, ny, nz] = self.n;
         let s = nx * ny;
         let c = T::of(self.inv_h2);
-        let base = k * s + j * nx;
+        let (k, j) = (r / ny, r % ny);
+        let base = r * nx;
         let per = periodic(&self.sides);
         // The rows beside this one along y and z (start index), wrapped along periodic
         // axes; a missing one (beyond a wall or an open side) adds nothing, as x is zero
@@ -417,85 +437,88 @@ impl Level {
         };
         let [ys, yn] = beside(j, ny, 1, nx);
         let [zd, zu] = beside(k, nz, 2, s);
-        // A cell at either end of the row: its x neighbours (wrapped along a periodic x)
-        // and the rows beside.
-        let end = |i: usize| {
-            let idx = base + i;
-            let mut off = T::ZERO;
-            if i > 0 {
-                off += x[idx - 1];
-            } else if per[0] && nx > 1 {
-                off += x[base + nx - 1];
-            }
-            if i + 1 < nx {
-                off += x[idx + 1];
-            } else if per[0] && nx > 1 {
-                off += x[base];
-            }
-            for r in [ys, yn, zd, zu].into_iter().flatten() {
-                off += x[r + i];
-            }
-            let (m, d) = mask_diag(self.code[idx], c);
-            m * (d * x[idx] - c * off)
-        };
-        if nx <= 2 {
-            for (i, o) in out.iter_mut().enumerate() {
-                *o = end(i);
-            }
-            return;
-        }
-        out[0] = end(0);
-        out[nx - 1] = end(nx - 1);
-        let (a, b) = (base + 1, base + nx - 1);
-        let len = b - a;
-        let xc = &x[a..b];
-        let (xw, xe) = (&x[a - 1..b - 1], &x[a + 1..b + 1]);
-        let code = &self.code[a..b];
-        let row = |r: usize| &x[r + 1..r + 1 + len];
-        let o = &mut out[1..nx - 1];
-        match (ys, yn, zd, zu) {
-            (Some(p), Some(q), Some(u), Some(v)) => {
-                let (xs, xn, xd, xu) = (row(p), row(q), row(u), row(v));
-                for (t, ot) in o.iter_mut().enumerate() {
-                    let off = (xw[t] + xe[t]) + (xs[t] + xn[t]) + (xd[t] + xu[t]);
-                    let (m, d) = mask_diag(code[t], c);
-                    *ot = m * (d * xc[t] - c * off);
-                }
-            }
-            (Some(p), Some(q), None, None) if nz == 1 => {
-                let (xs, xn) = (row(p), row(q));
-                for (t, ot) in o.iter_mut().enumerate() {
-                    let off = (xw[t] + xe[t]) + (xs[t] + xn[t]);
-                    let (m, d) = mask_diag(code[t], c);
-                    *ot = m * (d * xc[t] - c * off);
-                }
-            }
-            rows => {
-                // A row on the grid's edge: the neighbours present, one pass each.
-                for (t, ot) in o.iter_mut().enumerate() {
-                    *ot = xw[t] + xe[t];
-                }
-                for r in [rows.0, rows.1, rows.2, rows.3].into_iter().flatten() {
-                    for (ot, xr) in o.iter_mut().zip(row(r)) {
-                        *ot += *xr;
+        let xr = &x[base..base + nx];
+        let wrap = per[0] && nx > 1;
+        let mut a = 0;
+        while a < nx {
+            let len = (nx - a).min(ROW_PIECE);
+            pad[1..=len].copy_from_slice(&xr[a..a + len]);
+            pad[0] = match a {
+                0 if wrap => xr[nx - 1],
+                0 => T::ZERO,
+                _ => xr[a - 1],
+            };
+            pad[len + 1] = if a + len < nx {
+                xr[a + len]
+            } else if wrap {
+                xr[0]
+            } else {
+                T::ZERO
+            };
+            let (xw, xc, xe) = (&pad[..len], &pad[1..=len], &pad[2..len + 2]);
+            let code = &self.code[base + a..base + a + len];
+            let bs = &b[a..a + len];
+            let row = |r: usize| &x[r + a..r + a + len];
+            let o = &mut out[a..a + len];
+            match (ys, yn, zd, zu) {
+                (Some(p), Some(q), Some(u), Some(v)) => {
+                    let (xs, xn, xd, xu) = (row(p), row(q), row(u), row(v));
+                    // Zipped slices, so no index needs a bounds check.
+                    let cells = xw
+                        .iter()
+                        .zip(xe)
+                        .zip(xs.iter().zip(xn))
+                        .zip(xd.iter().zip(xu));
+                    let own = xc.iter().zip(bs).zip(code);
+                    for ((ot, (((w, e), (s, n)), (d, u))), ((&x, &b), &k)) in
+                        o.iter_mut().zip(cells).zip(own)
+                    {
+                        let off = (*w + *e) + (*s + *n) + (*d + *u);
+                        let (m, dg) = mask_diag(k, c);
+                        *ot = emit(m * (dg * x - c * off), b, x, k);
                     }
                 }
-                for (t, ot) in o.iter_mut().enumerate() {
-                    let (m, d) = mask_diag(code[t], c);
-                    *ot = m * (d * xc[t] - c * *ot);
+                (Some(p), Some(q), None, None) if nz == 1 => {
+                    let (xs, xn) = (row(p), row(q));
+                    let cells = xw.iter().zip(xe).zip(xs.iter().zip(xn));
+                    let own = xc.iter().zip(bs).zip(code);
+                    for ((ot, ((w, e), (s, n))), ((&x, &b), &k)) in o.iter_mut().zip(cells).zip(own)
+                    {
+                        let off = (*w + *e) + (*s + *n);
+                        let (m, dg) = mask_diag(k, c);
+                        *ot = emit(m * (dg * x - c * off), b, x, k);
+                    }
+                }
+                rows => {
+                    // A row on the grid's edge: the neighbours present, one pass each.
+                    for (ot, (w, e)) in o.iter_mut().zip(xw.iter().zip(xe)) {
+                        *ot = *w + *e;
+                    }
+                    for r in [rows.0, rows.1, rows.2, rows.3].into_iter().flatten() {
+                        for (ot, xr) in o.iter_mut().zip(row(r)) {
+                            *ot += *xr;
+                        }
+                    }
+                    for (ot, ((&x, &b), &k)) in o.iter_mut().zip(xc.iter().zip(bs).zip(code)) {
+                        let (m, dg) = mask_diag(k, c);
+                        *ot = emit(m * (dg * x - c * *ot), b, x, k);
+                    }
                 }
             }
+            a += len;
         }
     }
 
     /// `y = A x` (zero off the fluid cells; x zero there).
     fn apply<T: Real>(&self, y: &mut [T], x: &[T]) {
-        let (nx, ny) = (self.n[0], self.n[1]);
+        let nx = self.n[0];
         let rows = self.task_rows();
         y.par_chunks_mut(rows * nx).enumerate().for_each(|(t, ys)| {
+            let mut pad = [T::ZERO; ROW_PIECE + 2];
             for (lr, row) in ys.chunks_mut(nx).enumerate() {
                 let r = t * rows + lr;
-                self.row_into(r / ny, r % ny, x, row);
+                let own = &x[r * nx..(r + 1) * nx];
+                self.row_into(r, x, row, own, &mut pad, |ax, _, _, _| ax);
             }
         });
     }
@@ -503,7 +526,7 @@ impl Level {
     /// `y = A x` for CG's vectors, returning `x . y` (per task, added over
     /// `par_reduce`'s fixed tree).
     fn apply_dot(&self, y: &mut [f64], x: &[f64]) -> f64 {
-        let (nx, ny) = (self.n[0], self.n[1]);
+        let nx = self.n[0];
         let task = self.task_rows() * nx;
         let len = y.len();
         let yd = Disjoint::new(y);
@@ -511,9 +534,11 @@ impl Level {
             let range = chunk_range(t, len, task);
             // SAFETY: the tasks' ranges are disjoint.
             let ys = unsafe { yd.slice(range.clone()) };
+            let mut pad = [0.0; ROW_PIECE + 2];
             for (lr, row) in ys.chunks_mut(nx).enumerate() {
                 let r = range.start / nx + lr;
-                self.row_into(r / ny, r % ny, x, row);
+                let own = &x[r * nx..(r + 1) * nx];
+                self.row_into(r, x, row, own, &mut pad, |ax, _, _, _| ax);
             }
             [dot_lanes(&x[range], ys)]
         });
@@ -541,27 +566,21 @@ impl Level {
         out: &mut [T],
         f: impl Fn(T, T, T, T) -> T + Sync,
     ) {
-        let (nx, ny) = (self.n[0], self.n[1]);
+        let nx = self.n[0];
         let rows = self.task_rows();
         let inv_h2 = T::of(self.inv_h2);
         out.par_chunks_mut(rows * nx)
             .enumerate()
             .with_min_len(grain(rows * nx))
             .for_each(|(t, os)| {
+                let mut pad = [T::ZERO; ROW_PIECE + 2];
                 for (lr, row) in os.chunks_mut(nx).enumerate() {
                     let r = t * rows + lr;
-                    self.row_into(r / ny, r % ny, x, row);
-                    let base = r * nx;
-                    let (b, x, code) = (
-                        &b[base..base + nx],
-                        &x[base..base + nx],
-                        &self.code[base..base + nx],
-                    );
-                    for (t, o) in row.iter_mut().enumerate() {
+                    let b = &b[r * nx..(r + 1) * nx];
+                    self.row_into(r, x, row, b, &mut pad, |ax, b, x, code| {
                         // Dead, and removed, where `f` does not read it (the residual).
-                        let inv = smoother_weight(code[t], inv_h2);
-                        *o = f(*o, b[t], x[t], inv);
-                    }
+                        f(ax, b, x, smoother_weight(code, inv_h2))
+                    });
                 }
             });
     }
