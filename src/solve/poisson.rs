@@ -1637,8 +1637,8 @@ fn prolong<T: Real>(levels: &[Level], work: &mut [Work<T>], l: usize) {
 mod tests {
     use super::*;
 
-    /// A few problems: walls, an open side, a periodic axis, odd sizes, solid and empty
-    /// cells, a plane.
+    /// A few problems, each with one to three coarser levels: walls, an open side, a
+    /// periodic axis, odd sizes, solid and empty cells, a plane, a level two cells wide.
     fn problems() -> Vec<GridPoisson> {
         let ball = |n: [usize; 3], centre: [f64; 3], radius: f64| -> Vec<CellKind> {
             (0..n[0] * n[1] * n[2])
@@ -1659,34 +1659,41 @@ mod tests {
         let w = [Side::Wall; 2];
         let (o, p) = ([Side::Open; 2], [Side::Periodic; 2]);
         out.push(GridPoisson::with_sides(
-            [12, 10, 9],
+            [24, 20, 18],
             0.1,
-            ball([12, 10, 9], [0.0; 3], 0.0),
+            ball([24, 20, 18], [0.0; 3], 0.0),
             [w; 3],
         ));
         out.push(GridPoisson::with_sides(
-            [16, 16, 16],
+            [32, 32, 32],
             0.1,
-            ball([16; 3], [8.0; 3], 3.5),
+            ball([32; 3], [16.0; 3], 7.0),
             [w, [Side::Wall, Side::Open], w],
         ));
         // Periodic along x, the top rows empty (a free surface).
-        let n = [16, 8, 8];
-        let mut kind = ball(n, [5.0, 3.0, 4.0], 2.0);
+        let n = [32, 16, 16];
+        let mut kind = ball(n, [10.0, 6.0, 8.0], 4.0);
         for (i, k) in kind.iter_mut().enumerate() {
-            if (i / n[0]) % n[1] >= 6 {
+            if (i / n[0]) % n[1] >= 12 {
                 *k = CellKind::Empty;
             }
         }
         out.push(GridPoisson::with_sides(n, 0.1, kind, [p, w, w]));
         out.push(GridPoisson::with_sides(
-            [20, 14, 1],
+            [80, 60, 1],
             0.1,
-            ball([20, 14, 1], [9.0, 7.0, 0.5], 3.0),
+            ball([80, 60, 1], [36.0, 28.0, 0.5], 12.0),
             [o, w, w],
         ));
+        // Four cells along x: the next level has two, all row ends.
+        out.push(GridPoisson::with_sides(
+            [4, 64, 8],
+            0.1,
+            ball([4, 64, 8], [2.0, 30.0, 4.0], 3.0),
+            [w, [Side::Wall, Side::Open], w],
+        ));
         // Odd sizes, an open low x side, scattered solid and empty cells.
-        let n = [9, 7, 5];
+        let n = [19, 13, 11];
         let kind = (0..n[0] * n[1] * n[2])
             .map(|i| match (i * 2_654_435_761) % 97 {
                 0..=8 => CellKind::Solid,
@@ -1723,11 +1730,15 @@ mod tests {
     /// on every level of every problem: so the V-cycle is symmetric.
     #[test]
     fn the_transfers_are_the_boundary_rule_and_its_transpose() {
+        let (mut transfers, mut edge, mut interior) = (0, 0, 0);
         for (pi, g) in problems().iter().enumerate() {
             let levels = &g.levels;
             let mut work: Vec<Work<f64>> = Work::for_levels(levels);
             for l in 0..levels.len() - 1 {
                 let (f, c) = (&levels[l], &levels[l + 1]);
+                transfers += 1;
+                edge += f.edge_cells.len();
+                interior += c.interior.iter().filter(|&&i| i).count();
                 let xc = field(c.kind.len(), 7, |i| c.code[i] > 0);
                 // P xc, row by row and cell by cell.
                 work[l + 1].x.copy_from_slice(&xc);
@@ -1761,5 +1772,10 @@ mod tests {
                 );
             }
         }
+        // Both paths ran: rows through interior parents, cells through the rule.
+        assert!(
+            transfers >= 10 && edge > 0 && interior > 0,
+            "{transfers} transfers, {edge} boundary-rule cells, {interior} interior parents"
+        );
     }
 }
