@@ -614,14 +614,14 @@ impl Pass {
     }
 }
 
-/// Where the ray `o + t d` enters and leaves the box `[0, n]` (`None` if it misses);
-/// `inv`: `1 / d`.
+/// Where the ray `o + t d` (t >= 0) enters and leaves the box `[lo, hi]` (`None` if it
+/// misses); `inv`: `1 / d`.
 #[inline]
-fn clip(o: [f32; 3], inv: [f32; 3], n: [usize; 3]) -> Option<(f32, f32)> {
+fn clip(o: [f32; 3], inv: [f32; 3], [lo, hi]: [[f32; 3]; 2]) -> Option<(f32, f32)> {
     let (mut t0, mut t1) = (0f32, f32::INFINITY);
     for a in 0..3 {
         let inv = inv[a];
-        let (mut lo, mut hi) = ((0.0 - o[a]) * inv, (n[a] as f32 - o[a]) * inv);
+        let (mut lo, mut hi) = ((lo[a] - o[a]) * inv, (hi[a] - o[a]) * inv);
         if lo > hi {
             std::mem::swap(&mut lo, &mut hi);
         }
@@ -662,6 +662,7 @@ fn render_lanes<const LANES: bool>(rgb: &mut [u8], vol: &Volume<'_>, view: &View
     );
     // Pixels outside the grid box's image see only the background.
     let [x_lo, x_hi, y_lo, y_hi] = box_image(vol.n, view);
+    let occupied = occupied(vol);
     let lattice = Lattice {
         opaque_from: view.opaque_from(),
         ..Lattice::new(vol.n)
@@ -680,7 +681,12 @@ fn render_lanes<const LANES: bool>(rgb: &mut [u8], vol: &Volume<'_>, view: &View
         };
         for (x, px) in row.chunks_exact_mut(3).enumerate() {
             if xs.contains(&x) {
-                let c = march::<LANES>(vol, &lattice, view, view.eye, ray(view, x, y), bg);
+                let c = match occupied {
+                    Some(occ) => {
+                        march::<LANES>(vol, &lattice, view, occ, view.eye, ray(view, x, y), bg)
+                    }
+                    None => bg,
+                };
                 for k in 0..3 {
                     px[k] = byte(c[k]);
                 }
@@ -689,6 +695,29 @@ fn render_lanes<const LANES: bool>(rgb: &mut [u8], vol: &Volume<'_>, view: &View
             }
         }
     });
+}
+
+/// The box, in cells, of the blocks that a ray must sample (clearance 0), or `None`
+/// if there are none: every sample that adds to a pixel lies in it.
+fn occupied(vol: &Volume<'_>) -> Option<[[f32; 3]; 2]> {
+    let nb = vol.blocks;
+    let (mut lo, mut hi) = ([usize::MAX; 3], [0usize; 3]);
+    for (b, _) in vol.clearance.iter().enumerate().filter(|(_, &c)| c == 0) {
+        let q = [b % nb[0], (b / nb[0]) % nb[1], b / (nb[0] * nb[1])];
+        for a in 0..3 {
+            lo[a] = lo[a].min(q[a]);
+            hi[a] = hi[a].max(q[a] + 1);
+        }
+    }
+    // Block faces as the walk computes them (`c * block`, exact), the far ones within
+    // the grid.
+    let blk = vol.block as f32;
+    (lo[0] != usize::MAX).then(|| {
+        [
+            lo.map(|c| c as f32 * blk),
+            std::array::from_fn(|a| (hi[a] as f32 * blk).min(vol.n[a] as f32)),
+        ]
+    })
 }
 
 /// The background colour of pixel row `y`.
@@ -772,19 +801,30 @@ fn box_image(n: [usize; 3], view: &View) -> [usize; 4] {
 /// From a block to be sampled the walk steps to the neighbour across the nearest face,
 /// keeping each axis's face crossing `tmax` (each computed from the face's position,
 /// not accumulated, so that it has the same bits however the block was reached).
+///
+/// The walk covers only the part of the ray inside `occupied`, the box of the blocks to
+/// be sampled (`occupied`): a ray that misses it is background, and the others start
+/// where they enter it, their lattice still numbered from the grid's box.
 #[inline]
 fn march<const LANES: bool>(
     vol: &Volume<'_>,
     lattice: &Lattice,
     view: &View,
+    occupied: [[f32; 3]; 2],
     o: [f32; 3],
     d: [f32; 3],
     bg: [f32; 3],
 ) -> [f32; 3] {
     let inv = d.map(|x| 1.0 / x);
-    let Some((t0, t1)) = clip(o, inv, vol.n) else {
+    let grid = [[0.0; 3], vol.n.map(|c| c as f32)];
+    let (Some((t0, t1)), Some((ta, tb))) = (clip(o, inv, grid), clip(o, inv, occupied)) else {
         return bg;
     };
+    // The occupied box lies in the grid's; the bounds guard against rounding.
+    let (ta, t1) = (ta.max(t0), tb.min(t1));
+    if ta >= t1 {
+        return bg;
+    }
     let mut ray = Ray {
         o,
         d,
@@ -811,7 +851,7 @@ fn march<const LANES: bool>(
     };
     let stride = [1, nb[0], nb[0] * nb[1]];
     // The entry block.
-    let mid = t0 + 0.5 * (t1 - t0).min(view.step);
+    let mid = ta + 0.5 * (t1 - ta).min(view.step);
     let mut q: [usize; 3] = std::array::from_fn(|a| {
         ((((o[a] + mid * d[a]) * inv_blk).max(0.0)) as usize).min(nb[a] - 1)
     });
@@ -822,8 +862,8 @@ fn march<const LANES: bool>(
     // The run being gathered: its end and whether a block in it holds a solid.
     let mut run: Option<(f32, bool)> = None;
     // Where the clear stretch since the last run ends: the next run starts at the first
-    // lattice point past it.
-    let mut gap: Option<f32> = None;
+    // lattice point past it (at first, where the ray enters the occupied box).
+    let mut gap: Option<f32> = Some(ta);
     // Each move crosses at least one block face ahead, so an exact walk ends within
     // nb[0] + nb[1] + nb[2] moves; the bound is twice that, so that rounding at a cube's
     // edge can never keep a ray going.
@@ -831,7 +871,7 @@ fn march<const LANES: bool>(
         let clear = vol.clearance[bi];
         if clear <= 1 {
             // A block to be sampled, or a clear one next to one (its clear cube is
-            // itself): leave through the nearest face (3: the grid's far side first).
+            // itself): leave through the nearest face (3: the end of the walk first).
             let mut exit = t1;
             let mut axis = 3;
             for (a, &ta) in tmax.iter().enumerate() {
@@ -1521,7 +1561,8 @@ mod tests {
     }
 
     /// Skipping clear blocks changes no pixel, from views straight on and oblique: the
-    /// samples stay on the same lattice and the skipped ones would have added nothing.
+    /// samples stay on the same lattice and the skipped ones would have added nothing;
+    /// so does starting each ray where it enters the box of the blocks to sample.
     #[test]
     fn empty_space_skipping_changes_no_pixel() {
         let (n, density) = two_balls();
@@ -1548,6 +1589,20 @@ mod tests {
             };
             let mut clear = vec![0u8; 1000];
             clearance(&mut clear, &mut [0; 10], &blocks, &[], nb, &view);
+            // Rays start at the box of the blocks to sample, well inside the grid.
+            let vol = Volume {
+                n,
+                density: &density,
+                light: &light,
+                solid: &[],
+                block: 4,
+                blocks: nb,
+                clearance: &clear,
+                block_solid: &[],
+            };
+            let [lo, hi] = occupied(&vol).expect("blocks to sample");
+            let inside: f32 = (0..3).map(|a| hi[a] - lo[a]).product();
+            assert!(inside < 0.5 * 40f32.powi(3), "occupied box {lo:?} to {hi:?}");
             let skipped = image(&clear);
             let full = image(&[0; 1000]);
             assert_eq!(skipped, full, "eye {eye:?}");
@@ -1594,6 +1649,7 @@ mod tests {
                             ..Lattice::new(vol.n)
                         },
                         &view,
+                        occupied(&vol).expect("every block is sampled"),
                         view.eye,
                         ray(&view, x, y),
                         background(&view, y),
