@@ -660,9 +660,10 @@ fn render_lanes<const LANES: bool>(rgb: &mut [u8], vol: &Volume<'_>, view: &View
         TABLE_BINS,
         "the transfer function is tabulated"
     );
-    // Pixels outside the grid box's image see only the background.
-    let [x_lo, x_hi, y_lo, y_hi] = box_image(vol.n, view);
+    // Pixels outside the image of the box of the blocks to sample see only the
+    // background.
     let occupied = occupied(vol);
+    let [x_lo, x_hi, y_lo, y_hi] = occupied.map_or([0; 4], |b| box_image(b, view));
     let lattice = Lattice {
         opaque_from: view.opaque_from(),
         ..Lattice::new(vol.n)
@@ -741,9 +742,9 @@ fn ray(view: &View, x: usize, y: usize) -> [f32; 3] {
 }
 
 /// The pixel ranges `[x_lo, x_hi, y_lo, y_hi]` (ends excluded) holding the image of the
-/// box `[0, n]`, widened by two pixels against rounding: the projections of its
+/// box `[lo, hi]`, widened by two pixels against rounding: the projections of its
 /// corners bound it when all are in front of the eye; otherwise the whole image.
-fn box_image(n: [usize; 3], view: &View) -> [usize; 4] {
+fn box_image([lo, hi]: [[f32; 3]; 2], view: &View) -> [usize; 4] {
     let (w, h) = (view.width as f32, view.height as f32);
     let whole = [0, view.width, 0, view.height];
     let [mut x0, mut x1, mut y0, mut y1] = [
@@ -754,11 +755,7 @@ fn box_image(n: [usize; 3], view: &View) -> [usize; 4] {
     ];
     for corner in 0..8 {
         let v: [f32; 3] = std::array::from_fn(|a| {
-            let c = if corner >> a & 1 == 1 {
-                n[a] as f32
-            } else {
-                0.0
-            };
+            let c = if corner >> a & 1 == 1 { hi[a] } else { lo[a] };
             c - view.eye[a]
         });
         let dot = |u: [f32; 3]| v[0] * u[0] + v[1] * u[1] + v[2] * u[2];
@@ -1602,7 +1599,10 @@ mod tests {
             };
             let [lo, hi] = occupied(&vol).expect("blocks to sample");
             let inside: f32 = (0..3).map(|a| hi[a] - lo[a]).product();
-            assert!(inside < 0.5 * 40f32.powi(3), "occupied box {lo:?} to {hi:?}");
+            assert!(
+                inside < 0.5 * 40f32.powi(3),
+                "occupied box {lo:?} to {hi:?}"
+            );
             let skipped = image(&clear);
             let full = image(&[0; 1000]);
             assert_eq!(skipped, full, "eye {eye:?}");
@@ -1638,7 +1638,8 @@ mod tests {
             let view = smoke_view(eye, target);
             let mut rgb = vec![0u8; 64 * 48 * 3];
             render(&mut rgb, &vol, &view);
-            let [x0, x1, y0, y1] = box_image(n, &view);
+            let [x0, x1, y0, y1] =
+                box_image(occupied(&vol).expect("every block is sampled"), &view);
             let mut culled = 0;
             for y in 0..48 {
                 for x in 0..64 {
