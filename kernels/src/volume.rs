@@ -1569,25 +1569,9 @@ mod tests {
         block_max(&mut blocks, &density, n, 4);
         for (eye, target) in FOUR_VIEWS {
             let view = smoke_view(eye, target);
-            let image = |clearance: &[u8]| {
-                let mut rgb = vec![0u8; 64 * 48 * 3];
-                let vol = Volume {
-                    n,
-                    density: &density,
-                    light: &light,
-                    solid: &[],
-                    block: 4,
-                    blocks: nb,
-                    clearance,
-                    block_solid: &[],
-                };
-                render(&mut rgb, &vol, &view);
-                rgb
-            };
             let mut clear = vec![0u8; 1000];
             clearance(&mut clear, &mut [0; 10], &blocks, &[], nb, &view);
-            // Rays start at the box of the blocks to sample, well inside the grid.
-            let vol = Volume {
+            let skipping = Volume {
                 n,
                 density: &density,
                 light: &light,
@@ -1597,14 +1581,23 @@ mod tests {
                 clearance: &clear,
                 block_solid: &[],
             };
-            let [lo, hi] = occupied(&vol).expect("blocks to sample");
+            let image = |vol: &Volume<'_>| {
+                let mut rgb = vec![0u8; 64 * 48 * 3];
+                render(&mut rgb, vol, &view);
+                rgb
+            };
+            // Rays start at the box of the blocks to sample, well inside the grid.
+            let [lo, hi] = occupied(&skipping).expect("blocks to sample");
             let inside: f32 = (0..3).map(|a| hi[a] - lo[a]).product();
             assert!(
                 inside < 0.5 * 40f32.powi(3),
                 "occupied box {lo:?} to {hi:?}"
             );
-            let skipped = image(&clear);
-            let full = image(&[0; 1000]);
+            let skipped = image(&skipping);
+            let full = image(&Volume {
+                clearance: &[0; 1000],
+                ..skipping
+            });
             assert_eq!(skipped, full, "eye {eye:?}");
             assert!(skipped.iter().any(|&c| c > 120), "the smoke shows");
         }
