@@ -219,8 +219,8 @@ pub struct Lattice {
     nxy: usize,
     /// Cells in all.
     cells: usize,
-    /// The first bin of the view's table with opacity ([`View::opaque_from`]; set by
-    /// the renderer for its view, `TABLE_BINS` until then).
+    /// The first bin of the view's table with opacity ([`View::opaque_from`];
+    /// [`Lattice::for_view`]), `TABLE_BINS` without a view.
     opaque_from: i32,
     /// Whether every cell index fits in an `i32` and x has more than one cell (the SIMD
     /// path's lanes, which read each corner with its neighbour along x).
@@ -228,6 +228,14 @@ pub struct Lattice {
 }
 
 impl Lattice {
+    /// [`Lattice::new`] for rendering with `view` (its [`View::opaque_from`]).
+    pub fn for_view(n: [usize; 3], view: &View) -> Lattice {
+        Lattice {
+            opaque_from: view.opaque_from(),
+            ..Lattice::new(n)
+        }
+    }
+
     /// The constants of a grid of `n` cells (each at least one and at most `i32::MAX`).
     pub fn new(n: [usize; 3]) -> Lattice {
         Lattice {
@@ -664,10 +672,7 @@ fn render_lanes<const LANES: bool>(rgb: &mut [u8], vol: &Volume<'_>, view: &View
     // background.
     let occupied = occupied(vol);
     let [x_lo, x_hi, y_lo, y_hi] = occupied.map_or([0; 4], |b| box_image(b, view));
-    let lattice = Lattice {
-        opaque_from: view.opaque_from(),
-        ..Lattice::new(vol.n)
-    };
+    let lattice = Lattice::for_view(vol.n, view);
     // Rows in parallel. (Square tiles of 16 x 16 pixels, for the cache, were no
     // faster: 81-85 ms against 81-85 ms on the bench's frame.)
     let byte = |c: f32| (c.clamp(0.0, 1.0) * 255.0 + 0.5) as u8;
@@ -884,10 +889,8 @@ fn march<const LANES: bool>(
                 let solid = solids && vol.block_solid[bi] > 0.0;
                 run = Some((exit, run.is_some_and(|r| r.1) || solid));
             } else {
-                if let Some((end, solid)) = run.take() {
-                    if let Some(c) = ray.sample::<LANES>(vol, lattice, view, end, solid) {
-                        return c;
-                    }
+                if let Some(c) = ray.flush::<LANES>(&mut run, vol, lattice, view) {
+                    return c;
                 }
                 gap = Some(exit);
             }
@@ -909,14 +912,11 @@ fn march<const LANES: bool>(
                 qf[axis] -= 1.0;
                 bi -= stride[axis];
             }
-            // `d[axis]` is not 0: the face was crossed.
-            tmax[axis] = ((qf[axis] + ahead[axis]) * blk - o[axis]) * inv[axis];
+            tmax[axis] = face(axis, qf[axis]);
             continue;
         }
-        if let Some((end, solid)) = run.take() {
-            if let Some(c) = ray.sample::<LANES>(vol, lattice, view, end, solid) {
-                return c;
-            }
+        if let Some(c) = ray.flush::<LANES>(&mut run, vol, lattice, view) {
+            return c;
         }
         // The clear cube around q, within the grid, and where the ray leaves it.
         let r = usize::from(clear - 1);
@@ -958,10 +958,8 @@ fn march<const LANES: bool>(
         bi = q[0] + stride[1] * q[1] + stride[2] * q[2];
         tmax = std::array::from_fn(|a| face(a, qf[a]));
     }
-    if let Some((end, solid)) = run {
-        if let Some(c) = ray.sample::<LANES>(vol, lattice, view, end, solid) {
-            return c;
-        }
+    if let Some(c) = ray.flush::<LANES>(&mut run, vol, lattice, view) {
+        return c;
     }
     std::array::from_fn(|k| ray.col[k] + ray.trans * bg[k])
 }
@@ -978,6 +976,20 @@ struct Ray {
 }
 
 impl Ray {
+    /// Samples the run gathered so far, if any (`run`: its end and whether a block in it
+    /// holds a solid), and clears it: [`Ray::sample`].
+    #[inline(always)]
+    fn flush<const LANES: bool>(
+        &mut self,
+        run: &mut Option<(f32, bool)>,
+        vol: &Volume<'_>,
+        lattice: &Lattice,
+        view: &View,
+    ) -> Option<[f32; 3]> {
+        let (end, solid) = run.take()?;
+        self.sample::<LANES>(vol, lattice, view, end, solid)
+    }
+
     /// Composites the lattice points from the next one up to `end` (excluded), testing
     /// for the solid surface if `solid`: `Some(colour)` when the ray ends there (opaque,
     /// or on a solid). `LANES`: the samples are taken eight at a time in SIMD lanes
@@ -1638,10 +1650,7 @@ mod tests {
                 for x in 0..64 {
                     let c = march::<true>(
                         &vol,
-                        &Lattice {
-                            opaque_from: view.opaque_from(),
-                            ..Lattice::new(vol.n)
-                        },
+                        &Lattice::for_view(vol.n, &view),
                         &view,
                         occupied(&vol).expect("every block is sampled"),
                         view.eye,

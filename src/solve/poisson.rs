@@ -1555,7 +1555,6 @@ fn prolong<T: Real>(levels: &[Level], work: &mut [Work<T>], l: usize) {
     let (edges, edge_start, edge_weights) = (&f.edge_cells, &f.edge_start, &f.edge_weights);
     let (cnx, cny) = (c.n[0], c.n[1]);
     let frow = wf.rows.len() / f.n[2];
-    let (w916, w316, w116) = (T::of(0.5625), T::of(0.1875), T::of(0.0625));
     let (w34, w14) = (T::of(0.75), T::of(0.25));
     wf.x.par_chunks_mut(fslab)
         .zip(wf.rows.par_chunks_mut(frow))
@@ -1569,25 +1568,17 @@ fn prolong<T: Real>(levels: &[Level], work: &mut [Work<T>], l: usize) {
                 let pj = ty[0].0;
                 let row = |y: usize, z: usize| &cx[cnx * (y + cny * z)..][..cnx];
                 let r = &mut r[..cnx];
-                if ty[1].1 == w14 && tz[1].1 == w14 {
-                    // Away from the grid's edge: 9/16, 3/16, 3/16 and 1/16.
-                    let (a, b) = (row(pj, pk), row(ty[1].0, pk));
-                    let (c2, d) = (row(pj, tz[1].0), row(ty[1].0, tz[1].0));
-                    for (t, ri) in r.iter_mut().enumerate() {
-                        *ri = w916 * a[t] + w316 * (b[t] + c2[t]) + w116 * d[t];
-                    }
-                } else {
-                    r.fill(T::ZERO);
-                    for (z, wz) in tz {
-                        for (y, wy) in ty {
-                            let w = wy * wz;
-                            if w != T::ZERO {
-                                for (ri, v) in r.iter_mut().zip(row(y, z)) {
-                                    *ri += w * *v;
-                                }
-                            }
-                        }
-                    }
+                // The four coarse rows' weights, products of the y and z taps (9/16,
+                // 3/16, 3/16 and 1/16 away from the grid's edge; a neighbour with weight
+                // 0 is the parent's row).
+                let (a, b) = (row(pj, pk), row(ty[1].0, pk));
+                let (c2, d) = (row(pj, tz[1].0), row(ty[1].0, tz[1].0));
+                let [(_, wy0), (_, wy1)] = ty;
+                let [(_, wz0), (_, wz1)] = tz;
+                let w = [wy0 * wz0, wy1 * wz0, wy0 * wz1, wy1 * wz1];
+                let rows4 = a.iter().zip(b).zip(c2.iter().zip(d));
+                for (ri, ((a, b), (c2, d))) in r.iter_mut().zip(rows4) {
+                    *ri = w[0] * *a + w[1] * *b + w[2] * *c2 + w[3] * *d;
                 }
                 let prow = &cint[cnx * (pj + cny * pk)..][..cnx];
                 let base = k * fslab + j * fnx;
