@@ -48,6 +48,7 @@ use super::{
 };
 use crate::sparse::{csr, Bsr3, Bsr3Pattern};
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMat};
+use largestep_kernels::par::{chunk_count, chunk_range};
 use largestep_kernels::vec as kv;
 use rayon::prelude::*;
 use std::sync::Arc;
@@ -127,6 +128,9 @@ struct Level {
     c_map: Vec<u32>,
     /// This level's matrix.
     a: Blocks,
+    /// The restriction's partial sums: one coarse vector per task of
+    /// [`RESTRICT_ROWS`] rows above.
+    partial: Vec<f64>,
     /// Inverse diagonal blocks (`M x M`) and the largest eigenvalue of `D^-1 A` (none on
     /// the coarsest level).
     dinv: Vec<f64>,
@@ -568,6 +572,7 @@ impl Level {
             b: vec![0.0; M * nc],
             r: vec![0.0; M * nc],
             d: vec![0.0; M * nc],
+            partial: vec![0.0; chunk_count(n, RESTRICT_ROWS) * M * nc],
         }
     }
 }
@@ -1162,32 +1167,54 @@ fn largest_eigenvalue(op: &dyn Op, v: &mut [f64], w: &mut [f64], filter: Option<
     lambda
 }
 
-/// `level.b = P^T r` for the level above's residual `r` (laid out as `layout`): each
-/// coarse node gathers over its column of P.
+/// Rows of the level above per task of the restriction ([`restrict`]): a fixed size, so
+/// that the partial sums, and so the result, are the same for any number of threads.
+const RESTRICT_ROWS: usize = 2048;
+
+/// `level.b = P^T r` for the level above's residual `r` (laid out as `layout`).
+///
+/// Each task streams its rows of P in storage order and adds them into its own copy of
+/// the coarse vector (`level.partial`); the copies are then added in task order. The
+/// column-wise gather this replaced visited P's blocks through `pt_slot`, out of order:
+/// a quarter of a V-cycle on the 36,663-unknown FEM beam, against a tenth now (perf).
 fn restrict<const BF: usize>(level: &mut Level, r: &[f64], layout: Layout) {
     let w = BF * M;
     let Level {
         b,
-        pt_ptr,
-        pt_slot,
-        p_row,
+        partial,
+        p_ptr,
+        p_col,
         p,
         ..
     } = level;
-    b.par_chunks_mut(M * ROWS).enumerate().for_each(|(c, out)| {
-        for (l, o) in out.chunks_exact_mut(M).enumerate() {
-            let ci = c * ROWS + l;
-            o.fill(0.0);
-            for &s in &pt_slot[pt_ptr[ci] as usize..pt_ptr[ci + 1] as usize] {
-                let s = s as usize;
-                let i = p_row[s] as usize;
-                let blk = &p[w * s..w * (s + 1)];
-                for k in 0..BF {
-                    let rk = r[layout.at(i, k, BF)];
-                    for (cc, oc) in o.iter_mut().enumerate() {
-                        *oc += blk[M * k + cc] * rk;
+    let len = b.len();
+    let rows = p_ptr.len() - 1;
+    partial
+        .par_chunks_mut(len)
+        .enumerate()
+        .for_each(|(task, out)| {
+            out.fill(0.0);
+            for i in chunk_range(task, rows, RESTRICT_ROWS) {
+                let ri: [f64; BF] = std::array::from_fn(|k| r[layout.at(i, k, BF)]);
+                for s in p_ptr[i] as usize..p_ptr[i + 1] as usize {
+                    let j = p_col[s] as usize;
+                    let blk = &p[w * s..w * (s + 1)];
+                    let o = &mut out[M * j..M * (j + 1)];
+                    for (k, rk) in ri.iter().enumerate() {
+                        for (oc, bc) in o.iter_mut().zip(&blk[M * k..M * (k + 1)]) {
+                            *oc += bc * rk;
+                        }
                     }
                 }
+            }
+        });
+    let partial = &*partial;
+    b.par_chunks_mut(M * ROWS).enumerate().for_each(|(c, out)| {
+        let at = c * M * ROWS;
+        out.fill(0.0);
+        for part in partial.chunks_exact(len) {
+            for (o, v) in out.iter_mut().zip(&part[at..]) {
+                *o += v;
             }
         }
     });
