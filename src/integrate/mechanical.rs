@@ -213,6 +213,13 @@ enum Linear {
 }
 
 impl Linear {
+    /// The next solves' relative tolerance from inexact Newton (PCG only).
+    fn set_forcing(&mut self, eta: Option<f64>) {
+        if let Linear::Pcg(p) = self {
+            p.set_forcing(eta);
+        }
+    }
+
     /// The positions the next solve's preconditioner may use (the rotations of smoothed
     /// aggregation's coarse spaces).
     fn set_coordinates(&mut self, x: &[f64]) {
@@ -954,6 +961,10 @@ impl NewtonProblem for Residual<'_> {
 
     fn noise_floor(&self) -> f64 {
         self.noise
+    }
+
+    fn set_linear_tolerance(&mut self, eta: f64) {
+        self.linear.set_forcing(Some(eta));
     }
 
     fn merit(&mut self, v1: &[f64]) -> Option<f64> {

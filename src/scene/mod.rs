@@ -648,6 +648,12 @@ fn solver_settings(
         }
         settings.reuse_jacobian = r as usize;
     }
+    if let Some(eta) = t.forcing {
+        if !(eta.is_finite() && eta > 0.0 && eta < 1.0) {
+            return Err(err(at("forcing"), format!("must be in (0, 1), not {eta}")));
+        }
+        settings.newton.forcing = Some(eta);
+    }
     Ok(settings)
 }
 

@@ -19,6 +19,7 @@
 //! newton_tolerance = 1e-9
 //! newton_max_iterations = 50
 //! reuse_jacobian = 0          # steps one factored Jacobian may serve (0: full Newton)
+//! forcing = 0.5               # inexact Newton: PCG tolerance up to this (Eisenstat-Walker)
 //!
 //! [mass_spring.chain]         # one table per system: [mass_spring], [cloth], ...
 //! count = 20
@@ -81,6 +82,8 @@ pub struct SolverTable {
     pub newton_max_iterations: Option<i64>,
     /// Steps one factored Jacobian may serve (the chord method; 0: full Newton).
     pub reuse_jacobian: Option<i64>,
+    /// Inexact Newton: the largest PCG tolerance the forcing terms may choose.
+    pub forcing: Option<f64>,
 }
 
 /// `[output]`

@@ -18,6 +18,16 @@
 //!
 //! Convergence: `|F| <= max(abs_tolerance, tolerance |F(y0)|)`, or a full step with
 //! `|dy| <= step_tolerance (1 + |y|)`.
+//!
+//! Inexact Newton ([`NewtonParams::forcing`]): an iterative linear solver need only reduce
+//! `|J dy + F|` to `eta_k |F|`. Far from the root a tight linear solve is wasted, since the
+//! next residual is set by the nonlinearity (or, with a lagged Jacobian, by its error).
+//! The forcing terms follow Eisenstat and Walker's "choice 2" with Kelley's safeguards
+//! (Eisenstat and Walker 1996, "Choosing the forcing terms in an inexact Newton method";
+//! Kelley 2003, "Solving nonlinear equations with Newton's method", section 3.2.3):
+//! `eta_k = 0.9 (|F_k| / |F_(k-1)|)^2`, kept above `0.9 eta_(k-1)^2` when that exceeds 0.1,
+//! capped at `eta_max`, and never below `0.5 target / |F_k|`, so the last step is not
+//! solved tighter than the tolerance needs.
 
 use super::{SolveError, SolveInfo};
 use largestep_kernels::vec as kv;
@@ -41,6 +51,10 @@ pub struct NewtonParams {
     pub step_tolerance: f64,
     /// Smallest line-search step length tried.
     pub min_step: f64,
+    /// Inexact Newton: `Some(eta_max)` sets the linear solver's relative tolerance each
+    /// iteration from the nonlinear convergence (see the module docs), at most `eta_max`;
+    /// `None` keeps the linear solver's own tolerance. Direct solvers ignore it.
+    pub forcing: Option<f64>,
 }
 
 impl Default for NewtonParams {
@@ -51,6 +65,7 @@ impl Default for NewtonParams {
             abs_tolerance: 1e-300,
             step_tolerance: 1e-13,
             min_step: 1.0 / 1024.0,
+            forcing: None,
         }
     }
 }
@@ -82,11 +97,33 @@ pub trait NewtonProblem {
     fn noise_floor(&self) -> f64 {
         0.0
     }
+    /// The relative tolerance `eta` of the next linear solve, `|J dy + F| <= eta |F|`
+    /// (inexact Newton, [`NewtonParams::forcing`]); ignored by direct solvers.
+    fn set_linear_tolerance(&mut self, eta: f64) {
+        let _ = eta;
+    }
     /// A merit function whose gradient is F, if the problem has one.
     fn merit(&mut self, y: &[f64]) -> Option<f64> {
         let _ = y;
         None
     }
+}
+
+/// Eisenstat and Walker's choice 2 with Kelley's safeguards (see the module docs): the
+/// forcing term for residual norm `fnorm`, after `last` = the previous iteration's norm
+/// and forcing term (none on the first), for a Newton target norm `target`.
+fn forcing_term(eta_max: f64, last: Option<(f64, f64)>, fnorm: f64, target: f64) -> f64 {
+    const GAMMA: f64 = 0.9;
+    let eta = match last {
+        None => eta_max,
+        Some((prev, eta_prev)) => {
+            let a = GAMMA * (fnorm / prev).powi(2);
+            let safeguard = GAMMA * eta_prev * eta_prev;
+            let b = if safeguard > 0.1 { a.max(safeguard) } else { a };
+            b.min(eta_max)
+        }
+    };
+    eta.max(0.5 * target / fnorm).min(eta_max)
 }
 
 /// Newton workspace for systems of a given dimension (allocated once).
@@ -149,9 +186,16 @@ impl Newton {
             residual: fnorm,
             ..Default::default()
         };
+        // The previous residual norm and forcing term (inexact Newton).
+        let mut last: Option<(f64, f64)> = None;
         for it in 1..=params.max_iterations {
             if fnorm <= target(problem) {
                 return Ok(info);
+            }
+            if let Some(eta_max) = params.forcing {
+                let eta = forcing_term(eta_max, last, fnorm, target(problem));
+                problem.set_linear_tolerance(eta);
+                last = Some((fnorm, eta));
             }
             let lin = problem.newton_step(y, &self.r, &mut self.dy)?;
             info.linear_iterations += lin.iterations;
@@ -210,5 +254,24 @@ impl Newton {
             residual: fnorm,
             tolerance: rel_target,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::forcing_term;
+
+    #[test]
+    fn forcing_terms_follow_eisenstat_walker_with_kelleys_safeguards() {
+        // First iteration: eta_max.
+        assert_eq!(forcing_term(0.5, None, 1.0, 1e-9), 0.5);
+        // Residual fell tenfold: 0.9 * 0.01, the safeguard 0.9 * 0.25 = 0.225 > 0.1 wins.
+        assert!((forcing_term(0.5, Some((10.0, 0.5)), 1.0, 1e-9) - 0.225).abs() < 1e-15);
+        // With a small previous term the safeguard is off: 0.9 * 0.01.
+        assert!((forcing_term(0.5, Some((10.0, 0.1)), 1.0, 1e-9) - 0.009).abs() < 1e-15);
+        // Slow progress is capped at eta_max.
+        assert_eq!(forcing_term(0.5, Some((1.1, 0.1)), 1.0, 1e-9), 0.5);
+        // Near the target the linear solve need not go past half of it.
+        assert!((forcing_term(0.5, Some((1e3, 0.1)), 1.0, 0.1) - 0.05).abs() < 1e-15);
     }
 }

@@ -77,6 +77,8 @@ pub struct Pcg {
     d: Vec<f64>,
     mg: Box<Multigrid>,
     sa: Box<SmoothedAggregation>,
+    /// The inexact Newton forcing term in force ([`Pcg::set_forcing`]).
+    forcing: Option<f64>,
 }
 
 impl Pcg {
@@ -107,6 +109,7 @@ impl Pcg {
             ],
             mg: Box::new(Multigrid::new()),
             sa: Box::new(SmoothedAggregation::new()),
+            forcing: None,
         }
     }
 
@@ -119,6 +122,13 @@ impl Pcg {
     pub fn set_limits(&mut self, tolerance: f64, max_iterations: usize) {
         self.params.tolerance = tolerance;
         self.params.max_iterations = max_iterations;
+    }
+
+    /// Loosens the next solves' relative tolerance to `eta` (an inexact Newton forcing
+    /// term, [`crate::solve::NewtonParams::forcing`]) where `eta` exceeds the configured
+    /// tolerance, which stays the floor; `None` restores the configured tolerance.
+    pub fn set_forcing(&mut self, eta: Option<f64>) {
+        self.forcing = eta;
     }
 
     /// The multigrid hierarchy (empty unless the preconditioner is
@@ -323,7 +333,9 @@ impl Pcg {
         };
         filt(&mut self.p);
         let mut residual = kv::norm2(&self.r) / bnorm;
-        let tol = self.params.tolerance;
+        let tol = self
+            .forcing
+            .map_or(self.params.tolerance, |eta| eta.max(self.params.tolerance));
         if residual <= tol {
             return Ok(SolveInfo {
                 iterations: 0,
