@@ -30,7 +30,8 @@
 //!   Newton (`NewtonParams::forcing` = 0.5), each PCG solve only as tight as the
 //!   Eisenstat-Walker forcing term asks, 1e-6 at the tightest; `-forcing-1e-3`: the same
 //!   with Newton to 1e-3 (on 30 steps from rest it moved the tip by at most 2.4e-5 m
-//!   from steps solved to 1e-9, of a 0.24 m swing). The summary gives the Newton
+//!   from steps solved to 1e-9, of a 0.24 m swing); `-keep`: PCG's hierarchy kept for
+//!   up to ten steps (`MechSettings::reuse_preconditioner` = 10). The summary gives the Newton
 //!   iterations and the last linear solve's residual of the timed steps.
 //!
 //! The peer (`benches/peers/rapier-fem`) steps the same mesh in rapier3d's FEM soft body.
@@ -73,6 +74,7 @@ fn beam() -> FemDesc {
 struct Solver {
     pcg: Option<Preconditioner>,
     reuse: usize,
+    keep: usize,
     forcing: Option<f64>,
     newton: f64,
 }
@@ -81,11 +83,13 @@ fn settings(solver: Solver) -> MechSettings {
     let Solver {
         pcg,
         reuse,
+        keep,
         forcing,
         newton,
     } = solver;
     let mut s = MechSettings::new(Method::BackwardEuler);
     s.reuse_jacobian = reuse;
+    s.reuse_preconditioner = keep;
     s.newton.tolerance = newton;
     s.newton.step_tolerance = newton;
     s.newton.forcing = forcing;
@@ -195,6 +199,7 @@ fn main() {
     let mut sim = simulation(Solver {
         pcg: None,
         reuse: 1,
+        keep: 0,
         forcing: None,
         newton: 1e-6,
     });
@@ -242,9 +247,11 @@ fn main() {
     let solver = |pcg, reuse, forcing, newton| Solver {
         pcg,
         reuse,
+        keep: 0,
         forcing,
         newton,
     };
+    let kept = |s: Solver| Solver { keep: 10, ..s };
     for (name, solver) in [
         ("cholesky", solver(None, 0, None, 1e-6)),
         ("cholesky-reuse", solver(None, 1, None, 1e-6)),
@@ -257,6 +264,15 @@ fn main() {
         // Inexact Newton: each PCG solve only as tight as the Eisenstat-Walker forcing term.
         ("pcg-sa-reuse-forcing", solver(sa, 1, Some(0.5), 1e-6)),
         ("pcg-sa-reuse-forcing-1e-3", solver(sa, 1, Some(0.5), 1e-3)),
+        // The hierarchy kept for up to ten steps (`MechSettings::reuse_preconditioner`).
+        (
+            "pcg-sa-reuse-forcing-keep",
+            kept(solver(sa, 1, Some(0.5), 1e-6)),
+        ),
+        (
+            "pcg-sa-reuse-forcing-keep-1e-3",
+            kept(solver(sa, 1, Some(0.5), 1e-3)),
+        ),
     ] {
         let id = format!("fem/step/{name}");
         if !wanted(&id) {

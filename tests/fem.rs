@@ -2541,6 +2541,12 @@ fn fem_scenes_precondition_pcg_with_smoothed_aggregation_by_default() {
     let bad = format!("{base}\n[solver]\nforcing = 1.5\n");
     let e = Scene::parse(&bad, "bad.toml").unwrap_err().to_string();
     assert!(e.contains("forcing") && e.contains("(0, 1)"), "{e}");
+    // A kept hierarchy changes the iterations, not the convergence.
+    let kept = iterations("reuse_preconditioner = 5");
+    assert!(kept > 0.0 && kept < 30.0, "per solve: {kept}");
+    let bad = format!("{base}\n[solver]\nreuse_preconditioner = -1\n");
+    let e = Scene::parse(&bad, "bad.toml").unwrap_err().to_string();
+    assert!(e.contains("reuse_preconditioner"), "{e}");
 }
 
 /// `fem::settings` is what a `[fem]` scene without a named preconditioner runs: smoothed
@@ -2684,5 +2690,53 @@ fn inexact_newton_reaches_the_same_steps_with_fewer_linear_iterations() {
     );
     // The tip sags by about 0.1 m; Newton's tolerance (1e-6 of each step's first
     // residual) holds both runs far closer than this.
+    assert!(diff < 1e-6, "same steps: {diff:.2e} m apart");
+}
+
+/// `MechSettings::reuse_preconditioner`: PCG keeps the smoothed aggregation hierarchy of
+/// an earlier step and takes only the fine level's diagonal from each new Jacobian. PCG
+/// stays exact with any fixed SPD preconditioner, so the steps end where the steps with
+/// a new hierarchy each time end; the iteration counts differ, which shows the old
+/// hierarchy was used.
+#[test]
+fn a_kept_preconditioner_gives_the_same_steps() {
+    use largestep::integrate::LinearSolverKind;
+    use largestep::solve::{PcgParams, Preconditioner};
+    let run = |keep: usize| {
+        let desc = FemDesc::cantilever([20, 2, 2], [1.0, 0.1, 0.1], corotational_beam(), 9.81);
+        let (fem, state) = desc.build().unwrap();
+        let mut s = MechSettings::new(Method::BackwardEuler);
+        s.reuse_jacobian = 1;
+        s.reuse_preconditioner = keep;
+        s.linear = LinearSolverKind::Pcg(PcgParams {
+            tolerance: 1e-8,
+            max_iterations: 2000,
+            preconditioner: Preconditioner::SmoothedAggregation,
+        });
+        let mut sim = MechSimulation::new(fem, state, s).unwrap();
+        sim.set_step_control(None);
+        let mut linear = 0;
+        for _ in 0..20 {
+            linear += sim.step(1.0 / 60.0).unwrap().linear_iterations;
+        }
+        (sim.state().x.as_slice().to_vec(), linear)
+    };
+    let (fresh, linear_fresh) = run(0);
+    let (kept, linear_kept) = run(10);
+    let diff = max_abs(
+        &fresh
+            .iter()
+            .zip(&kept)
+            .map(|(a, b)| a - b)
+            .collect::<Vec<_>>(),
+    );
+    println!(
+        "PCG iterations {linear_fresh} -> {linear_kept}, largest position difference {diff:.2e} m"
+    );
+    assert_ne!(linear_fresh, linear_kept, "the kept hierarchy was not used");
+    assert!(
+        linear_kept < 2 * linear_fresh,
+        "{linear_fresh} -> {linear_kept}"
+    );
     assert!(diff < 1e-6, "same steps: {diff:.2e} m apart");
 }

@@ -185,6 +185,16 @@ pub struct MechSettings {
     /// against the same residual and tolerance, so steps converge to the same accuracy.
     /// It pays where the factorization dominates (large 3-D meshes, a direct solver).
     pub reuse_jacobian: usize,
+    /// How many steps one multigrid hierarchy of PCG may serve (Newton-solved methods):
+    /// 0, a new one for every new Jacobian (the default); k > 0, the coarse levels built
+    /// for one step are kept by up to k later steps while the step size and the
+    /// constraints' directions stay the same, and only the fine level's diagonal is
+    /// taken from each new Jacobian ([`crate::solve::Pcg::resolve`]). Any fixed symmetric
+    /// positive definite preconditioner leaves PCG exact, so the steps converge as
+    /// before, perhaps in more iterations; a step whose solve fails with a kept hierarchy
+    /// is redone with a new one. It pays where the setup is a large part of a step
+    /// (smoothed aggregation on 3-D elasticity).
+    pub reuse_preconditioner: usize,
 }
 
 impl MechSettings {
@@ -203,6 +213,7 @@ impl MechSettings {
                 ..NewtonParams::default()
             },
             reuse_jacobian: 0,
+            reuse_preconditioner: 0,
         }
     }
 }
@@ -319,6 +330,8 @@ pub struct MechStepper {
     /// The Jacobian in hand for later steps (`MechSettings::reuse_jacobian` > 1): the step
     /// size and constraints it was made for, and the steps it has served.
     lag: Option<Lag>,
+    /// PCG's hierarchy in hand for later steps (`MechSettings::reuse_preconditioner`).
+    kept: Option<Lag>,
     filter: Filter,
     y: Vec<f64>,
     rk: Option<RkWork>,
@@ -407,6 +420,7 @@ impl MechStepper {
             inv_mass,
             mass,
             lag: None,
+            kept: None,
             filter: Filter::new(n),
             y,
             rk,
@@ -554,12 +568,18 @@ impl MechStepper {
                 let reuse = self.settings.reuse_jacobian;
                 // An earlier step's Jacobian, if it may serve this one.
                 let mut lagged = reuse > 1
-                    && self.lag.as_ref().is_some_and(|l| {
-                        l.valid
-                            && l.h == h
-                            && l.age < reuse
-                            && l.filter.same_projection(&self.filter)
-                    });
+                    && self
+                        .lag
+                        .as_ref()
+                        .is_some_and(|l| l.serves(h, reuse, &self.filter));
+                // An earlier step's multigrid hierarchy, likewise (PCG only).
+                let keep = self.settings.reuse_preconditioner;
+                let mut kept = keep > 0
+                    && matches!(w.linear, Linear::Pcg(_))
+                    && self
+                        .kept
+                        .as_ref()
+                        .is_some_and(|l| l.serves(h, keep, &self.filter));
                 let Implicit {
                     dfdx,
                     dfdv,
@@ -601,6 +621,8 @@ impl MechStepper {
                         reuse: reuse > 0,
                         factored: lagged,
                         refactored: false,
+                        keep_preconditioner: kept,
+                        new_preconditioner: false,
                     };
                     // An old Jacobian gets a few iterations (as many as a new one usually
                     // needs, plus a margin); then the step starts over with a new one.
@@ -613,28 +635,24 @@ impl MechStepper {
                         return Err(e);
                     }
                     if prob.refactored && reuse > 1 {
-                        // Kept buffers: no allocation once the first Jacobian is kept.
-                        let lag = self.lag.get_or_insert_with(|| Lag {
-                            h,
-                            filter: Filter::new(0),
-                            age: 0,
-                            valid: true,
-                        });
-                        lag.h = h;
-                        lag.filter.clone_from(&self.filter);
-                        lag.age = 0;
-                        lag.valid = true;
+                        Lag::renew(&mut self.lag, h, &self.filter);
                     }
-                    if res.is_err() && lagged {
-                        // The old Jacobian did not get there: once more with a new one.
-                        lagged = false;
-                        if let Some(l) = &mut self.lag {
-                            l.valid = false;
+                    if prob.new_preconditioner && keep > 0 {
+                        Lag::renew(&mut self.kept, h, &self.filter);
+                    }
+                    if res.is_err() && (lagged || kept) {
+                        // The old Jacobian or hierarchy did not get there: once more with
+                        // new ones.
+                        for (old, l) in [(lagged, &mut self.lag), (kept, &mut self.kept)] {
+                            if let Some(l) = l.as_mut().filter(|_| old) {
+                                l.valid = false;
+                            }
                         }
+                        (lagged, kept) = (false, false);
                         continue;
                     }
                     let ni = res.map_err(solve_err)?;
-                    if let Some(l) = &mut self.lag {
+                    for l in [&mut self.lag, &mut self.kept].into_iter().flatten() {
                         l.age += 1;
                     }
                     info = StepInfo {
@@ -675,13 +693,37 @@ impl MechStepper {
 /// Jacobian gave up, then a new one was made); one Jacobian per step gave 491 ms.
 const LAGGED_ITERATIONS: usize = 8;
 
-/// A Jacobian kept for later steps (see [`MechSettings::reuse_jacobian`]).
+/// A Jacobian kept for later steps (see [`MechSettings::reuse_jacobian`]), or PCG's
+/// hierarchy ([`MechSettings::reuse_preconditioner`]): the step size and constraints it
+/// was made for, and the steps it has served.
 struct Lag {
     h: f64,
     filter: Filter,
     age: usize,
     /// False once a step gave up on it (its buffers stay for the next one).
     valid: bool,
+}
+
+impl Lag {
+    /// Whether it may serve a step of size h under `filter`, given the steps it may serve.
+    fn serves(&self, h: f64, most: usize, filter: &Filter) -> bool {
+        self.valid && self.h == h && self.age < most && self.filter.same_projection(filter)
+    }
+
+    /// Records a new one made for a step of size h under `filter` (kept buffers: no
+    /// allocation once the first is kept).
+    fn renew(lag: &mut Option<Lag>, h: f64, filter: &Filter) {
+        let l = lag.get_or_insert_with(|| Lag {
+            h,
+            filter: Filter::new(0),
+            age: 0,
+            valid: true,
+        });
+        l.h = h;
+        l.filter.clone_from(filter);
+        l.age = 0;
+        l.valid = true;
+    }
 }
 
 /// Most re-solves of a linearised step after freeing pulling approaches (one usually
@@ -852,6 +894,10 @@ struct Residual<'a> {
     reuse: bool,
     factored: bool,
     refactored: bool,
+    /// Keep PCG's hierarchy from an earlier step (`MechSettings::reuse_preconditioner`);
+    /// whether this step built a new one.
+    keep_preconditioner: bool,
+    new_preconditioner: bool,
 }
 
 impl Residual<'_> {
@@ -950,7 +996,8 @@ impl NewtonProblem for Residual<'_> {
         self.linear.set_coordinates(self.xe);
         let li = self
             .linear
-            .solve(self.a, self.rhs, dy, self.filter, false)?;
+            .solve(self.a, self.rhs, dy, self.filter, self.keep_preconditioner)?;
+        self.new_preconditioner |= !self.keep_preconditioner;
         self.factored = true;
         self.refactored = true;
         self.linear_iterations += li.iterations;

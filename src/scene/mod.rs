@@ -654,6 +654,15 @@ fn solver_settings(
         }
         settings.newton.forcing = Some(eta);
     }
+    if let Some(r) = t.reuse_preconditioner {
+        if !(0..=1000).contains(&r) {
+            return Err(err(
+                at("reuse_preconditioner"),
+                format!("must be 0 (a new hierarchy for each Jacobian) to 1000 steps, not {r}"),
+            ));
+        }
+        settings.reuse_preconditioner = r as usize;
+    }
     Ok(settings)
 }
 

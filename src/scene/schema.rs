@@ -20,6 +20,7 @@
 //! newton_max_iterations = 50
 //! reuse_jacobian = 0          # steps one factored Jacobian may serve (0: full Newton)
 //! forcing = 0.5               # inexact Newton: PCG tolerance up to this (Eisenstat-Walker)
+//! reuse_preconditioner = 0    # steps one PCG multigrid hierarchy may serve (0: new each time)
 //!
 //! [mass_spring.chain]         # one table per system: [mass_spring], [cloth], ...
 //! count = 20
@@ -84,6 +85,8 @@ pub struct SolverTable {
     pub reuse_jacobian: Option<i64>,
     /// Inexact Newton: the largest PCG tolerance the forcing terms may choose.
     pub forcing: Option<f64>,
+    /// Steps one PCG multigrid hierarchy may serve (0: a new one for each Jacobian).
+    pub reuse_preconditioner: Option<i64>,
 }
 
 /// `[output]`
