@@ -2643,44 +2643,48 @@ fn a_tilted_body_at_rest_steps_without_a_solver_error() {
     assert!(failed.is_empty(), "{failed:#?}");
 }
 
+/// Twenty backward Euler steps of the 20x2x2 corotational cantilever with the chord
+/// method and smoothed-aggregation PCG to 1e-8, the settings then changed by `tune`: the
+/// positions, and the Newton and PCG iterations summed over the steps.
+fn cantilever_pcg_steps(tune: impl Fn(&mut MechSettings)) -> (Vec<f64>, usize, usize) {
+    use largestep::integrate::LinearSolverKind;
+    use largestep::solve::{PcgParams, Preconditioner};
+    let desc = FemDesc::cantilever([20, 2, 2], [1.0, 0.1, 0.1], corotational_beam(), 9.81);
+    let (fem, state) = desc.build().unwrap();
+    let mut s = MechSettings::new(Method::BackwardEuler);
+    s.reuse_jacobian = 1;
+    s.linear = LinearSolverKind::Pcg(PcgParams {
+        tolerance: 1e-8,
+        max_iterations: 2000,
+        preconditioner: Preconditioner::SmoothedAggregation,
+    });
+    tune(&mut s);
+    let mut sim = MechSimulation::new(fem, state, s).unwrap();
+    sim.set_step_control(None);
+    let (mut newton, mut linear) = (0, 0);
+    for _ in 0..20 {
+        let info = sim.step(1.0 / 60.0).unwrap();
+        newton += info.newton_iterations;
+        linear += info.linear_iterations;
+    }
+    (sim.state().x.as_slice().to_vec(), newton, linear)
+}
+
+/// The largest difference between two position vectors (m).
+fn largest_difference(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).fold(0.0, |m, (x, y)| m.max((x - y).abs()))
+}
+
 /// Inexact Newton (Eisenstat-Walker forcing, `NewtonParams::forcing`): backward Euler steps
 /// of the corotational cantilever reach the same Newton tolerance with loose linear
 /// solves where the nonlinearity dominates, so with fewer PCG iterations, and end where
 /// the fixed-tolerance steps end.
 #[test]
 fn inexact_newton_reaches_the_same_steps_with_fewer_linear_iterations() {
-    use largestep::integrate::LinearSolverKind;
-    use largestep::solve::{PcgParams, Preconditioner};
-    let run = |forcing: Option<f64>| {
-        let desc = FemDesc::cantilever([20, 2, 2], [1.0, 0.1, 0.1], corotational_beam(), 9.81);
-        let (fem, state) = desc.build().unwrap();
-        let mut s = MechSettings::new(Method::BackwardEuler);
-        s.reuse_jacobian = 1;
-        s.newton.forcing = forcing;
-        s.linear = LinearSolverKind::Pcg(PcgParams {
-            tolerance: 1e-8,
-            max_iterations: 2000,
-            preconditioner: Preconditioner::SmoothedAggregation,
-        });
-        let mut sim = MechSimulation::new(fem, state, s).unwrap();
-        sim.set_step_control(None);
-        let (mut newton, mut linear) = (0, 0);
-        for _ in 0..20 {
-            let info = sim.step(1.0 / 60.0).unwrap();
-            newton += info.newton_iterations;
-            linear += info.linear_iterations;
-        }
-        (sim.state().x.as_slice().to_vec(), newton, linear)
-    };
-    let (exact, newton_exact, linear_exact) = run(None);
-    let (inexact, newton_inexact, linear_inexact) = run(Some(0.5));
-    let diff = max_abs(
-        &exact
-            .iter()
-            .zip(&inexact)
-            .map(|(a, b)| a - b)
-            .collect::<Vec<_>>(),
-    );
+    let (exact, newton_exact, linear_exact) = cantilever_pcg_steps(|_| {});
+    let (inexact, newton_inexact, linear_inexact) =
+        cantilever_pcg_steps(|s| s.newton.forcing = Some(0.5));
+    let diff = largest_difference(&exact, &inexact);
     println!(
         "Newton iterations {newton_exact} -> {newton_inexact}, PCG iterations {linear_exact} -> {linear_inexact}, largest position difference {diff:.2e} m"
     );
@@ -2700,36 +2704,9 @@ fn inexact_newton_reaches_the_same_steps_with_fewer_linear_iterations() {
 /// hierarchy was used.
 #[test]
 fn a_kept_preconditioner_gives_the_same_steps() {
-    use largestep::integrate::LinearSolverKind;
-    use largestep::solve::{PcgParams, Preconditioner};
-    let run = |keep: usize| {
-        let desc = FemDesc::cantilever([20, 2, 2], [1.0, 0.1, 0.1], corotational_beam(), 9.81);
-        let (fem, state) = desc.build().unwrap();
-        let mut s = MechSettings::new(Method::BackwardEuler);
-        s.reuse_jacobian = 1;
-        s.reuse_preconditioner = keep;
-        s.linear = LinearSolverKind::Pcg(PcgParams {
-            tolerance: 1e-8,
-            max_iterations: 2000,
-            preconditioner: Preconditioner::SmoothedAggregation,
-        });
-        let mut sim = MechSimulation::new(fem, state, s).unwrap();
-        sim.set_step_control(None);
-        let mut linear = 0;
-        for _ in 0..20 {
-            linear += sim.step(1.0 / 60.0).unwrap().linear_iterations;
-        }
-        (sim.state().x.as_slice().to_vec(), linear)
-    };
-    let (fresh, linear_fresh) = run(0);
-    let (kept, linear_kept) = run(10);
-    let diff = max_abs(
-        &fresh
-            .iter()
-            .zip(&kept)
-            .map(|(a, b)| a - b)
-            .collect::<Vec<_>>(),
-    );
+    let (fresh, _, linear_fresh) = cantilever_pcg_steps(|_| {});
+    let (kept, _, linear_kept) = cantilever_pcg_steps(|s| s.reuse_preconditioner = 10);
+    let diff = largest_difference(&fresh, &kept);
     println!(
         "PCG iterations {linear_fresh} -> {linear_kept}, largest position difference {diff:.2e} m"
     );
