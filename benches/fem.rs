@@ -68,8 +68,8 @@ fn beam() -> FemDesc {
 }
 
 /// How a timed step solves: the linear solver (sparse Cholesky for `None`, or PCG with a
-/// preconditioner), the Jacobian's reuse, the inexact Newton forcing (`None`: each PCG
-/// solve to 1e-6) and Newton's tolerance.
+/// preconditioner), the steps one Jacobian and one PCG hierarchy may serve, the inexact
+/// Newton forcing (`None`: each PCG solve to 1e-6) and Newton's tolerance.
 #[derive(Clone, Copy)]
 struct Solver {
     pcg: Option<Preconditioner>,
@@ -77,6 +77,22 @@ struct Solver {
     keep: usize,
     forcing: Option<f64>,
     newton: f64,
+}
+
+fn solver(
+    pcg: Option<Preconditioner>,
+    reuse: usize,
+    keep: usize,
+    forcing: Option<f64>,
+    newton: f64,
+) -> Solver {
+    Solver {
+        pcg,
+        reuse,
+        keep,
+        forcing,
+        newton,
+    }
 }
 
 fn settings(solver: Solver) -> MechSettings {
@@ -196,13 +212,7 @@ fn main() {
     let mut md = format!("threads: {threads}\n\n");
 
     // The timed state: 0.5 s of sagging.
-    let mut sim = simulation(Solver {
-        pcg: None,
-        reuse: 1,
-        keep: 0,
-        forcing: None,
-        newton: 1e-6,
-    });
+    let mut sim = simulation(solver(None, 1, 0, None, 1e-6));
     let t0 = Instant::now();
     while sim.time() < 0.5 - 1e-9 {
         sim.step(DT).unwrap();
@@ -244,34 +254,29 @@ fn main() {
         Some(Preconditioner::Multigrid),
         Some(Preconditioner::SmoothedAggregation),
     );
-    let solver = |pcg, reuse, forcing, newton| Solver {
-        pcg,
-        reuse,
-        keep: 0,
-        forcing,
-        newton,
-    };
-    let kept = |s: Solver| Solver { keep: 10, ..s };
     for (name, solver) in [
-        ("cholesky", solver(None, 0, None, 1e-6)),
-        ("cholesky-reuse", solver(None, 1, None, 1e-6)),
-        ("cholesky-reuse-10", solver(None, 10, None, 1e-6)),
-        ("pcg-mg", solver(mg, 0, None, 1e-6)),
-        ("pcg-mg-reuse", solver(mg, 1, None, 1e-6)),
-        ("pcg-sa", solver(sa, 0, None, 1e-6)),
-        ("pcg-sa-reuse", solver(sa, 1, None, 1e-6)),
-        ("pcg-sa-reuse-10", solver(sa, 10, None, 1e-6)),
+        ("cholesky", solver(None, 0, 0, None, 1e-6)),
+        ("cholesky-reuse", solver(None, 1, 0, None, 1e-6)),
+        ("cholesky-reuse-10", solver(None, 10, 0, None, 1e-6)),
+        ("pcg-mg", solver(mg, 0, 0, None, 1e-6)),
+        ("pcg-mg-reuse", solver(mg, 1, 0, None, 1e-6)),
+        ("pcg-sa", solver(sa, 0, 0, None, 1e-6)),
+        ("pcg-sa-reuse", solver(sa, 1, 0, None, 1e-6)),
+        ("pcg-sa-reuse-10", solver(sa, 10, 0, None, 1e-6)),
         // Inexact Newton: each PCG solve only as tight as the Eisenstat-Walker forcing term.
-        ("pcg-sa-reuse-forcing", solver(sa, 1, Some(0.5), 1e-6)),
-        ("pcg-sa-reuse-forcing-1e-3", solver(sa, 1, Some(0.5), 1e-3)),
+        ("pcg-sa-reuse-forcing", solver(sa, 1, 0, Some(0.5), 1e-6)),
+        (
+            "pcg-sa-reuse-forcing-1e-3",
+            solver(sa, 1, 0, Some(0.5), 1e-3),
+        ),
         // The hierarchy kept for up to ten steps (`MechSettings::reuse_preconditioner`).
         (
             "pcg-sa-reuse-forcing-keep",
-            kept(solver(sa, 1, Some(0.5), 1e-6)),
+            solver(sa, 1, 10, Some(0.5), 1e-6),
         ),
         (
             "pcg-sa-reuse-forcing-keep-1e-3",
-            kept(solver(sa, 1, Some(0.5), 1e-3)),
+            solver(sa, 1, 10, Some(0.5), 1e-3),
         ),
     ] {
         let id = format!("fem/step/{name}");

@@ -225,9 +225,9 @@ enum Linear {
 
 impl Linear {
     /// The next solves' relative tolerance from inexact Newton (PCG only).
-    fn set_forcing(&mut self, eta: Option<f64>) {
+    fn set_forcing(&mut self, eta: f64) {
         if let Linear::Pcg(p) = self {
-            p.set_forcing(eta);
+            p.set_forcing(Some(eta));
         }
     }
 
@@ -1011,7 +1011,7 @@ impl NewtonProblem for Residual<'_> {
     }
 
     fn set_linear_tolerance(&mut self, eta: f64) {
-        self.linear.set_forcing(Some(eta));
+        self.linear.set_forcing(eta);
     }
 
     fn merit(&mut self, v1: &[f64]) -> Option<f64> {

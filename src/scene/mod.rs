@@ -575,15 +575,28 @@ fn solver_settings(
     let mut settings = MechSettings::new(method);
     let Some(t) = t else { return Ok(settings) };
     let at = |f: &str| path(&[&"solver", &f]);
+    // A relative tolerance, in (0, 1).
+    let fraction = |key: &str, v: f64| {
+        if v.is_finite() && v > 0.0 && v < 1.0 {
+            Ok(v)
+        } else {
+            Err(err(at(key), format!("must be in (0, 1), not {v}")))
+        }
+    };
+    // Steps something may be reused for, 0 meaning `zero`.
+    let steps = |key: &str, r: i64, zero: &str| {
+        if (0..=1000).contains(&r) {
+            Ok(r as usize)
+        } else {
+            Err(err(
+                at(key),
+                format!("must be 0 ({zero}) to 1000 steps, not {r}"),
+            ))
+        }
+    };
     let mut pcg = PcgParams::default();
     if let Some(tol) = t.tolerance {
-        if !(tol.is_finite() && tol > 0.0 && tol < 1.0) {
-            return Err(err(
-                at("tolerance"),
-                format!("must be in (0, 1), not {tol}"),
-            ));
-        }
-        pcg.tolerance = tol;
+        pcg.tolerance = fraction("tolerance", tol)?;
     }
     if let Some(m) = t.max_iterations {
         if m < 1 {
@@ -620,12 +633,7 @@ fn solver_settings(
         }
     };
     if let Some(tol) = t.newton_tolerance {
-        if !(tol.is_finite() && tol > 0.0 && tol < 1.0) {
-            return Err(err(
-                at("newton_tolerance"),
-                format!("must be in (0, 1), not {tol}"),
-            ));
-        }
+        let tol = fraction("newton_tolerance", tol)?;
         // Relative residual reduction, and relative velocity change per iteration.
         settings.newton.tolerance = tol;
         settings.newton.step_tolerance = tol;
@@ -640,28 +648,17 @@ fn solver_settings(
         settings.newton.max_iterations = m as usize;
     }
     if let Some(r) = t.reuse_jacobian {
-        if !(0..=1000).contains(&r) {
-            return Err(err(
-                at("reuse_jacobian"),
-                format!("must be 0 (full Newton) to 1000 steps, not {r}"),
-            ));
-        }
-        settings.reuse_jacobian = r as usize;
+        settings.reuse_jacobian = steps("reuse_jacobian", r, "full Newton")?;
     }
     if let Some(eta) = t.forcing {
-        if !(eta.is_finite() && eta > 0.0 && eta < 1.0) {
-            return Err(err(at("forcing"), format!("must be in (0, 1), not {eta}")));
-        }
-        settings.newton.forcing = Some(eta);
+        settings.newton.forcing = Some(fraction("forcing", eta)?);
     }
     if let Some(r) = t.reuse_preconditioner {
-        if !(0..=1000).contains(&r) {
-            return Err(err(
-                at("reuse_preconditioner"),
-                format!("must be 0 (a new hierarchy for each Jacobian) to 1000 steps, not {r}"),
-            ));
-        }
-        settings.reuse_preconditioner = r as usize;
+        settings.reuse_preconditioner = steps(
+            "reuse_preconditioner",
+            r,
+            "a new hierarchy for each Jacobian",
+        )?;
     }
     Ok(settings)
 }

@@ -1176,7 +1176,7 @@ const RESTRICT_ROWS: usize = 2048;
 /// Each task streams its rows of P in storage order and adds them into its own copy of
 /// the coarse vector (`level.partial`); the copies are then added in task order. The
 /// column-wise gather this replaced visited P's blocks through `pt_slot`, out of order:
-/// a quarter of a V-cycle on the 36,663-unknown FEM beam, against a tenth now (perf).
+/// a quarter of a V-cycle on the 36,663-unknown FEM beam, against 6% now (perf).
 fn restrict<const BF: usize>(level: &mut Level, r: &[f64], layout: Layout) {
     let w = BF * M;
     let Level {

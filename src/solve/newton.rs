@@ -119,8 +119,11 @@ fn forcing_term(eta_max: f64, last: Option<(f64, f64)>, fnorm: f64, target: f64)
         Some((prev, eta_prev)) => {
             let a = GAMMA * (fnorm / prev).powi(2);
             let safeguard = GAMMA * eta_prev * eta_prev;
-            let b = if safeguard > 0.1 { a.max(safeguard) } else { a };
-            b.min(eta_max)
+            if safeguard > 0.1 {
+                a.max(safeguard)
+            } else {
+                a
+            }
         }
     };
     eta.max(0.5 * target / fnorm).min(eta_max)
