@@ -18,6 +18,10 @@
 //! - `fem/assembly`: `Fem::force_jacobians` on all threads: the kernels, the gather of
 //!   the forces and the stiffness blocks into the block-sparse matrix (deterministic, in
 //!   a fixed order). The difference from the parallel kernel time is the gather.
+//! - `fem/vcycle`: one V-cycle of the smoothed aggregation (`SmoothedAggregation::apply`,
+//!   all threads) on a step's matrix `M - h^2 K` at the timed state, with the bytes it
+//!   reads at least (`cycle_bytes`) against the triad bandwidth measured right after.
+//!   The cycle reads about twice this VM's 32 MB L3, so it streams from memory.
 //! - `fem/step/<solver>`: one backward Euler step at dt = 1/60 s, Newton iterated until
 //!   the residual falls by 1e-6 or the velocity change per iteration is below 1e-6 of the
 //!   velocities (`MechSettings::new`), with sparse Cholesky or PCG (relative tolerance
@@ -44,7 +48,9 @@ use largestep::fem::{Fem, FemDesc, FemMaterial, Material};
 use largestep::integrate::{LinearSolverKind, MechSettings, Method};
 use largestep::kernels::fem_diag::{element, element_x4, Iso, Lane};
 use largestep::kernels::{four, gather_nodes};
+use largestep::machine::{triad_bandwidth, DEFAULT_TRIAD_MIB};
 use largestep::simulation::{MechModel, MechSimulation};
+use largestep::solve::amg::SmoothedAggregation;
 use largestep::solve::{PcgParams, Preconditioner};
 use largestep::sparse::Bsr3;
 use std::cell::Cell;
@@ -246,6 +252,41 @@ fn main() {
             pattern.nnz_blocks(),
             1e3 * best,
             1e9 * best / fem.tets().len() as f64
+        ));
+    }
+
+    // One V-cycle of the smoothed aggregation on a step's matrix `M - h^2 K`.
+    if wanted("fem/vcycle") {
+        let fem = sim.model();
+        let n = fem.vertex_count();
+        let mut work = fem.work();
+        let pattern = fem.prepare_jacobians(&mut work).unwrap().unwrap();
+        let mut k = Bsr3::zeros(pattern.clone());
+        let mut f = vec![0.0; 3 * n];
+        fem.force_jacobians(&mut work, 0.0, &x, &v, &mut f, &mut k, None)
+            .unwrap();
+        let mut a = Bsr3::zeros(pattern);
+        a.assign_lincomb(&[(-DT * DT, &k)]);
+        a.add_scaled_diagonal(1.0, fem.mass());
+        let mut sa = SmoothedAggregation::new();
+        sa.set_coordinates(&x);
+        sa.setup(&a, None).unwrap();
+        let r: Vec<f64> = (0..3 * n)
+            .map(|i| ((i * 7919) % 1000) as f64 / 1000.0 - 0.5)
+            .collect();
+        let mut z = vec![0.0; 3 * n];
+        let mut run = || sa.apply(&a, &r, &mut z, None);
+        c.bench_function("fem/vcycle", |b| b.iter(&mut run));
+        let best = best_of(20, &mut run);
+        let triad = triad_bandwidth(DEFAULT_TRIAD_MIB * (1 << 20) / 8, 3);
+        let bytes = sa.cycle_bytes(&a) as f64;
+        md.push_str(&format!(
+            "\n| V-cycle (all threads) | unknowns per level | best | bytes read at least | GB/s | of the triad ({triad:.1} GB/s, measured after) |\n|---|---|---|---|---|---|\n| `SmoothedAggregation::apply` on `M - h^2 K` | {:?} | {:.2} ms | {:.1} MB | {:.1} | {:.0}% |\n",
+            sa.level_sizes(),
+            1e3 * best,
+            bytes / 1e6,
+            bytes / best / 1e9,
+            100.0 * bytes / best / 1e9 / triad
         ));
     }
 

@@ -586,34 +586,46 @@ fn rank_one_assembly_equals_the_dense_sum_of_weighted_outer_products() {
     assert!(a.max_asymmetry() < 1e-15);
 }
 
-/// Multigrid smooths the fine level with an `f32` copy of the matrix; a matrix whose
-/// values overflow `f32` falls back to the `f64` values and still converges, in the
-/// iterations the same system scaled into range takes.
+/// Both multigrids (the aggregation one and the smoothed aggregation) smooth the fine
+/// level with an `f32` copy of the matrix; a matrix whose values overflow `f32` falls back
+/// to the `f64` values and still converges, in the iterations the same system scaled into
+/// range takes.
 #[test]
 fn multigrid_falls_back_to_f64_when_values_overflow_f32() {
     let a = grid_spd(&[24, 24], 1.0, 0.05);
     let n = a.n();
     let b = rhs(n);
-    let solve = |scale: f64| {
-        let mut m = a.clone();
-        m.values_mut().iter_mut().for_each(|v| *v *= scale);
-        let mut pcg = Pcg::new(
-            n,
-            PcgParams {
-                tolerance: 1e-10,
-                max_iterations: 500,
-                preconditioner: Preconditioner::Multigrid,
-            },
+    for preconditioner in [
+        Preconditioner::Multigrid,
+        Preconditioner::SmoothedAggregation,
+    ] {
+        let solve = |scale: f64| {
+            let mut m = a.clone();
+            m.values_mut().iter_mut().for_each(|v| *v *= scale);
+            let mut pcg = Pcg::new(
+                n,
+                PcgParams {
+                    tolerance: 1e-10,
+                    max_iterations: 500,
+                    preconditioner,
+                },
+            );
+            let mut x = vec![0.0; 3 * n];
+            let info = pcg.solve(&mut m, &b, &mut x, None).unwrap();
+            assert!(residual(&m, &x, &b) < 1e-9 * b.iter().map(|v| v.abs()).fold(0.0, f64::max));
+            assert!(x.iter().all(|v| v.is_finite()));
+            (info.iterations, pcg.iteration_bytes(&m))
+        };
+        let (its, bytes) = solve(1.0);
+        let (its_big, bytes_big) = solve(1e40);
+        assert!(
+            its_big.abs_diff(its) <= 1,
+            "{preconditioner:?}: {its} vs {its_big} iterations"
         );
-        let mut x = vec![0.0; 3 * n];
-        let info = pcg.solve(&mut m, &b, &mut x, None).unwrap();
-        assert!(residual(&m, &x, &b) < 1e-9 * b.iter().map(|v| v.abs()).fold(0.0, f64::max));
-        assert!(x.iter().all(|v| v.is_finite()));
-        (info.iterations, pcg.iteration_bytes(&m))
-    };
-    let (its, bytes) = solve(1.0);
-    let (its_big, bytes_big) = solve(1e40);
-    assert!(its_big.abs_diff(its) <= 1, "{its} vs {its_big} iterations");
-    // The fallback reads the f64 values on the fine level: more bytes per iteration.
-    assert!(bytes_big > bytes, "{bytes} vs {bytes_big}");
+        // The fallback reads the f64 values on the fine level: more bytes per iteration.
+        assert!(
+            bytes_big > bytes,
+            "{preconditioner:?}: {bytes} vs {bytes_big}"
+        );
+    }
 }

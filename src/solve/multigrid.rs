@@ -389,14 +389,14 @@ impl Multigrid {
 }
 
 /// The matrix `a` with the values `val32` ([`round_to_f32`] of its values), if they fit.
-fn rounded<'a>(val32: &'a [f32], a: &'a Bsr3) -> Option<Bsr3Ref<'a, f32>> {
+pub(super) fn rounded<'a>(val32: &'a [f32], a: &'a Bsr3) -> Option<Bsr3Ref<'a, f32>> {
     let k = a.as_kernel();
     (val32.len() == k.val.len()).then(|| Bsr3Ref::new(k.n, k.row_ptr, k.col, val32))
 }
 
 /// `res = b - A x` on the fine level: through the `f32` values `val32` when they fit,
 /// else through `a`'s own.
-fn fine_residual(val32: &[f32], a: &Bsr3, res: &mut [f64], x: &[f64], b: &[f64]) {
+pub(super) fn fine_residual(val32: &[f32], a: &Bsr3, res: &mut [f64], x: &[f64], b: &[f64]) {
     match rounded(val32, a) {
         Some(a32) => bsr3_residual_par(res, a32, x, b),
         None => a.residual(res, x, b),
@@ -405,7 +405,7 @@ fn fine_residual(val32: &[f32], a: &Bsr3, res: &mut [f64], x: &[f64], b: &[f64])
 
 /// `out = val` rounded to `f32` (parallel; allocates only when the length changes), or
 /// `out` emptied when a finite value overflows `f32`: the fine level then uses `val`.
-fn round_to_f32(val: &[f64], out: &mut Vec<f32>) {
+pub(super) fn round_to_f32(val: &[f64], out: &mut Vec<f32>) {
     out.resize(val.len(), 0.0);
     let fits = out
         .par_chunks_mut(9 * 1024)
