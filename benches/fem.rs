@@ -18,10 +18,12 @@
 //! - `fem/assembly`: `Fem::force_jacobians` on all threads: the kernels, the gather of
 //!   the forces and the stiffness blocks into the block-sparse matrix (deterministic, in
 //!   a fixed order). The difference from the parallel kernel time is the gather.
-//! - `fem/vcycle`: one V-cycle of the smoothed aggregation (`SmoothedAggregation::apply`,
-//!   all threads) on a step's matrix `M - h^2 K` at the timed state, with the bytes it
-//!   reads at least (`cycle_bytes`) against the triad bandwidth measured right after.
-//!   The cycle reads about twice this VM's 32 MB L3, so it streams from memory.
+//! - `fem/sa/{setup,vcycle}`: the smoothed aggregation on a step's matrix `M - h^2 K` at
+//!   the timed state (all threads): a setup of the values (the pattern's part kept, as
+//!   in every step but the first), and one V-cycle (`SmoothedAggregation::apply`) with
+//!   the bytes it reads at least (`cycle_bytes`) against the triad bandwidth measured
+//!   right after. The cycle reads about twice this VM's 32 MB L3, so it streams from
+//!   memory.
 //! - `fem/step/<solver>`: one backward Euler step at dt = 1/60 s, Newton iterated until
 //!   the residual falls by 1e-6 or the velocity change per iteration is below 1e-6 of the
 //!   velocities (`MechSettings::new`), with sparse Cholesky or PCG (relative tolerance
@@ -256,7 +258,7 @@ fn main() {
     }
 
     // One V-cycle of the smoothed aggregation on a step's matrix `M - h^2 K`.
-    if wanted("fem/vcycle") {
+    if wanted("fem/sa") {
         let fem = sim.model();
         let n = fem.vertex_count();
         let mut work = fem.work();
@@ -274,15 +276,19 @@ fn main() {
         let r: Vec<f64> = (0..3 * n)
             .map(|i| ((i * 7919) % 1000) as f64 / 1000.0 - 0.5)
             .collect();
+        let mut setup = || sa.setup(&a, None).unwrap();
+        c.bench_function("fem/sa/setup", |b| b.iter(&mut setup));
+        let setup_best = best_of(10, &mut setup);
         let mut z = vec![0.0; 3 * n];
         let mut run = || sa.apply(&a, &r, &mut z, None);
-        c.bench_function("fem/vcycle", |b| b.iter(&mut run));
+        c.bench_function("fem/sa/vcycle", |b| b.iter(&mut run));
         let best = best_of(20, &mut run);
         let triad = triad_bandwidth(DEFAULT_TRIAD_MIB * (1 << 20) / 8, 3);
         let bytes = sa.cycle_bytes(&a) as f64;
         md.push_str(&format!(
-            "\n| V-cycle (all threads) | unknowns per level | best | bytes read at least | GB/s | of the triad ({triad:.1} GB/s, measured after) |\n|---|---|---|---|---|---|\n| `SmoothedAggregation::apply` on `M - h^2 K` | {:?} | {:.2} ms | {:.1} MB | {:.1} | {:.0}% |\n",
+            "\n| smoothed aggregation on `M - h^2 K` (all threads), unknowns per level {:?} | best | bytes read at least | GB/s | of the triad ({triad:.1} GB/s, measured after) |\n|---|---|---|---|---|\n| setup (`SmoothedAggregation::setup`, the pattern's part kept) | {:.1} ms | | | |\n| V-cycle (`SmoothedAggregation::apply`) | {:.2} ms | {:.1} MB | {:.1} | {:.0}% |\n",
             sa.level_sizes(),
+            1e3 * setup_best,
             1e3 * best,
             bytes / 1e6,
             bytes / best / 1e9,
