@@ -2369,6 +2369,53 @@ fn pcg_iterations_as_the_fem_mesh_is_refined() {
     }
 }
 
+/// Stepping assembles the stiffness from element blocks rounded to `f32` (half the bytes
+/// for the gather); `Fem::exact_work` keeps them `f64`, as modal analysis needs. The two
+/// matrices differ by that rounding only, and both are exactly symmetric.
+#[test]
+fn stepping_rounds_the_element_blocks_and_exact_work_does_not() {
+    use largestep::simulation::MechModel;
+    let desc = FemDesc::cantilever([8, 2, 2], [1.0, 0.1, 0.1], corotational_beam(), 9.81);
+    let (model, state) = desc.build().unwrap();
+    let n = model.vertex_count();
+    // A bent, stretched state, so that the blocks are not round numbers.
+    let x: Vec<f64> = state
+        .x
+        .as_slice()
+        .iter()
+        .enumerate()
+        .map(|(k, &p)| p * (1.0 + 0.01 * ((k * 7 % 11) as f64 / 11.0)))
+        .collect();
+    let assemble = |mut work: largestep::fem::FemWork| {
+        let pattern = model.prepare_jacobians(&mut work).unwrap().unwrap();
+        let mut kx = largestep::sparse::Bsr3::zeros(pattern);
+        let mut f = vec![0.0; 3 * n];
+        model
+            .force_jacobians(&mut work, 0.0, &x, &vec![0.0; 3 * n], &mut f, &mut kx, None)
+            .unwrap();
+        (kx, f)
+    };
+    let (k32, f32) = assemble(model.work());
+    let (k64, f64) = assemble(model.exact_work());
+    assert_eq!(f32, f64, "the forces are not rounded");
+    let size = max_abs(k64.values());
+    let diff = k32
+        .values()
+        .iter()
+        .zip(k64.values())
+        .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+    // Each slot sums a few blocks, each moved by at most 2^-24 of itself.
+    assert!(
+        diff > 0.0 && diff <= 1e-6 * size,
+        "difference {diff} of {size}"
+    );
+    // Off-diagonal blocks are stored once and transposed; a diagonal block's own
+    // asymmetry (the kernel's round-off) is rounded with it.
+    let (a32, a64) = (k32.max_asymmetry(), k64.max_asymmetry());
+    assert!(a64 <= 1e-13 * size, "asymmetry {a64} of {size}");
+    assert!(a32 <= 1e-7 * size, "asymmetry {a32} of {size}");
+}
+
 /// A model at rest with what its implicit systems are made of.
 struct RestSystem {
     model: largestep::fem::Fem,

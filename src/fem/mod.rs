@@ -667,8 +667,25 @@ pub struct Fem {
 pub struct FemWork {
     /// Element forces (12 per element).
     f: Vec<f64>,
+    /// Whether the stiffness blocks are kept in `f64` ([`Fem::exact_work`]).
+    exact: bool,
     /// Stiffness blocks (90 per element) and their assembly, built for implicit methods.
-    jac: Option<(Vec<f64>, ElementAssembly)>,
+    jac: Option<(ElementBlocks, ElementAssembly)>,
+}
+
+/// The element stiffness blocks between the kernels and the gather.
+///
+/// Why `f32` for stepping: the implicit step's Jacobian only steers Newton (its residual,
+/// the forces, stays `f64`, so the steps converge to the same tolerance), and rounding the
+/// 43 MB of blocks of the 60,000-element beam to 21.6 MB took its assembly from 32-40 to
+/// 23-25 ms (alternating builds): the gather, half the assembly, waited on memory for
+/// the blocks. Each block is moved by at most 6e-8 of its size; the sums are `f64`.
+/// Modal analysis needs the exact `K` (a free body's six rigid modes sit near 1e-7 of
+/// the largest eigenvalue once rounded), so [`Fem::exact_work`] keeps `f64`.
+#[derive(Debug)]
+enum ElementBlocks {
+    Single(Vec<f32>),
+    Double(Vec<f64>),
 }
 
 impl Fem {
@@ -879,6 +896,48 @@ impl Fem {
         fe
     }
 
+    /// Every element's forces (with stiffness damping) into `ef` (12 each) and its
+    /// stiffness blocks into `kbuf` (90 each), stored through `store`; in fixed chunks.
+    /// Each group of four is computed into `f64` scratch first, so the damping reads
+    /// unrounded blocks.
+    fn element_jacobians<T: Send>(
+        &self,
+        ef: &mut [f64],
+        kbuf: &mut [T],
+        x: &[f64],
+        v: &[f64],
+        store: impl Fn(f64) -> T + Sync,
+    ) {
+        let beta = self.rayleigh[1];
+        ef.par_chunks_mut(12 * CHUNK)
+            .zip(kbuf.par_chunks_mut(TET_K * CHUNK))
+            .enumerate()
+            .for_each(|(c, (fo, ko))| {
+                let mut k = [0.0; 4 * TET_K];
+                for (g, (fg, kg)) in fo.chunks_mut(48).zip(ko.chunks_mut(4 * TET_K)).enumerate() {
+                    let (e0, cnt) = (c * CHUNK + 4 * g, fg.len() / 12);
+                    let k = &mut k[..kg.len()];
+                    self.group(e0, cnt, x, fg, Some(k));
+                    if beta > 0.0 {
+                        self.add_group_damping(e0, k, v, fg);
+                    }
+                    for (o, &kk) in kg.iter_mut().zip(k.iter()) {
+                        *o = store(kk);
+                    }
+                }
+            });
+    }
+
+    /// Scratch for evaluations whose stiffness matrix must be exact (modal analysis,
+    /// eigenvalue estimates): [`MechModel::work`] with the element blocks kept in `f64`
+    /// (see `ElementBlocks` for why stepping rounds them).
+    pub fn exact_work(&self) -> FemWork {
+        FemWork {
+            exact: true,
+            ..self.work()
+        }
+    }
+
     /// Adds the stiffness-damping forces `beta dfdx_e v_e` of elements `e0..` (their
     /// stiffness blocks in k, 90 each) to their element forces f (12 each).
     fn add_group_damping(&self, e0: usize, k: &[f64], v: &[f64], f: &mut [f64]) {
@@ -934,6 +993,7 @@ impl MechModel for Fem {
     fn work(&self) -> FemWork {
         FemWork {
             f: vec![0.0; self.gather.vector_buffer_len()],
+            exact: false,
             jac: None,
         }
     }
@@ -967,7 +1027,13 @@ impl MechModel for Fem {
     ) -> Result<Option<Arc<Bsr3Pattern>>, SparseError> {
         if work.jac.is_none() {
             let asm = ElementAssembly::new(self.n, &self.tets, LocalLayout::symmetric(4))?;
-            work.jac = Some((vec![0.0; asm.block_buffer_len()], asm));
+            let len = asm.block_buffer_len();
+            let blocks = if work.exact {
+                ElementBlocks::Double(vec![0.0; len])
+            } else {
+                ElementBlocks::Single(vec![0.0; len])
+            };
+            work.jac = Some((blocks, asm));
         }
         Ok(work.jac.as_ref().map(|(_, a)| a.pattern().clone()))
     }
@@ -986,23 +1052,20 @@ impl MechModel for Fem {
             .map_err(IntegrateError::Sparse)?;
         self.loads.forces(t, &self.body(), x, v, f);
         let beta = self.rayleigh[1];
-        let FemWork { f: ef, jac } = work;
+        let FemWork { f: ef, jac, .. } = work;
         let (kbuf, asm) = jac.as_mut().expect("prepared above");
-        ef.par_chunks_mut(12 * CHUNK)
-            .zip(kbuf.par_chunks_mut(TET_K * CHUNK))
-            .enumerate()
-            .for_each(|(c, (fo, ko))| {
-                for (g, (fg, kg)) in fo.chunks_mut(48).zip(ko.chunks_mut(4 * TET_K)).enumerate() {
-                    let (e0, cnt) = (c * CHUNK + 4 * g, fg.len() / 12);
-                    self.group(e0, cnt, x, fg, Some(kg));
-                    if beta > 0.0 {
-                        self.add_group_damping(e0, kg, v, fg);
-                    }
-                }
-            });
+        match kbuf {
+            ElementBlocks::Single(kbuf) => {
+                self.element_jacobians(ef, kbuf, x, v, |k| k as f32);
+                asm.gather_blocks(kbuf, dfdx);
+            }
+            ElementBlocks::Double(kbuf) => {
+                self.element_jacobians(ef, kbuf, x, v, |k| k);
+                asm.gather_blocks(kbuf, dfdx);
+            }
+        }
         self.gather.gather_vectors_add(ef, f);
         self.add_mass_damping(v, f);
-        asm.gather_blocks(kbuf, dfdx);
         // df/dv of the damping force -(alpha M + beta K) v, K = -df_el/dx: beta dfdx -
         // alpha M (its dependence on x through K is left out, as usual for Rayleigh
         // damping).

@@ -235,7 +235,7 @@ pub struct Analysis {
 /// (component-major): linear elasticity's, whatever the material.
 pub fn stiffness_at_rest(fem: &Fem, rest: &[f64]) -> Result<Bsr3, ModalError> {
     let n = fem.vertex_count();
-    let mut work = fem.work();
+    let mut work = fem.exact_work();
     let pattern = fem
         .prepare_jacobians(&mut work)
         .map_err(|e| ModalError::Input(e.to_string()))?

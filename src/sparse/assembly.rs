@@ -15,6 +15,7 @@
 
 use super::{Bsr3, Bsr3Pattern, SparseError};
 use largestep_kernels::par::{chunk_count, chunk_range, par_reduce, Disjoint};
+use largestep_kernels::sparse::BlockValue;
 use rayon::prelude::*;
 use std::sync::Arc;
 
@@ -273,18 +274,19 @@ impl ElementAssembly {
         &self.elem_slots
     }
 
-    /// Overwrites `out` with the assembled matrix of the element blocks.
-    pub fn gather_blocks(&self, elem_blocks: &[f64], out: &mut Bsr3) {
+    /// Overwrites `out` with the assembled matrix of the element blocks (stored as `f64`,
+    /// or as `f32` where the kernel rounded them to halve the bytes; the sums are `f64`).
+    pub fn gather_blocks<T: BlockValue>(&self, elem_blocks: &[T], out: &mut Bsr3) {
         self.gather(elem_blocks, out, false);
     }
 
     /// Like [`ElementAssembly::gather_blocks`], but adds to `out` (a second element kind
     /// sharing the pattern, see [`ElementAssembly::with_pattern`]).
-    pub fn gather_blocks_add(&self, elem_blocks: &[f64], out: &mut Bsr3) {
+    pub fn gather_blocks_add<T: BlockValue>(&self, elem_blocks: &[T], out: &mut Bsr3) {
         self.gather(elem_blocks, out, true);
     }
 
-    fn gather(&self, elem_blocks: &[f64], out: &mut Bsr3, add: bool) {
+    fn gather<T: BlockValue>(&self, elem_blocks: &[T], out: &mut Bsr3, add: bool) {
         assert_eq!(elem_blocks.len(), self.block_buffer_len());
         assert!(Arc::ptr_eq(out.pattern(), &self.pattern) || **out.pattern() == *self.pattern);
         let (ptr, src) = (&self.block_ptr, &self.block_src);
@@ -296,12 +298,12 @@ impl ElementAssembly {
                 if code & TRANS != 0 {
                     for r in 0..3 {
                         for cc in 0..3 {
-                            acc[3 * r + cc] += sign * b[3 * cc + r];
+                            acc[3 * r + cc] += sign * b[3 * cc + r].get();
                         }
                     }
                 } else {
                     for (a, bb) in acc.iter_mut().zip(b) {
-                        *a += sign * bb;
+                        *a += sign * bb.get();
                     }
                 }
             }

@@ -258,7 +258,7 @@ fn highest_frequency(fem: &crate::fem::Fem, x: &[f64]) -> f64 {
     use crate::simulation::MechModel;
     use crate::sparse::Bsr3;
     let n = fem.vertex_count();
-    let mut work = fem.work();
+    let mut work = fem.exact_work();
     let pattern = fem
         .prepare_jacobians(&mut work)
         .expect("pattern")
