@@ -46,7 +46,7 @@
 
 use criterion::Criterion;
 use largestep::fem::mesh::box_mesh;
-use largestep::fem::{Fem, FemDesc, FemMaterial, Material};
+use largestep::fem::{Fem, FemDesc, FemMaterial, FemWork, Material};
 use largestep::integrate::{LinearSolverKind, MechSettings, Method};
 use largestep::kernels::fem_diag::{element, element_x4, Iso, Lane};
 use largestep::kernels::{four, gather_nodes};
@@ -237,11 +237,8 @@ fn main() {
     // Assembly: the model's force_jacobians, all threads.
     if wanted("fem/assembly") {
         let fem = sim.model();
-        let n = fem.vertex_count();
-        let mut work = fem.work();
-        let pattern = fem.prepare_jacobians(&mut work).unwrap().unwrap();
-        let mut k = Bsr3::zeros(pattern.clone());
-        let mut f = vec![0.0; 3 * n];
+        let (mut work, mut f, mut k) = jacobian(fem, &x, &v);
+        let pattern = k.pattern().clone();
         let mut run = || {
             f.fill(0.0);
             fem.force_jacobians(&mut work, 0.0, &x, &v, &mut f, &mut k, None)
@@ -261,13 +258,8 @@ fn main() {
     if wanted("fem/sa") {
         let fem = sim.model();
         let n = fem.vertex_count();
-        let mut work = fem.work();
-        let pattern = fem.prepare_jacobians(&mut work).unwrap().unwrap();
-        let mut k = Bsr3::zeros(pattern.clone());
-        let mut f = vec![0.0; 3 * n];
-        fem.force_jacobians(&mut work, 0.0, &x, &v, &mut f, &mut k, None)
-            .unwrap();
-        let mut a = Bsr3::zeros(pattern);
+        let (_, _, k) = jacobian(fem, &x, &v);
+        let mut a = Bsr3::zeros(k.pattern().clone());
         a.assign_lincomb(&[(-DT * DT, &k)]);
         a.add_scaled_diagonal(1.0, fem.mass());
         let mut sa = SmoothedAggregation::new();
@@ -360,6 +352,17 @@ fn main() {
     let dir = std::path::Path::new("target/criterion");
     let _ = std::fs::create_dir_all(dir);
     let _ = std::fs::write(dir.join("fem-summary.md"), md);
+}
+
+/// The model's scratch, its forces and `df/dx` at `(x, v)`, assembled once.
+fn jacobian(fem: &Fem, x: &[f64], v: &[f64]) -> (FemWork, Vec<f64>, Bsr3) {
+    let mut work = fem.work();
+    let pattern = fem.prepare_jacobians(&mut work).unwrap().unwrap();
+    let mut k = Bsr3::zeros(pattern);
+    let mut f = vec![0.0; 3 * fem.vertex_count()];
+    fem.force_jacobians(&mut work, 0.0, x, v, &mut f, &mut k, None)
+        .unwrap();
+    (work, f, k)
 }
 
 /// Mean y of the free end's vertices.
