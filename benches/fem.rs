@@ -254,7 +254,7 @@ fn main() {
         ));
     }
 
-    // One V-cycle of the smoothed aggregation on a step's matrix `M - h^2 K`.
+    // The smoothed aggregation's setup and one V-cycle on a step's matrix `M - h^2 K`.
     if wanted("fem/sa") {
         let fem = sim.model();
         let n = fem.vertex_count();

@@ -667,10 +667,10 @@ pub struct Fem {
 pub struct FemWork {
     /// Element forces (12 per element).
     f: Vec<f64>,
-    /// Whether the stiffness blocks are kept in `f64` ([`Fem::exact_work`]).
-    exact: bool,
-    /// Stiffness blocks (90 per element) and their assembly, built for implicit methods.
-    jac: Option<(ElementBlocks, ElementAssembly)>,
+    /// Stiffness blocks (90 per element), empty until their assembly is built for an
+    /// implicit method; their precision is chosen with the scratch ([`Fem::exact_work`]).
+    blocks: ElementBlocks,
+    asm: Option<ElementAssembly>,
 }
 
 /// The element stiffness blocks between the kernels and the gather.
@@ -933,7 +933,7 @@ impl Fem {
     /// (see `ElementBlocks` for why stepping rounds them).
     pub fn exact_work(&self) -> FemWork {
         FemWork {
-            exact: true,
+            blocks: ElementBlocks::Double(Vec::new()),
             ..self.work()
         }
     }
@@ -993,8 +993,8 @@ impl MechModel for Fem {
     fn work(&self) -> FemWork {
         FemWork {
             f: vec![0.0; self.gather.vector_buffer_len()],
-            exact: false,
-            jac: None,
+            blocks: ElementBlocks::Single(Vec::new()),
+            asm: None,
         }
     }
 
@@ -1025,17 +1025,16 @@ impl MechModel for Fem {
         &self,
         work: &mut FemWork,
     ) -> Result<Option<Arc<Bsr3Pattern>>, SparseError> {
-        if work.jac.is_none() {
+        if work.asm.is_none() {
             let asm = ElementAssembly::new(self.n, &self.tets, LocalLayout::symmetric(4))?;
             let len = asm.block_buffer_len();
-            let blocks = if work.exact {
-                ElementBlocks::Double(vec![0.0; len])
-            } else {
-                ElementBlocks::Single(vec![0.0; len])
-            };
-            work.jac = Some((blocks, asm));
+            match &mut work.blocks {
+                ElementBlocks::Single(b) => b.resize(len, 0.0),
+                ElementBlocks::Double(b) => b.resize(len, 0.0),
+            }
+            work.asm = Some(asm);
         }
-        Ok(work.jac.as_ref().map(|(_, a)| a.pattern().clone()))
+        Ok(work.asm.as_ref().map(|a| a.pattern().clone()))
     }
 
     fn force_jacobians(
@@ -1052,9 +1051,9 @@ impl MechModel for Fem {
             .map_err(IntegrateError::Sparse)?;
         self.loads.forces(t, &self.body(), x, v, f);
         let beta = self.rayleigh[1];
-        let FemWork { f: ef, jac, .. } = work;
-        let (kbuf, asm) = jac.as_mut().expect("prepared above");
-        match kbuf {
+        let FemWork { f: ef, blocks, asm } = work;
+        let asm = asm.as_ref().expect("prepared above");
+        match blocks {
             ElementBlocks::Single(kbuf) => {
                 self.element_jacobians(ef, kbuf, x, v, |k| k as f32);
                 asm.gather_blocks(kbuf, dfdx);

@@ -45,7 +45,7 @@
 //!   symmetric positive definite, while PCG's own products use the `f64` matrix. The
 //!   cycle streams from memory (on the beam of issue 15 it reads 84 MB, over twice this
 //!   VM's L3, at 87-96% of the triad bandwidth), so the 29% fewer bytes took it from
-//!   4.2-4.7 to 3.4-3.7 ms (`fem/vcycle`, alternating builds); the PCG iteration counts
+//!   4.2-4.7 to 3.4-3.7 ms (`fem/sa/vcycle`, alternating builds); the PCG iteration counts
 //!   of the refinement test did not change.
 //! - **Coarsest level** (at most [`COARSE_DOFS`] unknowns, or where aggregation stops
 //!   shrinking): faer's sparse Cholesky, its symbolic analysis made once.
