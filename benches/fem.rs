@@ -4,17 +4,18 @@
 //! kg/m^3), the definiteness fix on. The timed state is the beam after 0.5 s of backward
 //! Euler from straight (its tip sags and swings; the elements are rotated and strained).
 //!
-//! - `fem/kernel/{scalar,x4}`: every element's forces and ten stiffness blocks
-//!   (`largestep_kernels::fem_diag::element`, the generic kernel at `f64`, and
-//!   `element_x4`, four elements per `f64x4`), on one core, positions gathered from the
-//!   state as the model does. Their flops are counted by running the same generic kernel
-//!   on a counting number type over the same elements (an FMA counts 2, every other
+//! - `fem/kernel/{scalar,x4,x8}`: every element's forces and ten stiffness blocks
+//!   (`largestep_kernels::fem_diag::element`, the generic kernel at `f64`; `element_x4`,
+//!   four elements per `f64x4`; `element_x8`, two such groups whose SVDs run
+//!   interleaved, as the model calls it), on one core, positions gathered from the state
+//!   (`Fem::elements`). Their flops are counted by running the same generic kernel on a
+//!   counting number type over the same elements (an FMA counts 2, every other
 //!   arithmetic operation, square root, comparison and selection 1), and reported against
 //!   one core's FMA peak, measured right before and after the timing (`machine::peak_fma`,
 //!   4-wide, over the threads, divided by them; the higher of the two).
-//!   `fem/kernel/x4-cached` makes the same calls with every group's outputs in one
-//!   reused buffer: the kernel's arithmetic rate, where `x4` also pays for writing the
-//!   43 MB of stiffness blocks that the model's gather reads (about 40% of its time).
+//!   `fem/kernel/{x4,x8}-cached` make the same calls with every group's outputs in one
+//!   reused buffer: the kernel's arithmetic rate, where `x4` and `x8` also pay for
+//!   writing the 43 MB of stiffness blocks that the model's gather reads.
 //! - `fem/assembly`: `Fem::force_jacobians` on all threads: the kernels, the gather of
 //!   the forces and the stiffness blocks into the block-sparse matrix (deterministic, in
 //!   a fixed order). The difference from the parallel kernel time is the gather.
@@ -48,8 +49,8 @@ use criterion::Criterion;
 use largestep::fem::mesh::box_mesh;
 use largestep::fem::{Fem, FemDesc, FemMaterial, FemWork, Material};
 use largestep::integrate::{LinearSolverKind, MechSettings, Method};
-use largestep::kernels::fem_diag::{element, element_x4, Iso, Lane};
-use largestep::kernels::{four, gather_nodes};
+use largestep::kernels::fem_diag::{element, element_x4, element_x8, Iso, Lane};
+use largestep::kernels::gather_nodes;
 use largestep::machine::{triad_bandwidth, DEFAULT_TRIAD_MIB};
 use largestep::simulation::{MechModel, MechSimulation};
 use largestep::solve::amg::SmoothedAggregation;
@@ -394,7 +395,7 @@ fn kernels(
 ) {
     let n = fem.vertex_count();
     let tets = fem.tets();
-    let ne = tets.len() / 4 * 4;
+    let ne = tets.len() / 8 * 8;
     let iso = Iso {
         material: Material::Corotational,
         clamp: None,
@@ -419,37 +420,54 @@ fn kernels(
             f[12 * e..12 * e + 12].copy_from_slice(fe.as_flattened());
         }
     };
-    // Elements e..e + 4 as the model calls them.
-    let call_x4 = |e: usize, f: &mut [f64; 48], k: &mut [f64; 360]| {
-        element_x4(
-            f,
-            Some(k),
-            &four(e, xs),
-            &four(e, |e| fem.dm_inv(e)),
-            four(e, |e| fem.volumes()[e]),
-            &four(e, lame),
-            &iso,
-        );
-    };
+    // Every group's outputs kept, as the model keeps them for its gather.
+    let els = fem.elements(x);
     let (mut f4, mut k4) = (vec![0.0; 12 * ne], vec![0.0; 90 * ne]);
     let mut x4 = || {
-        for e in (0..ne).step_by(4) {
-            call_x4(
+        for ((e, f), k) in (0..ne)
+            .step_by(4)
+            .zip(f4.chunks_exact_mut(48))
+            .zip(k4.chunks_exact_mut(360))
+        {
+            element_x4(
+                f.try_into().unwrap(),
+                Some(k.try_into().unwrap()),
+                &els,
                 e,
-                (&mut f4[12 * e..12 * e + 48]).try_into().unwrap(),
-                (&mut k4[90 * e..90 * e + 360]).try_into().unwrap(),
+                &iso,
             );
         }
     };
-    // The same calls with the outputs in one reused group buffer: the kernel's own rate,
-    // without writing the 43 MB of stiffness blocks the model keeps for its gather (the
-    // x4 row above pays for that traffic, as the model does).
-    let (mut fc, mut kc) = ([0.0; 48], [0.0; 360]);
-    let mut sink = 0.0;
+    let (mut f8, mut k8) = (vec![0.0; 12 * ne], vec![0.0; 90 * ne]);
+    let mut x8 = || {
+        for ((e, f), k) in (0..ne)
+            .step_by(8)
+            .zip(f8.chunks_exact_mut(96))
+            .zip(k8.chunks_exact_mut(720))
+        {
+            element_x8(
+                f.try_into().unwrap(),
+                Some(k.try_into().unwrap()),
+                &els,
+                e,
+                &iso,
+            );
+        }
+    };
+    // The same calls with the outputs in one reused buffer: the kernel's own rate,
+    // without writing the 43 MB of stiffness blocks the model keeps for its gather.
+    let (mut fc4, mut kc4, mut sink4) = ([0.0; 48], [0.0; 360], 0.0);
     let mut x4_cached = || {
         for e in (0..ne).step_by(4) {
-            call_x4(e, &mut fc, &mut kc);
-            sink += kc[e % 360];
+            element_x4(&mut fc4, Some(&mut kc4), &els, e, &iso);
+            sink4 += kc4[e % 360];
+        }
+    };
+    let (mut fc8, mut kc8, mut sink8) = ([0.0; 96], [0.0; 720], 0.0);
+    let mut x8_cached = || {
+        for e in (0..ne).step_by(8) {
+            element_x8(&mut fc8, Some(&mut kc8), &els, e, &iso);
+            sink8 += kc8[e % 720];
         }
     };
     // Flops, counted on the same elements.
@@ -476,6 +494,8 @@ fn kernels(
         ("scalar", &mut scalar as &mut dyn FnMut()),
         ("x4", &mut x4 as &mut dyn FnMut()),
         ("x4-cached", &mut x4_cached as &mut dyn FnMut()),
+        ("x8", &mut x8 as &mut dyn FnMut()),
+        ("x8-cached", &mut x8_cached as &mut dyn FnMut()),
     ] {
         let id = format!("fem/kernel/{name}");
         if !wanted(&id) {
@@ -498,18 +518,20 @@ fn kernels(
             100.0 * rate * flops / 1e9 / core_peak
         ));
     }
-    std::hint::black_box(sink);
-    if wanted("fem/kernel/scalar") && wanted("fem/kernel/x4") {
-        let worst = f
-            .iter()
-            .zip(&f4)
-            .chain(k.iter().zip(&k4))
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0, f64::max);
-        let scale = k.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        md.push_str(&format!(
-            "\nscalar and x4 agree to {:.1e} of the largest stiffness entry\n",
-            worst / scale
-        ));
+    std::hint::black_box((sink4, sink8));
+    let scale = k.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    for (name, fw, kw) in [("x4", &f4, &k4), ("x8", &f8, &k8)] {
+        if wanted("fem/kernel/scalar") && wanted(&format!("fem/kernel/{name}")) {
+            let worst = f
+                .iter()
+                .zip(fw)
+                .chain(k.iter().zip(kw))
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
+            md.push_str(&format!(
+                "\nscalar and {name} agree to {:.1e} of the largest stiffness entry\n",
+                worst / scale
+            ));
+        }
     }
 }

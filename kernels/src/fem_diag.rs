@@ -141,6 +141,80 @@ impl Lane for f64x4 {
     }
 }
 
+/// N groups of four elements, one `f64x4` each, every operation applied to all: the 3x3
+/// eigensolves are one long chain of dependent square roots and divisions, and with
+/// independent chains in flight each waits less ([`element_x8`], two groups).
+#[derive(Clone, Copy, Debug)]
+pub struct Groups<const N: usize>(pub [f64x4; N]);
+
+impl<const N: usize> Groups<N> {
+    #[inline(always)]
+    fn zip(self, o: Self, f: impl Fn(f64x4, f64x4) -> f64x4) -> Self {
+        Groups(std::array::from_fn(|g| f(self.0[g], o.0[g])))
+    }
+}
+
+macro_rules! groups_op {
+    ($tr:ident, $f:ident) => {
+        impl<const N: usize> $tr for Groups<N> {
+            type Output = Self;
+            #[inline(always)]
+            fn $f(self, o: Self) -> Self {
+                self.zip(o, |a, b| a.$f(b))
+            }
+        }
+    };
+}
+groups_op!(Add, add);
+groups_op!(Sub, sub);
+groups_op!(Mul, mul);
+groups_op!(Div, div);
+
+impl<const N: usize> Neg for Groups<N> {
+    type Output = Self;
+    #[inline(always)]
+    fn neg(self) -> Self {
+        Groups(std::array::from_fn(|g| -self.0[g]))
+    }
+}
+
+impl<const N: usize> Lane for Groups<N> {
+    #[inline(always)]
+    fn splat(v: f64) -> Self {
+        Groups([f64x4::splat(v); N])
+    }
+    #[inline(always)]
+    fn fma(self, m: Self, a: Self) -> Self {
+        Groups(std::array::from_fn(|g| self.0[g].mul_add(m.0[g], a.0[g])))
+    }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        Groups(std::array::from_fn(|g| self.0[g].sqrt()))
+    }
+    #[inline(always)]
+    fn abs(self) -> Self {
+        Groups(std::array::from_fn(|g| self.0[g].abs()))
+    }
+    #[inline(always)]
+    fn max(self, o: Self) -> Self {
+        self.zip(o, f64x4::max)
+    }
+    #[inline(always)]
+    fn ln(self) -> Self {
+        Groups(std::array::from_fn(|g| self.0[g].ln()))
+    }
+    #[inline(always)]
+    fn if_lt(a: Self, b: Self, x: Self, y: Self) -> Self {
+        Groups(std::array::from_fn(|g| {
+            <f64x4 as Lane>::if_lt(a.0[g], b.0[g], x.0[g], y.0[g])
+        }))
+    }
+    #[inline(always)]
+    fn any_not_positive(self) -> bool {
+        self.0.iter().any(|a| a.any_not_positive())
+    }
+}
+
 /// How an element's isotropic material is evaluated.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Iso {
@@ -173,25 +247,30 @@ pub fn sym_eig3<R: Lane>(s: [R; 6]) -> ([R; 3], [R; 9]) {
         for (p, r) in [(0usize, 1usize), (0, 2), (1, 2)] {
             let o = 3 - p - r;
             let apr = a[3 * p + r];
-            // Golub and Van Loan's tan t = sgn(theta) / (|theta| + sqrt(theta^2 + 1)) with
-            // theta = d / e, multiplied through by |e|: t = sgn(d) e / (|d| + sqrt(d^2 +
-            // e^2)). One division fewer on the chain of dependent square roots and
-            // divisions that bounds this loop (four sweeps are about half the kernel's
-            // time, benches/fem.rs), and no test for e = 0, where t = 0 (d = e = 0 adds
-            // `flat` to the denominator). cos = 1 / sqrt(1 + t^2) keeps cos exactly 1 for
-            // rotations below rounding, so a body at rest keeps singular values of exactly
-            // 1 where its F^T F rounds to the identity.
+            // Golub and Van Loan's rotation (algorithm 8.4.2), tan t = sgn(d) e / (|d| +
+            // h) with d = a_rr - a_pp, e = 2 a_pr, h = sqrt(d^2 + e^2): their theta = d / e
+            // multiplied through by |e|, so no test for e = 0. With 1 + t^2 = 2h / (|d| +
+            // h) and w = 2h (|d| + h): cos = (|d| + h) / sqrt(w), sin = sgn(d) e /
+            // sqrt(w), t = 2h sin / sqrt(w). Two square roots and one division
+            // on the chain of dependent operations that bounds this loop (the SVD is
+            // half the kernel's time, benches/fem.rs), where tan, then cos took two of
+            // each (7% faster kernel, measured). d = e = 0 (w below 1e-300) gives cos =
+            // 1, sin = 0 through `flat`: where F^T F rounds to the identity every
+            // rotation is that one, so a body at rest keeps singular values of exactly 1.
             let (app, arr) = (a[3 * p + p], a[3 * r + r]);
             let d = arr - app;
             let e = apr + apr;
             let sd = R::if_lt(d, zero, -one, one);
-            let big = d.abs() + d.fma(d, e * e).sqrt();
-            let flat = R::if_lt(big, R::splat(1e-300), one, zero);
-            let t = sd * e / (big + flat);
-            let c = one / t.fma(t, one).sqrt();
-            let sn = t * c;
+            let h = d.fma(d, e * e).sqrt();
+            let big = d.abs() + h;
+            let h2 = h + h;
+            let w = h2 * big;
+            let flat = R::if_lt(w, R::splat(1e-300), one, zero);
+            let inv = one / (w.sqrt() + flat);
+            let c = big.fma(inv, flat);
+            let sn = sd * e * inv;
             let nsn = -sn;
-            let tapr = t * apr;
+            let tapr = h2 * inv * sn * apr;
             a[3 * p + p] = app - tapr;
             a[3 * r + r] = arr + tapr;
             a[3 * p + r] = zero;
@@ -466,13 +545,31 @@ pub fn element<R: Lane>(
     lame: [R; 2],
     iso: &Iso,
 ) -> R {
-    // Ds and F = Ds Dm^-1.
+    let (u, sigma, v) = svd3(&gradient(x, dm_inv));
+    element_in_frame(f, k, (&u, sigma, &v), dm_inv, vol, lame, iso)
+}
+
+/// `F = Ds Dm^-1` of an element with vertices x.
+#[inline(always)]
+fn gradient<R: Lane>(x: &[[R; 3]; 4], dm_inv: &[R; 9]) -> [R; 9] {
     let ds: [R; 9] = std::array::from_fn(|i| {
         let (r, c) = (i / 3, i % 3);
         x[c + 1][r] - x[0][r]
     });
-    let fm = mul3(&ds, dm_inv);
-    let (u, sigma, v) = svd3(&fm);
+    mul3(&ds, dm_inv)
+}
+
+/// [`element`] from the SVD `(U, sigma, V)` of its deformation gradient on.
+#[inline(always)]
+fn element_in_frame<R: Lane>(
+    f: &mut [[R; 3]; 4],
+    k: Option<&mut [R; 90]>,
+    (u, sigma, v): (&[R; 9], [R; 3], &[R; 9]),
+    dm_inv: &[R; 9],
+    vol: R,
+    lame: [R; 2],
+    iso: &Iso,
+) -> R {
     let d = clamped(iso, lame[0], lame[1], sigma);
     let psi = d.psi;
     // Shape gradients g_a (rows of Dm^-1, g_0 minus their sum) in V's frame.
@@ -520,6 +617,7 @@ pub fn element<R: Lane>(
             _ => 2,
         }
     };
+    let nu: [R; 9] = std::array::from_fn(|i| nvol * u[i]);
     let mut out = 0;
     for ai in 0..4 {
         for bi in ai..4 {
@@ -538,15 +636,14 @@ pub fn element<R: Lane>(
                     a[3 * m + p].fma(o[3 * m + p], pb[pair(m, p)] * o[3 * p + m])
                 }
             });
-            // K_ab = -vol U K^ U^T.
-            let uk = mul3(&u, &kh);
+            // K_ab = (-vol U) K^ U^T.
+            let uk = mul3(&nu, &kh);
             for i in 0..3 {
                 for c in 0..3 {
-                    k[out + 3 * i + c] = nvol
-                        * uk[3 * i].fma(
-                            u[3 * c],
-                            uk[3 * i + 1].fma(u[3 * c + 1], uk[3 * i + 2] * u[3 * c + 2]),
-                        );
+                    k[out + 3 * i + c] = uk[3 * i].fma(
+                        u[3 * c],
+                        uk[3 * i + 1].fma(u[3 * c + 1], uk[3 * i + 2] * u[3 * c + 2]),
+                    );
                 }
             }
             out += 9;
@@ -555,41 +652,120 @@ pub fn element<R: Lane>(
     vol * psi
 }
 
-/// [`element`] over four elements at once, one per `f64x4` lane: `x[l]`, `dm_inv[l]`,
-/// `vol[l]`, `lame[l]` are element l's inputs; its 12 forces land at `f[12 l..]` (vertex-major) and,
-/// with k, its 90 stiffness values at `k[90 l..]`; the four energies are returned. Tested
-/// equal to four [`element`] calls at `f64` (`tests/fem.rs`).
+/// The inputs of a mesh's elements as the wide kernels read them, structure of arrays:
+/// element e's vertices are `tets[e]`, vertex i at `(x[0][i], x[1][i], x[2][i])` (m), its
+/// `Dm^-1` entry k (row-major) `dm_inv[k][e]` (1/m), rest volume `vol[e]` (m^3) and Lame
+/// constants `mu[e]`, `lambda[e]` (Pa). Loaded four elements to a vector as they lie,
+/// only the positions gathered.
+#[derive(Clone, Copy, Debug)]
+pub struct Elements<'a> {
+    /// Current positions, one array per coordinate.
+    pub x: [&'a [f64]; 3],
+    /// Vertex indices of each element, all below the position arrays' length.
+    pub tets: &'a [[u32; 4]],
+    /// `Dm^-1`, one array per entry.
+    pub dm_inv: [&'a [f64]; 9],
+    /// Rest volumes.
+    pub vol: &'a [f64],
+    /// First Lame constants.
+    pub mu: &'a [f64],
+    /// Second Lame constants.
+    pub lambda: &'a [f64],
+}
+
+/// One group's lanes: positions, `Dm^-1`, volume, `[mu, lambda]`.
+type GroupInputs = ([[f64x4; 3]; 4], [f64x4; 9], f64x4, [f64x4; 2]);
+
+impl Elements<'_> {
+    /// Elements `e0..e0 + 4` in lanes. Panics where they or their vertices are out of
+    /// range (a caller's bug: meshes are checked when built).
+    #[inline(always)]
+    fn group(&self, e0: usize) -> GroupInputs {
+        let four = |v: &[f64]| {
+            let w: [f64; 4] = v[e0..e0 + 4].try_into().expect("four elements");
+            f64x4::new(w)
+        };
+        // `from_fn`, not `map`: array maps stayed out-of-line calls (`try_map`) here,
+        // 10% of the kernel's time.
+        let tets: &[[u32; 4]; 4] = self.tets[e0..e0 + 4].try_into().expect("four elements");
+        let x = std::array::from_fn(|a| {
+            std::array::from_fn(|c| {
+                f64x4::new(std::array::from_fn(|l| self.x[c][tets[l][a] as usize]))
+            })
+        });
+        (
+            x,
+            std::array::from_fn(|k| four(self.dm_inv[k])),
+            four(self.vol),
+            [four(self.mu), four(self.lambda)],
+        )
+    }
+}
+
+/// [`element`] over elements `e0..e0 + 4` of `els` at once, one per `f64x4` lane:
+/// element `e0 + l`'s 12 forces land at `f[12 l..]` (vertex-major) and, with k, its 90
+/// stiffness values at `k[90 l..]`; the four energies are returned. Tested equal to
+/// four [`element`] calls at `f64` (`tests/fem.rs`).
 pub fn element_x4(
     f: &mut [f64; 48],
     k: Option<&mut [f64; 360]>,
-    x: &[[[f64; 3]; 4]; 4],
-    dm_inv: &[M3; 4],
-    vol: [f64; 4],
-    lame: &[Lame; 4],
+    els: &Elements,
+    e0: usize,
     iso: &Iso,
 ) -> [f64; 4] {
-    let xl: [[f64x4; 3]; 4] = std::array::from_fn(|a| {
-        std::array::from_fn(|c| f64x4::new([x[0][a][c], x[1][a][c], x[2][a][c], x[3][a][c]]))
-    });
-    let dl: [f64x4; 9] = std::array::from_fn(|i| {
-        f64x4::new([dm_inv[0][i], dm_inv[1][i], dm_inv[2][i], dm_inv[3][i]])
-    });
-    let ll = [
-        f64x4::new(lame.map(|l| l.mu)),
-        f64x4::new(lame.map(|l| l.lambda)),
-    ];
+    let (xl, dl, vl, ll) = els.group(e0);
     let mut fl = [[f64x4::ZERO; 3]; 4];
     let e = match k {
         Some(k) => {
             let mut kl = [f64x4::ZERO; 90];
-            let e = element(&mut fl, Some(&mut kl), &xl, &dl, f64x4::new(vol), ll, iso);
+            let e = element(&mut fl, Some(&mut kl), &xl, &dl, vl, ll, iso);
             scatter_lanes::<90>(&kl, k);
             e
         }
-        None => element(&mut fl, None, &xl, &dl, f64x4::new(vol), ll, iso),
+        None => element(&mut fl, None, &xl, &dl, vl, ll, iso),
     };
     scatter_lanes::<12>(fl.as_flattened(), f);
     e.to_array()
+}
+
+/// [`element_x4`] over elements `e0..e0 + 8`, as two groups of four whose SVDs run
+/// interleaved ([`Groups`]): the SVD is a chain of dependent square roots and divisions
+/// (latency-bound, about half of a group's time), and two chains in flight take 0.6 of
+/// the time of two in turn. Measured: three groups gained 3% more, not worth a third
+/// group size; the whole kernel over two groups at once is twice as slow (sixteen
+/// vector registers, spilled). Element `e0 + l`'s outputs at `f[12 l..]` and
+/// `k[90 l..]`.
+pub fn element_x8(
+    f: &mut [f64; 96],
+    mut k: Option<&mut [f64; 720]>,
+    els: &Elements,
+    e0: usize,
+    iso: &Iso,
+) -> [f64; 8] {
+    let inputs = [els.group(e0), els.group(e0 + 4)];
+    let fg: [_; 2] = std::array::from_fn(|g| gradient(&inputs[g].0, &inputs[g].1));
+    let (u2, s2, v2) = svd3(&std::array::from_fn(|i| Groups([fg[0][i], fg[1][i]])));
+    let mut energy = [0.0; 8];
+    // Overwritten by each group: zeroed once.
+    let mut kl = [f64x4::ZERO; 90];
+    for (g, (_, dl, vl, ll)) in inputs.iter().enumerate() {
+        let u: [f64x4; 9] = std::array::from_fn(|i| u2[i].0[g]);
+        let v: [f64x4; 9] = std::array::from_fn(|i| v2[i].0[g]);
+        let s: [f64x4; 3] = std::array::from_fn(|i| s2[i].0[g]);
+        let mut fl = [[f64x4::ZERO; 3]; 4];
+        let frame = (&u, s, &v);
+        let e = match k.as_mut() {
+            Some(k) => {
+                let e = element_in_frame(&mut fl, Some(&mut kl), frame, dl, *vl, *ll, iso);
+                scatter_lanes::<90>(&kl, &mut k[360 * g..360 * g + 360]);
+                e
+            }
+            None => element_in_frame(&mut fl, None, frame, dl, *vl, *ll, iso),
+        };
+        scatter_lanes::<12>(fl.as_flattened(), &mut f[48 * g..48 * g + 48]);
+        energy[4 * g..4 * g + 4].copy_from_slice(&e.to_array());
+    }
+    energy
 }
 
 /// Lane l of every value into `out[S l..S (l + 1)]`, in order (`values.len() == S`; four

@@ -41,7 +41,7 @@ use crate::sparse::{ElementAssembly, LocalLayout, VectorGather};
 use crate::validate::{check, require, ModelError, Rule};
 pub use largestep_kernels::fem::Material;
 use largestep_kernels::fem::{element_energy, element_stiffness, signed_volume, Lame, M3};
-use largestep_kernels::fem_diag::{element, element_x4, Iso};
+use largestep_kernels::fem_diag::{element, element_x4, element_x8, Elements, Iso};
 use largestep_kernels::gather_nodes;
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -52,6 +52,11 @@ const CHUNK: usize = 1024;
 
 /// Doubles per element in the stiffness buffer: the ten blocks `K_ab`, `a <= b`.
 const TET_K: usize = 90;
+
+/// Elements per kernel call: two groups of four, whose SVDs run interleaved
+/// (`element_x8`).
+const GROUP: usize = 8;
+const _: () = assert!(CHUNK % GROUP == 0, "chunks hold whole groups");
 
 /// A material: the model and its constants.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -758,6 +763,19 @@ impl Fem {
         std::array::from_fn(|k| self.dm_inv[k][e])
     }
 
+    /// The elements with positions x, as the wide kernels read them.
+    pub fn elements<'a>(&'a self, x: &'a [f64]) -> Elements<'a> {
+        let n = self.n;
+        Elements {
+            x: [&x[..n], &x[n..2 * n], &x[2 * n..3 * n]],
+            tets: &self.tets,
+            dm_inv: std::array::from_fn(|k| &self.dm_inv[k][..]),
+            vol: &self.volume,
+            mu: &self.lame[0],
+            lambda: &self.lame[1],
+        }
+    }
+
     /// The deformation gradient of element e at positions x.
     pub fn deformation_gradient(&self, e: usize, x: &[f64]) -> M3 {
         largestep_kernels::fem::deformation_gradient(
@@ -799,10 +817,10 @@ impl Fem {
         let chunks: Vec<f64> = (0..self.tets.len().div_ceil(CHUNK))
             .into_par_iter()
             .map(|c| {
-                let mut f = [0.0; 48];
+                let mut f = [0.0; 12 * GROUP];
                 let mut e = 0.0;
-                for g in (c * CHUNK..((c + 1) * CHUNK).min(self.tets.len())).step_by(4) {
-                    let n = (self.tets.len() - g).min(4);
+                for g in (c * CHUNK..((c + 1) * CHUNK).min(self.tets.len())).step_by(GROUP) {
+                    let n = (self.tets.len() - g).min(GROUP);
                     e += self.group(g, n, x, &mut f[..12 * n], None)[..n]
                         .iter()
                         .sum::<f64>();
@@ -820,12 +838,38 @@ impl Fem {
         }
     }
 
-    /// Elements `e0..e0 + n` (n <= 4) at positions x: forces into f (12 per element,
-    /// vertex-major), stiffness blocks into k (90 per element) when given; their energies
-    /// (J) in the first n entries. Four elements of a nonlinear material go through the
+    /// Elements `e0..e0 + n` (n <= `GROUP`) at positions x: forces into f (12 per
+    /// element, vertex-major), stiffness blocks into k (90 per element) when given; their
+    /// energies (J) in the first n entries. Eight elements of a nonlinear material go
+    /// through the eight-lane kernel, fewer by fours (`quad`).
+    fn group(
+        &self,
+        e0: usize,
+        n: usize,
+        x: &[f64],
+        f: &mut [f64],
+        mut k: Option<&mut [f64]>,
+    ) -> [f64; GROUP] {
+        let mut energy = [0.0; GROUP];
+        if let (Some(iso), GROUP) = (&self.iso, n) {
+            let f8: &mut [f64; 12 * GROUP] = f.try_into().expect("12 forces per element");
+            let k8: Option<&mut [f64; TET_K * GROUP]> =
+                k.map(|k| k.try_into().expect("90 stiffness values per element"));
+            return element_x8(f8, k8, &self.elements(x), e0, iso);
+        }
+        for q in (0..n).step_by(4) {
+            let m = (n - q).min(4);
+            let kq = k.as_mut().map(|k| &mut k[TET_K * q..TET_K * (q + m)]);
+            let e = self.quad(e0 + q, m, x, &mut f[12 * q..12 * (q + m)], kq);
+            energy[q..q + m].copy_from_slice(&e[..m]);
+        }
+        energy
+    }
+
+    /// [`Self::group`] for n <= 4 elements: four of a nonlinear material through the
     /// four-lane kernel, others one by one (the scalar twin; linear elasticity in the F
     /// form).
-    fn group(
+    fn quad(
         &self,
         e0: usize,
         n: usize,
@@ -837,14 +881,10 @@ impl Fem {
         let mut energy = [0.0; 4];
         match &self.iso {
             Some(iso) if n == 4 => {
-                let xe = std::array::from_fn(|l| xs(e0 + l));
-                let dm = std::array::from_fn(|l| self.dm_inv(e0 + l));
-                let vol = std::array::from_fn(|l| self.volume[e0 + l]);
-                let lame = std::array::from_fn(|l| self.lame_of(e0 + l));
                 let f4: &mut [f64; 48] = f.try_into().expect("12 forces per element");
                 let k4: Option<&mut [f64; 360]> =
                     k.map(|k| k.try_into().expect("90 stiffness values per element"));
-                energy = element_x4(f4, k4, &xe, &dm, vol, &lame, iso);
+                energy = element_x4(f4, k4, &self.elements(x), e0, iso);
             }
             Some(iso) => {
                 let mut k = k;
@@ -913,9 +953,10 @@ impl Fem {
             .zip(kbuf.par_chunks_mut(TET_K * CHUNK))
             .enumerate()
             .for_each(|(c, (fo, ko))| {
-                let mut k = [0.0; 4 * TET_K];
-                for (g, (fg, kg)) in fo.chunks_mut(48).zip(ko.chunks_mut(4 * TET_K)).enumerate() {
-                    let (e0, cnt) = (c * CHUNK + 4 * g, fg.len() / 12);
+                let mut k = [0.0; GROUP * TET_K];
+                let groups = fo.chunks_mut(12 * GROUP).zip(ko.chunks_mut(GROUP * TET_K));
+                for (g, (fg, kg)) in groups.enumerate() {
+                    let (e0, cnt) = (c * CHUNK + GROUP * g, fg.len() / 12);
                     let k = &mut k[..kg.len()];
                     self.group(e0, cnt, x, fg, Some(k));
                     if beta > 0.0 {
@@ -958,9 +999,9 @@ impl Fem {
         out.par_chunks_mut(12 * CHUNK)
             .enumerate()
             .for_each(|(c, o)| {
-                let mut k = [0.0; 4 * TET_K];
-                for (g, og) in o.chunks_mut(48).enumerate() {
-                    let (e0, n) = (c * CHUNK + 4 * g, og.len() / 12);
+                let mut k = [0.0; GROUP * TET_K];
+                for (g, og) in o.chunks_mut(12 * GROUP).enumerate() {
+                    let (e0, n) = (c * CHUNK + GROUP * g, og.len() / 12);
                     match damped {
                         Some(v) => {
                             self.group(e0, n, x, og, Some(&mut k[..TET_K * n]));
@@ -1084,9 +1125,9 @@ impl MechModel for Fem {
         let (alpha, beta, n) = (self.rayleigh[0], self.rayleigh[1], self.n);
         let mut psi = alpha * kinetic_energy(&self.mass, v);
         if beta > 0.0 {
-            let (mut k, mut f) = ([0.0; 4 * TET_K], [0.0; 48]);
-            for e0 in (0..self.tets.len()).step_by(4) {
-                let cnt = (self.tets.len() - e0).min(4);
+            let (mut k, mut f) = ([0.0; GROUP * TET_K], [0.0; 12 * GROUP]);
+            for e0 in (0..self.tets.len()).step_by(GROUP) {
+                let cnt = (self.tets.len() - e0).min(GROUP);
                 self.group(e0, cnt, x, &mut f[..12 * cnt], Some(&mut k[..TET_K * cnt]));
                 for l in 0..cnt {
                     let ve = gather_nodes(v, n, &self.tets[e0 + l]);
