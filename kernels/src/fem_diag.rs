@@ -1,6 +1,7 @@
 //! Tetrahedron kernels in the singular-value frame, for the isotropic materials, one
 //! element per lane: generic over [`Lane`], so the same code runs as the scalar twin
-//! (`f64`) and over four elements at once (`f64x4`, [`element_x4`]).
+//! (`f64`), over four elements at once (`f64x4`, [`element_x4`]) and over eight with two
+//! SVDs in flight ([`Groups`], [`element_x8`]).
 //!
 //! An isotropic energy density is a symmetric function of the singular values of F:
 //! `Psi(F) = Psi^(sigma)` with `F = U diag(sigma) V^T`. Following Irving, Teran and Fedkiw
