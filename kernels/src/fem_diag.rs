@@ -255,9 +255,10 @@ pub fn sym_eig3<R: Lane>(s: [R; 6]) -> ([R; 3], [R; 9]) {
             // sqrt(w), t = 2h sin / sqrt(w). Two square roots and one division
             // on the chain of dependent operations that bounds this loop (the SVD is
             // half the kernel's time, benches/fem.rs), where tan, then cos took two of
-            // each (7% faster kernel, measured). d = e = 0 (w below 1e-300) gives cos =
-            // 1, sin = 0 through `flat`: where F^T F rounds to the identity every
-            // rotation is that one, so a body at rest keeps singular values of exactly 1.
+            // each (7% faster kernel, measured). d = e = 0 (w below 1e-300, so entries
+            // below about 1e-150 count as zero) gives cos = 1, sin = 0 through `flat`:
+            // where F^T F rounds to the identity every rotation is that one, so a body at
+            // rest keeps singular values of exactly 1.
             let (app, arr) = (a[3 * p + p], a[3 * r + r]);
             let d = arr - app;
             let e = apr + apr;
