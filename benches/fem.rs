@@ -366,6 +366,21 @@ fn jacobian(fem: &Fem, x: &[f64], v: &[f64]) -> (FemWork, Vec<f64>, Bsr3) {
     (work, f, k)
 }
 
+/// `call(e, f, k)` for the groups of w elements `e..e + w` of the first ne, with their
+/// slices of f (12 per element) and k (90 per element).
+fn each_group(
+    ne: usize,
+    w: usize,
+    f: &mut [f64],
+    k: &mut [f64],
+    mut call: impl FnMut(usize, &mut [f64], &mut [f64]),
+) {
+    let groups = f.chunks_exact_mut(12 * w).zip(k.chunks_exact_mut(90 * w));
+    for (e, (f, k)) in (0..ne).step_by(w).zip(groups) {
+        call(e, f, k);
+    }
+}
+
 /// Mean y of the free end's vertices.
 fn tip(sim: &MechSimulation<Fem>) -> f64 {
     let x = sim.state().x.as_slice();
@@ -405,30 +420,26 @@ fn kernels(
     let xs = |e: usize| gather_nodes(x, n, &tets[e]);
     let (mut f, mut k) = (vec![0.0; 12 * ne], vec![0.0; 90 * ne]);
     let mut scalar = || {
-        for e in 0..ne {
+        each_group(ne, 1, &mut f, &mut k, |e, f, k| {
             let mut fe = [[0.0; 3]; 4];
             let l = lame(e);
             element(
                 &mut fe,
-                Some((&mut k[90 * e..90 * e + 90]).try_into().unwrap()),
+                Some(k.try_into().unwrap()),
                 &xs(e),
                 &fem.dm_inv(e),
                 fem.volumes()[e],
                 [l.mu, l.lambda],
                 &iso,
             );
-            f[12 * e..12 * e + 12].copy_from_slice(fe.as_flattened());
-        }
+            f.copy_from_slice(fe.as_flattened());
+        })
     };
     // Every group's outputs kept, as the model keeps them for its gather.
     let els = fem.elements(x);
     let (mut f4, mut k4) = (vec![0.0; 12 * ne], vec![0.0; 90 * ne]);
     let mut x4 = || {
-        for ((e, f), k) in (0..ne)
-            .step_by(4)
-            .zip(f4.chunks_exact_mut(48))
-            .zip(k4.chunks_exact_mut(360))
-        {
+        each_group(ne, 4, &mut f4, &mut k4, |e, f, k| {
             element_x4(
                 f.try_into().unwrap(),
                 Some(k.try_into().unwrap()),
@@ -436,15 +447,11 @@ fn kernels(
                 e,
                 &iso,
             );
-        }
+        })
     };
     let (mut f8, mut k8) = (vec![0.0; 12 * ne], vec![0.0; 90 * ne]);
     let mut x8 = || {
-        for ((e, f), k) in (0..ne)
-            .step_by(8)
-            .zip(f8.chunks_exact_mut(96))
-            .zip(k8.chunks_exact_mut(720))
-        {
+        each_group(ne, 8, &mut f8, &mut k8, |e, f, k| {
             element_x8(
                 f.try_into().unwrap(),
                 Some(k.try_into().unwrap()),
@@ -452,7 +459,7 @@ fn kernels(
                 e,
                 &iso,
             );
-        }
+        })
     };
     // The same calls with the outputs in one reused buffer: the kernel's own rate,
     // without writing the 43 MB of stiffness blocks the model keeps for its gather.

@@ -715,19 +715,10 @@ pub fn element_x4(
     e0: usize,
     iso: &Iso,
 ) -> [f64; 4] {
-    let (xl, dl, vl, ll) = els.group(e0);
-    let mut fl = [[f64x4::ZERO; 3]; 4];
-    let e = match k {
-        Some(k) => {
-            let mut kl = [f64x4::ZERO; 90];
-            let e = element(&mut fl, Some(&mut kl), &xl, &dl, vl, ll, iso);
-            scatter_lanes::<90>(&kl, k);
-            e
-        }
-        None => element(&mut fl, None, &xl, &dl, vl, ll, iso),
-    };
-    scatter_lanes::<12>(fl.as_flattened(), f);
-    e.to_array()
+    let inputs = els.group(e0);
+    let (u, s, v) = svd3(&gradient(&inputs.0, &inputs.1));
+    let mut kl = [f64x4::ZERO; 90];
+    group_outputs(f, k.map(|k| &mut k[..]), (&u, s, &v), &inputs, &mut kl, iso)
 }
 
 /// [`element_x4`] over elements `e0..e0 + 8`, as two groups of four whose SVDs run
@@ -750,24 +741,47 @@ pub fn element_x8(
     let mut energy = [0.0; 8];
     // Overwritten by each group: zeroed once.
     let mut kl = [f64x4::ZERO; 90];
-    for (g, (_, dl, vl, ll)) in inputs.iter().enumerate() {
+    for (g, input) in inputs.iter().enumerate() {
         let u: [f64x4; 9] = std::array::from_fn(|i| u2[i].0[g]);
         let v: [f64x4; 9] = std::array::from_fn(|i| v2[i].0[g]);
         let s: [f64x4; 3] = std::array::from_fn(|i| s2[i].0[g]);
-        let mut fl = [[f64x4::ZERO; 3]; 4];
-        let frame = (&u, s, &v);
-        let e = match k.as_mut() {
-            Some(k) => {
-                let e = element_in_frame(&mut fl, Some(&mut kl), frame, dl, *vl, *ll, iso);
-                scatter_lanes::<90>(&kl, &mut k[360 * g..360 * g + 360]);
-                e
-            }
-            None => element_in_frame(&mut fl, None, frame, dl, *vl, *ll, iso),
-        };
-        scatter_lanes::<12>(fl.as_flattened(), &mut f[48 * g..48 * g + 48]);
-        energy[4 * g..4 * g + 4].copy_from_slice(&e.to_array());
+        let kg = k.as_mut().map(|k| &mut k[360 * g..360 * g + 360]);
+        let e = group_outputs(
+            &mut f[48 * g..48 * g + 48],
+            kg,
+            (&u, s, &v),
+            input,
+            &mut kl,
+            iso,
+        );
+        energy[4 * g..4 * g + 4].copy_from_slice(&e);
     }
     energy
+}
+
+/// One group of four from the SVD of its deformation gradients on: forces into f (48,
+/// element-major), with k its stiffness (360, built in the lanes of `kl` first), the four
+/// energies returned.
+#[inline(always)]
+fn group_outputs(
+    f: &mut [f64],
+    k: Option<&mut [f64]>,
+    frame: (&[f64x4; 9], [f64x4; 3], &[f64x4; 9]),
+    (_, dl, vl, ll): &GroupInputs,
+    kl: &mut [f64x4; 90],
+    iso: &Iso,
+) -> [f64; 4] {
+    let mut fl = [[f64x4::ZERO; 3]; 4];
+    let e = match k {
+        Some(k) => {
+            let e = element_in_frame(&mut fl, Some(kl), frame, dl, *vl, *ll, iso);
+            scatter_lanes::<90>(kl, k);
+            e
+        }
+        None => element_in_frame(&mut fl, None, frame, dl, *vl, *ll, iso),
+    };
+    scatter_lanes::<12>(fl.as_flattened(), f);
+    e.to_array()
 }
 
 /// Lane l of every value into `out[S l..S (l + 1)]`, in order (`values.len() == S`; four

@@ -938,8 +938,8 @@ impl Fem {
 
     /// Every element's forces (with stiffness damping) into `ef` (12 each) and its
     /// stiffness blocks into `kbuf` (90 each), stored through `store`; in fixed chunks.
-    /// Each group of four is computed into `f64` scratch first, so the damping reads
-    /// unrounded blocks.
+    /// Each group (`GROUP` elements) is computed into `f64` scratch first, so the damping
+    /// reads unrounded blocks.
     fn element_jacobians<T: Send>(
         &self,
         ef: &mut [f64],
