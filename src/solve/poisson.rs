@@ -44,6 +44,7 @@
 //! cells): the same bits on any thread count.
 
 use super::{SolveError, SolveInfo};
+use crate::soa::{ZeroBits, ZeroedBuf};
 use largestep_kernels::par::{chunk_count, chunk_range, par_reduce, Disjoint};
 use largestep_kernels::vec::{axpy, dot, dot_par};
 use rayon::prelude::*;
@@ -162,11 +163,11 @@ struct Level {
     /// computed from it where used. One byte a cell instead of three f64 arrays: the
     /// sweeps read 17 bytes a cell instead of 40 (a fine sweep over 128^3 cells ran at
     /// about a quarter of the triad bandwidth with the arrays).
-    code: Vec<u8>,
+    code: ZeroedBuf<u8>,
     /// Fluid cells whose neighbours in the grid (26 away from its edge) are all fluid
     /// cells, not at the end of a periodic axis (`box_interior`): interpolation from
     /// them is the product of each axis's `taps`, with no look at cell kinds.
-    interior: Vec<bool>,
+    interior: ZeroedBuf<bool>,
     /// Fluid cells within two cells of a non-fluid cell or the grid's edge, in order:
     /// the band that gets extra smoothing (McAdams et al. 2010, section 4).
     band: Vec<usize>,
@@ -191,13 +192,14 @@ struct Level {
 
 /// The vectors of one level's part of a V-cycle, in the cycle's precision `T`.
 #[derive(Clone, Debug)]
-struct Work<T> {
-    /// The correction, right side and residual of this level.
-    x: Vec<T>,
-    b: Vec<T>,
-    r: Vec<T>,
+struct Work<T: ZeroBits> {
+    /// The correction, right side and residual of this level (on huge pages where large:
+    /// `ZeroedBuf`).
+    x: ZeroedBuf<T>,
+    b: ZeroedBuf<T>,
+    r: ZeroedBuf<T>,
     /// The second buffer of the Jacobi sweeps.
-    x2: Vec<T>,
+    x2: ZeroedBuf<T>,
     /// The band's residuals.
     band_r: Vec<T>,
     /// Scratch of the restriction: each row of `r` restricted along x over the cells
@@ -221,10 +223,10 @@ impl<T: Real> Work<T> {
                     None => (0, 0),
                 };
                 Work {
-                    x: vec![T::ZERO; cells],
-                    b: vec![T::ZERO; cells],
-                    r: vec![T::ZERO; cells],
-                    x2: vec![T::ZERO; cells],
+                    x: ZeroedBuf::new(cells),
+                    b: ZeroedBuf::new(cells),
+                    r: ZeroedBuf::new(cells),
+                    x2: ZeroedBuf::new(cells),
                     band_r: vec![T::ZERO; f.band.len()],
                     xr: vec![T::ZERO; xr],
                     rows: vec![T::ZERO; rows],
@@ -238,7 +240,7 @@ impl<T: Real> Work<T> {
 /// moves (McAdams et al. 2010 run their whole solver in single precision; here only
 /// the preconditioner is, and CG's own vectors stay `f64`).
 trait Real:
-    Copy
+    ZeroBits
     + Send
     + Sync
     + PartialOrd
@@ -365,9 +367,9 @@ impl Level {
         // coarsens y to one cell while x goes on), so a level one cell wide along x or
         // y has no interior cells.
         let interior = if !coarse {
-            Vec::new()
+            ZeroedBuf::default()
         } else if n[0] == 1 || n[1] == 1 {
-            vec![false; cells]
+            ZeroedBuf::new(cells)
         } else {
             box_interior(n, &sides, &fluid)
         };
@@ -743,7 +745,7 @@ fn periodic(sides: &[[Side; 2]; 3]) -> [bool; 3] {
 /// then need no boundary rule but each axis's `taps`. The box sum of the cells that are
 /// not fluid, one axis at a time over shifted rows (a cell-by-cell walk over the 27
 /// took most of the coarse levels' setup).
-fn box_interior(n: [usize; 3], sides: &[[Side; 2]; 3], fluid: &[u8]) -> Vec<bool> {
+fn box_interior(n: [usize; 3], sides: &[[Side; 2]; 3], fluid: &[u8]) -> ZeroedBuf<bool> {
     let [nx, ny, nz] = n;
     let s = nx * ny;
     let rows = (4096 / nx).max(1);
@@ -776,7 +778,7 @@ fn box_interior(n: [usize; 3], sides: &[[Side; 2]; 3], fluid: &[u8]) -> Vec<bool
         });
     // Along z (none on a plane), and the test.
     let flat = nz == 1;
-    let mut out = vec![false; fluid.len()];
+    let mut out = ZeroedBuf::new(fluid.len());
     out.par_chunks_mut(nx)
         .enumerate()
         .with_min_len(rows)
@@ -804,10 +806,10 @@ fn box_interior(n: [usize; 3], sides: &[[Side; 2]; 3], fluid: &[u8]) -> Vec<bool
 /// neighbours as [`for_neighbours`] finds them (a periodic axis of two cells counts its
 /// other cell twice), by adding shifted rows: no per-cell indexing, so the loops
 /// vectorise. At most six neighbours: a mask of 0 and 1 sums within a byte.
-fn neighbour_sum(n: [usize; 3], per: [bool; 3], m: &[u8]) -> Vec<u8> {
+fn neighbour_sum(n: [usize; 3], per: [bool; 3], m: &[u8]) -> ZeroedBuf<u8> {
     let [nx, ny, nz] = n;
     let s = nx * ny;
-    let mut out = vec![0u8; m.len()];
+    let mut out = ZeroedBuf::new(m.len());
     out.par_chunks_mut(nx)
         .enumerate()
         .with_min_len((4096 / nx).max(1))
@@ -899,9 +901,9 @@ pub struct GridPoisson {
     fluid: usize,
     /// CG's residual, search direction and its product with A (the preconditioned
     /// residual is the fine level's `Work::x`).
-    r: Vec<f64>,
-    p: Vec<f64>,
-    q: Vec<f64>,
+    r: ZeroedBuf<f64>,
+    p: ZeroedBuf<f64>,
+    q: ZeroedBuf<f64>,
     /// The V-cycle's vectors in each precision: the default's made with the problem, the
     /// other's by the first solve that asks for it.
     work32: Vec<Work<f32>>,
@@ -1051,9 +1053,9 @@ impl GridPoisson {
             levels,
             singular,
             fluid,
-            r: vec![0.0; cells],
-            p: vec![0.0; cells],
-            q: vec![0.0; cells],
+            r: ZeroedBuf::new(cells),
+            p: ZeroedBuf::new(cells),
+            q: ZeroedBuf::new(cells),
             work32,
             work64,
         })
