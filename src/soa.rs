@@ -6,6 +6,8 @@
 //! (i, j) of a 3n x 3n operator touches rows {i, n+i, 2n+i} and columns {j, n+j, 2n+j}.
 //! Array-of-structures (`[[f64; 3]]`) exists only at the edges, for I/O.
 
+use std::sync::atomic::{AtomicUsize, Ordering};
+
 /// n 3-vectors, component-major (see the module docs).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Vec3s {
@@ -111,6 +113,25 @@ pub const MAPPED_MIN_BYTES: usize = HUGE_PAGE;
 /// of it on a huge-page boundary, so that all of it can be huge pages.
 const HUGE_PAGE: usize = 2 << 20;
 
+/// Bytes of [`ZeroedBuf`] mappings alive now, and the most alive at once.
+static MAPPED: AtomicUsize = AtomicUsize::new(0);
+static MAPPED_PEAK: AtomicUsize = AtomicUsize::new(0);
+
+/// The bytes that [`ZeroedBuf`]s hold in mappings of their own, `(now, peak)`, the peak
+/// since the last [`reset_mapped_peak`]: they bypass the global allocator, so a counting
+/// allocator (an embedder's, or `tests/fuzz.rs`'s memory bound) must add them.
+pub fn mapped_bytes() -> (usize, usize) {
+    (
+        MAPPED.load(Ordering::SeqCst),
+        MAPPED_PEAK.load(Ordering::SeqCst),
+    )
+}
+
+/// Starts a new peak for [`mapped_bytes`] at what is mapped now.
+pub fn reset_mapped_peak() {
+    MAPPED_PEAK.store(MAPPED.load(Ordering::SeqCst), Ordering::SeqCst);
+}
+
 /// Plain numbers whose all-zero bit pattern is the value zero.
 ///
 /// # Safety
@@ -163,6 +184,8 @@ impl<T: ZeroBits> ZeroedBuf<T> {
                     // mapping is the same on small pages.
                     let _ = map.advise_range(memmap2::Advice::HugePage, offset, len - HUGE_PAGE);
                 }
+                let now = MAPPED.fetch_add(map.len(), Ordering::SeqCst) + map.len();
+                MAPPED_PEAK.fetch_max(now, Ordering::SeqCst);
                 return Self {
                     store: Store::Mapped(map, offset, n),
                 };
@@ -176,6 +199,14 @@ impl<T: ZeroBits> ZeroedBuf<T> {
     /// Whether the values live in a mapping of their own (see the type's docs).
     pub fn is_mapped(&self) -> bool {
         matches!(self.store, Store::Mapped(..))
+    }
+}
+
+impl<T: ZeroBits> Drop for ZeroedBuf<T> {
+    fn drop(&mut self) {
+        if let Store::Mapped(map, ..) = &self.store {
+            MAPPED.fetch_sub(map.len(), Ordering::SeqCst);
+        }
     }
 }
 
@@ -254,5 +285,12 @@ mod tests {
             assert_eq!(b.as_ptr() as usize % MAPPED_MIN_BYTES, 0);
         }
         assert!(ZeroedBuf::<bool>::new(5).iter().all(|&x| !x));
+        // Mapped bytes are counted while the buffer lives (other tests may map too, so
+        // only bounds hold).
+        let m = ZeroedBuf::<f32>::new(MAPPED_MIN_BYTES);
+        if m.is_mapped() {
+            let (now, peak) = super::mapped_bytes();
+            assert!(now >= 4 * MAPPED_MIN_BYTES && peak >= now);
+        }
     }
 }

@@ -59,12 +59,16 @@ static GLOBAL: Counting = Counting;
 static TURN: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
 /// Runs `f` and returns its result and the most memory it held at once beyond what was
-/// allocated before (bytes).
+/// allocated before (bytes): the heap's peak plus the peak of the large buffers that map
+/// their own pages (`soa::ZeroedBuf`, outside the global allocator), a bound from above.
 fn peak_of<T>(f: impl FnOnce() -> T) -> (T, usize) {
     let base = CURRENT.load(Ordering::SeqCst);
     PEAK.store(base, Ordering::SeqCst);
+    largestep::soa::reset_mapped_peak();
+    let (mapped_base, _) = largestep::soa::mapped_bytes();
     let r = f();
-    (r, PEAK.load(Ordering::SeqCst).saturating_sub(base))
+    let mapped = largestep::soa::mapped_bytes().1 - mapped_base;
+    (r, PEAK.load(Ordering::SeqCst).saturating_sub(base) + mapped)
 }
 
 /// faer's dense kernels (private-gemm) keep a thread-local packing buffer of twice the
