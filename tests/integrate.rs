@@ -391,3 +391,90 @@ fn an_approach_the_solve_finds_pulling_is_freed() {
         }
     }
 }
+
+/// A system that counts the force and Jacobian evaluations a stepper asks of it.
+struct Counted<S> {
+    sys: S,
+    forces: usize,
+    jacobians: usize,
+}
+
+impl<S: Mechanical> Mechanical for Counted<S> {
+    fn vertex_count(&self) -> usize {
+        self.sys.vertex_count()
+    }
+    fn mass(&self) -> &[f64] {
+        self.sys.mass()
+    }
+    fn force(&mut self, t: f64, x: &[f64], v: &[f64], f: &mut [f64]) {
+        self.forces += 1;
+        self.sys.force(t, x, v, f);
+    }
+    fn potential_energy(&self, t: f64, x: &[f64]) -> Option<f64> {
+        self.sys.potential_energy(t, x)
+    }
+    fn prepare_jacobians(
+        &mut self,
+    ) -> Result<
+        Option<std::sync::Arc<largestep::sparse::Bsr3Pattern>>,
+        largestep::sparse::SparseError,
+    > {
+        self.sys.prepare_jacobians()
+    }
+    fn force_jacobians(
+        &mut self,
+        t: f64,
+        x: &[f64],
+        v: &[f64],
+        f: &mut [f64],
+        dfdx: &mut largestep::sparse::Bsr3,
+        dfdv: Option<&mut largestep::sparse::Bsr3>,
+    ) -> Result<(), IntegrateError> {
+        self.jacobians += 1;
+        self.sys.force_jacobians(t, x, v, f, dfdx, dfdv)
+    }
+}
+
+/// An implicit step builds its Jacobian with its first residual (the forces come with it),
+/// so a step costs one assembly and one force evaluation per Newton iteration, not one
+/// more; a step after one that needed no iteration (at rest) builds none.
+#[test]
+fn an_implicit_step_builds_its_jacobian_with_its_first_residual() {
+    let h = 0.01;
+    for method in [Method::BackwardEuler, Method::ImplicitMidpoint] {
+        let mut sys = Counted {
+            sys: Pendulum::new(9.81),
+            forces: 0,
+            jacobians: 0,
+        };
+        let mut s = settings(method, LinearSolverKind::Cholesky);
+        s.reuse_jacobian = 1;
+        let mut st = MechStepper::new(s, &mut sys).unwrap();
+        let (mut x, mut v) = ([1.0, 0.0, 0.0], [0.0; 3]);
+        for k in 0..20 {
+            let (f0, j0) = (sys.forces, sys.jacobians);
+            let info = st.step(&mut sys, k as f64 * h, &mut x, &mut v, h).unwrap();
+            assert!(info.newton_iterations > 0, "{method:?} step {k}");
+            assert_eq!(sys.jacobians - j0, 1, "{method:?} step {k}");
+            assert_eq!(
+                sys.forces - f0,
+                info.newton_iterations,
+                "{method:?} step {k}"
+            );
+        }
+        // At rest: Newton has nothing to do, and after the first such step no Jacobian
+        // is built.
+        let (mut x, mut v) = ([0.0; 3], [0.0; 3]);
+        for k in 0..3 {
+            let (f0, j0) = (sys.forces, sys.jacobians);
+            let info = st.step(&mut sys, k as f64 * h, &mut x, &mut v, h).unwrap();
+            assert_eq!(info.newton_iterations, 0);
+            let expected = if k == 0 { (0, 1) } else { (1, 0) };
+            assert_eq!(
+                (sys.forces - f0, sys.jacobians - j0),
+                expected,
+                "at rest, step {k}"
+            );
+        }
+    }
+}

@@ -332,6 +332,9 @@ pub struct MechStepper {
     lag: Option<Lag>,
     /// PCG's hierarchy in hand for later steps (`MechSettings::reuse_preconditioner`).
     kept: Option<Lag>,
+    /// Newton iterations of the last implicit step: a step after one that needed none
+    /// (a body at rest) does not build its Jacobian with its first residual.
+    last_newton: usize,
     filter: Filter,
     y: Vec<f64>,
     rk: Option<RkWork>,
@@ -421,6 +424,7 @@ impl MechStepper {
             mass,
             lag: None,
             kept: None,
+            last_newton: 1,
             filter: Filter::new(n),
             y,
             rk,
@@ -623,6 +627,8 @@ impl MechStepper {
                         refactored: false,
                         keep_preconditioner: kept,
                         new_preconditioner: false,
+                        assemble_first: !lagged && self.last_newton > 0,
+                        assembled: false,
                     };
                     // An old Jacobian gets a few iterations (as many as a new one usually
                     // needs, plus a margin); then the step starts over with a new one.
@@ -652,6 +658,7 @@ impl MechStepper {
                         continue;
                     }
                     let ni = res.map_err(solve_err)?;
+                    self.last_newton = ni.iterations;
                     for l in [&mut self.lag, &mut self.kept].into_iter().flatten() {
                         l.age += 1;
                     }
@@ -898,9 +905,31 @@ struct Residual<'a> {
     /// whether this step built a new one.
     keep_preconditioner: bool,
     new_preconditioner: bool,
+    /// Build the Jacobian with the first residual (`Residual::residual`), as the first
+    /// Newton step would at the same point: the forces then come with it, one force
+    /// evaluation fewer a step. Whether the Jacobian in `dfdx` is that of the last
+    /// residual's point.
+    assemble_first: bool,
+    assembled: bool,
 }
 
 impl Residual<'_> {
+    /// The forces and their Jacobians at the point `eval_point` set.
+    fn assemble(&mut self) -> Result<(), SolveError> {
+        if let Err(e) = self.sys.force_jacobians(
+            self.t,
+            self.xe,
+            self.ve,
+            self.f,
+            self.dfdx,
+            self.dfdv.as_deref_mut(),
+        ) {
+            self.err = Some(e);
+            return Err(SolveError::Factorization("Jacobian assembly failed".into()));
+        }
+        Ok(())
+    }
+
     fn eval_point(&mut self, v1: &[f64]) {
         let (c, h) = (self.c, self.h);
         let states = self.xe.iter_mut().zip(self.ve.iter_mut());
@@ -914,7 +943,12 @@ impl Residual<'_> {
 impl NewtonProblem for Residual<'_> {
     fn residual(&mut self, v1: &[f64], r: &mut [f64]) -> Result<(), SolveError> {
         self.eval_point(v1);
-        self.sys.force(self.t, self.xe, self.ve, self.f);
+        self.assembled = std::mem::take(&mut self.assemble_first);
+        if self.assembled {
+            self.assemble()?;
+        } else {
+            self.sys.force(self.t, self.xe, self.ve, self.f);
+        }
         let (n, h, c) = (self.mass.len(), self.h, self.c);
         // M (v1 - v0) with the consistent mass matrix (rhs is free until newton_step).
         let consistent = self.sys.mass_matrix().is_some();
@@ -969,16 +1003,9 @@ impl NewtonProblem for Residual<'_> {
             return Ok(li);
         }
         self.eval_point(v1);
-        if let Err(e) = self.sys.force_jacobians(
-            self.t,
-            self.xe,
-            self.ve,
-            self.f,
-            self.dfdx,
-            self.dfdv.as_deref_mut(),
-        ) {
-            self.err = Some(e);
-            return Err(SolveError::Factorization("Jacobian assembly failed".into()));
+        // Newton steps from the point of its last residual.
+        if !std::mem::take(&mut self.assembled) {
+            self.assemble()?;
         }
         let (h, c) = (self.h, self.c);
         let (ck, cd) = (h * c.w1 * h * c.b, h * c.w1 * c.d);
