@@ -142,8 +142,6 @@ pub unsafe trait ZeroBits: Copy + Default + Send + Sync + 'static {}
 unsafe impl ZeroBits for f64 {}
 unsafe impl ZeroBits for f32 {}
 unsafe impl ZeroBits for u8 {}
-unsafe impl ZeroBits for u32 {}
-unsafe impl ZeroBits for usize {}
 unsafe impl ZeroBits for bool {}
 
 /// A slice of zeros for the grids that solvers make at setup (tens of megabytes): from

@@ -150,6 +150,10 @@ pub struct Groups<const N: usize>(pub [f64x4; N]);
 
 impl<const N: usize> Groups<N> {
     #[inline(always)]
+    fn each(self, f: impl Fn(f64x4) -> f64x4) -> Self {
+        Groups(std::array::from_fn(|g| f(self.0[g])))
+    }
+    #[inline(always)]
     fn zip(self, o: Self, f: impl Fn(f64x4, f64x4) -> f64x4) -> Self {
         Groups(std::array::from_fn(|g| f(self.0[g], o.0[g])))
     }
@@ -175,7 +179,7 @@ impl<const N: usize> Neg for Groups<N> {
     type Output = Self;
     #[inline(always)]
     fn neg(self) -> Self {
-        Groups(std::array::from_fn(|g| -self.0[g]))
+        self.each(|a| -a)
     }
 }
 
@@ -190,11 +194,11 @@ impl<const N: usize> Lane for Groups<N> {
     }
     #[inline(always)]
     fn sqrt(self) -> Self {
-        Groups(std::array::from_fn(|g| self.0[g].sqrt()))
+        self.each(f64x4::sqrt)
     }
     #[inline(always)]
     fn abs(self) -> Self {
-        Groups(std::array::from_fn(|g| self.0[g].abs()))
+        self.each(f64x4::abs)
     }
     #[inline(always)]
     fn max(self, o: Self) -> Self {
@@ -202,7 +206,7 @@ impl<const N: usize> Lane for Groups<N> {
     }
     #[inline(always)]
     fn ln(self) -> Self {
-        Groups(std::array::from_fn(|g| self.0[g].ln()))
+        self.each(f64x4::ln)
     }
     #[inline(always)]
     fn if_lt(a: Self, b: Self, x: Self, y: Self) -> Self {
@@ -683,7 +687,7 @@ impl Elements<'_> {
     /// range (a caller's bug: meshes are checked when built).
     #[inline(always)]
     fn group(&self, e0: usize) -> GroupInputs {
-        let four = |v: &[f64]| {
+        let load = |v: &[f64]| {
             let w: [f64; 4] = v[e0..e0 + 4].try_into().expect("four elements");
             f64x4::new(w)
         };
@@ -697,9 +701,9 @@ impl Elements<'_> {
         });
         (
             x,
-            std::array::from_fn(|k| four(self.dm_inv[k])),
-            four(self.vol),
-            [four(self.mu), four(self.lambda)],
+            std::array::from_fn(|k| load(self.dm_inv[k])),
+            load(self.vol),
+            [load(self.mu), load(self.lambda)],
         )
     }
 }

@@ -241,8 +241,6 @@ impl<T: Real> Work<T> {
 /// the preconditioner is, and CG's own vectors stay `f64`).
 trait Real:
     ZeroBits
-    + Send
-    + Sync
     + PartialOrd
     + std::fmt::Debug
     + std::ops::Add<Output = Self>
@@ -251,7 +249,6 @@ trait Real:
     + std::ops::Div<Output = Self>
     + std::ops::AddAssign
     + std::ops::MulAssign
-    + 'static
 {
     const ZERO: Self;
     /// The nearest value to `v`.
