@@ -25,8 +25,9 @@
 //!   the timed state (all threads): a setup of the values (the pattern's part kept, as
 //!   in every step but the first), and one V-cycle (`SmoothedAggregation::apply`) with
 //!   the bytes it reads at least (`cycle_bytes`) against the triad bandwidth measured
-//!   right after. The cycle reads about twice this VM's 32 MB L3, so it streams from
-//!   memory.
+//!   right after. The cycle reads about twice the former machine's 32 MB L3, so it
+//!   streamed from memory there; the present one's L3 is 480 MiB, so the cycle may be
+//!   served from cache and its fraction of the triad may pass 100%.
 //! - `fem/step/<solver>`: one backward Euler step at dt = 1/60 s, Newton iterated until
 //!   the residual falls by 1e-6 or the velocity change per iteration is below 1e-6 of the
 //!   velocities (`MechSettings::new`), with sparse Cholesky or PCG (relative tolerance
