@@ -4,10 +4,11 @@
 //! kg/m^3), the definiteness fix on. The timed state is the beam after 0.5 s of backward
 //! Euler from straight (its tip sags and swings; the elements are rotated and strained).
 //!
-//! - `fem/kernel/{scalar,x4,x8}`: every element's forces and ten stiffness blocks
+//! - `fem/kernel/{scalar,x4,x8,x16}`: every element's forces and ten stiffness blocks
 //!   (`largestep_kernels::fem_diag::element`, the generic kernel at `f64`; `element_x4`,
 //!   four elements per `f64x4`; `element_x8`, two such groups whose SVDs run
-//!   interleaved, as the model calls it), on one core, positions gathered from the state
+//!   interleaved, as the model calls it without AVX-512; `element_x16`, two groups of
+//!   eight in `f64x8`, as it calls it with AVX-512), on one core, positions gathered from the state
 //!   (`Fem::elements`). Their flops are counted by running the same generic kernel on a
 //!   counting number type over the same elements (an FMA counts 2, every other
 //!   arithmetic operation, square root, comparison and selection 1), and reported against
@@ -52,7 +53,7 @@ use criterion::Criterion;
 use largestep::fem::mesh::box_mesh;
 use largestep::fem::{Fem, FemDesc, FemMaterial, FemWork, Material};
 use largestep::integrate::{LinearSolverKind, MechSettings, Method};
-use largestep::kernels::fem_diag::{element, element_x4, element_x8, Iso, Lane};
+use largestep::kernels::fem_diag::{element, element_x16, element_x4, element_x8, Iso, Lane};
 use largestep::kernels::gather_nodes;
 use largestep::machine::{triad_bandwidth, DEFAULT_TRIAD_MIB};
 use largestep::simulation::{MechModel, MechSimulation};
@@ -413,7 +414,7 @@ fn kernels(
 ) {
     let n = fem.vertex_count();
     let tets = fem.tets();
-    let ne = tets.len() / 8 * 8;
+    let ne = tets.len() / 16 * 16;
     let iso = Iso {
         material: Material::Corotational,
         clamp: None,
@@ -464,6 +465,18 @@ fn kernels(
             );
         })
     };
+    let (mut f16, mut k16) = (vec![0.0; 12 * ne], vec![0.0; 90 * ne]);
+    let mut x16 = || {
+        each_group(ne, 16, &mut f16, &mut k16, |e, f, k| {
+            element_x16(
+                f.try_into().unwrap(),
+                Some(k.try_into().unwrap()),
+                &els,
+                e,
+                &iso,
+            );
+        })
+    };
     // The same calls with the outputs in one reused buffer: the kernel's own rate,
     // without writing the 43 MB of stiffness blocks the model keeps for its gather.
     let (mut fc4, mut kc4, mut sink4) = ([0.0; 48], [0.0; 360], 0.0);
@@ -478,6 +491,13 @@ fn kernels(
         for e in (0..ne).step_by(8) {
             element_x8(&mut fc8, Some(&mut kc8), &els, e, &iso);
             sink8 += kc8[e % 720];
+        }
+    };
+    let (mut fc16, mut kc16, mut sink16) = ([0.0; 192], [0.0; 1440], 0.0);
+    let mut x16_cached = || {
+        for e in (0..ne).step_by(16) {
+            element_x16(&mut fc16, Some(&mut kc16), &els, e, &iso);
+            sink16 += kc16[e % 1440];
         }
     };
     // Flops, counted on the same elements.
@@ -506,6 +526,8 @@ fn kernels(
         ("x4-cached", &mut x4_cached as &mut dyn FnMut()),
         ("x8", &mut x8 as &mut dyn FnMut()),
         ("x8-cached", &mut x8_cached as &mut dyn FnMut()),
+        ("x16", &mut x16 as &mut dyn FnMut()),
+        ("x16-cached", &mut x16_cached as &mut dyn FnMut()),
     ] {
         let id = format!("fem/kernel/{name}");
         if !wanted(&id) {
@@ -530,9 +552,9 @@ fn kernels(
             100.0 * gflops / core8
         ));
     }
-    std::hint::black_box((sink4, sink8));
+    std::hint::black_box((sink4, sink8, sink16));
     let scale = k.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-    for (name, fw, kw) in [("x4", &f4, &k4), ("x8", &f8, &k8)] {
+    for (name, fw, kw) in [("x4", &f4, &k4), ("x8", &f8, &k8), ("x16", &f16, &k16)] {
         if wanted("fem/kernel/scalar") && wanted(&format!("fem/kernel/{name}")) {
             let worst = f
                 .iter()

@@ -12,7 +12,9 @@ use largestep_kernels::fem::{
     det, element_energy, element_forces, element_stiffness, energy_density, mul, pk1,
     pk1_derivative, pk1_differential, project_psd, Lame, M3,
 };
-use largestep_kernels::fem_diag::{element, element_x4, element_x8, evaluate, Elements, Iso};
+use largestep_kernels::fem_diag::{
+    element, element_x16, element_x4, element_x8, evaluate, Elements, Iso,
+};
 use proptest::prelude::*;
 use std::path::{Path, PathBuf};
 
@@ -1629,22 +1631,23 @@ proptest! {
         }
     }
 
-    /// Four elements at once (f64x4 lanes) and eight (two groups of four, their SVDs
-    /// interleaved) give what one-at-a-time calls give: forces, stiffness and energy, for
-    /// every nonlinear material, clamped or not, projected or not, on random elements
-    /// including inverted ones.
+    /// Four elements at once (f64x4 lanes), eight (two groups of four, their SVDs
+    /// interleaved) and sixteen (two groups of eight, f64x8 lanes) give what
+    /// one-at-a-time calls give: forces, stiffness and energy, for every nonlinear
+    /// material, clamped or not, projected or not, on random elements including inverted
+    /// ones.
     #[test]
-    fn four_and_eight_elements_at_once_equal_one_at_a_time(seed in any::<u64>(), mi in 0usize..4, clamp in prop::bool::ANY, project in prop::bool::ANY) {
+    fn four_eight_and_sixteen_elements_at_once_equal_one_at_a_time(seed in any::<u64>(), mi in 0usize..4, clamp in prop::bool::ANY, project in prop::bool::ANY) {
         let mut r = Rand(seed | 1);
         let m = NONLINEAR[mi];
         let is = iso(m, clamp.then_some(0.3), project);
-        let els: [_; 8] = std::array::from_fn(|_| random_element(&mut r, 0.4));
+        let els: [_; 16] = std::array::from_fn(|_| random_element(&mut r, 0.4));
         // A different material constant per lane (elements of different regions).
-        let lames: [Lame; 8] = std::array::from_fn(|_| Lame::from_young_poisson(1e6 * r.next(0.5, 2.0), r.next(0.0, 0.45)));
+        let lames: [Lame; 16] = std::array::from_fn(|_| Lame::from_young_poisson(1e6 * r.next(0.5, 2.0), r.next(0.0, 0.45)));
         // Structure of arrays, as the wide kernels read a mesh: element l owns vertices
         // 4 l..4 l + 4.
         let x: [Vec<f64>; 3] = std::array::from_fn(|c| els.iter().flat_map(|e| e.0.map(|p| p[c])).collect());
-        let tets: Vec<[u32; 4]> = (0..8u32).map(|l| [4 * l, 4 * l + 1, 4 * l + 2, 4 * l + 3]).collect();
+        let tets: Vec<[u32; 4]> = (0..16u32).map(|l| [4 * l, 4 * l + 1, 4 * l + 2, 4 * l + 3]).collect();
         let dm: [Vec<f64>; 9] = std::array::from_fn(|k| els.iter().map(|e| e.1[k]).collect());
         let vol: Vec<f64> = els.iter().map(|e| e.2).collect();
         let (mu, lambda): (Vec<f64>, Vec<f64>) = lames.iter().map(|l| (l.mu, l.lambda)).unzip();
@@ -1653,11 +1656,16 @@ proptest! {
         let e4 = element_x4(&mut f4, Some(&mut k4), &soa, 0, &is);
         let (mut f8, mut k8) = ([0.0; 96], [0.0; 720]);
         let e8 = element_x8(&mut f8, Some(&mut k8), &soa, 0, &is);
+        let (mut f16, mut k16) = ([0.0; 192], [0.0; 1440]);
+        let e16 = element_x16(&mut f16, Some(&mut k16), &soa, 0, &is);
         for (l, (x, dm_inv, vol)) in els.iter().enumerate() {
             let (mut f, mut k) = ([[0.0; 3]; 4], [0.0; 90]);
             let e = element(&mut f, Some(&mut k), x, dm_inv, *vol, [lames[l].mu, lames[l].lambda], &is);
             let scale = lames[l].mu * vol;
-            let mut wide = vec![(e8[l], &f8[12 * l..12 * l + 12], &k8[90 * l..90 * l + 90])];
+            let mut wide = vec![(e16[l], &f16[12 * l..12 * l + 12], &k16[90 * l..90 * l + 90])];
+            if l < 8 {
+                wide.push((e8[l], &f8[12 * l..12 * l + 12], &k8[90 * l..90 * l + 90]));
+            }
             if l < 4 {
                 wide.push((e4[l], &f4[12 * l..12 * l + 12], &k4[90 * l..90 * l + 90]));
             }

@@ -1,7 +1,8 @@
 //! Tetrahedron kernels in the singular-value frame, for the isotropic materials, one
 //! element per lane: generic over [`Lane`], so the same code runs as the scalar twin
-//! (`f64`), over four elements at once (`f64x4`, [`element_x4`]) and over eight with two
-//! SVDs in flight ([`Groups`], [`element_x8`]).
+//! (`f64`), over four elements at once (`f64x4`, [`element_x4`]), over eight with two
+//! SVDs in flight ([`Groups`], [`element_x8`]) and, with AVX-512, over sixteen in two
+//! `f64x8` ([`element_x16`]).
 //!
 //! An isotropic energy density is a symmetric function of the singular values of F:
 //! `Psi(F) = Psi^(sigma)` with `F = U diag(sigma) V^T`. Following Irving, Teran and Fedkiw
@@ -38,7 +39,7 @@
 
 use crate::fem::{Lame, Material, M3};
 use std::ops::{Add, Div, Mul, Neg, Sub};
-use wide::f64x4;
+use wide::{f64x4, f64x8};
 
 /// One value per element: `f64` (the scalar twin) or `f64x4` (four elements at once).
 pub trait Lane:
@@ -106,62 +107,102 @@ impl Lane for f64 {
     }
 }
 
-impl Lane for f64x4 {
-    #[inline(always)]
-    fn splat(v: f64) -> Self {
-        f64x4::splat(v)
-    }
-    #[inline(always)]
-    fn fma(self, m: Self, a: Self) -> Self {
-        self.mul_add(m, a)
-    }
-    #[inline(always)]
-    fn sqrt(self) -> Self {
-        f64x4::sqrt(self)
-    }
-    #[inline(always)]
-    fn abs(self) -> Self {
-        f64x4::abs(self)
-    }
-    #[inline(always)]
-    fn max(self, o: Self) -> Self {
-        f64x4::max(self, o)
-    }
-    #[inline(always)]
-    fn ln(self) -> Self {
-        f64x4::ln(self)
-    }
-    #[inline(always)]
-    fn if_lt(a: Self, b: Self, x: Self, y: Self) -> Self {
-        a.simd_lt(b).bitselect(x, y)
-    }
-    #[inline(always)]
-    fn any_not_positive(self) -> bool {
-        // Not (all lanes > 0): NaN lanes compare false.
-        !f64x4::ZERO.simd_lt(self).all()
-    }
+macro_rules! wide_lane {
+    ($t:ident, $n:literal) => {
+        impl Lane for $t {
+            #[inline(always)]
+            fn splat(v: f64) -> Self {
+                $t::splat(v)
+            }
+            #[inline(always)]
+            fn fma(self, m: Self, a: Self) -> Self {
+                self.mul_add(m, a)
+            }
+            #[inline(always)]
+            fn sqrt(self) -> Self {
+                $t::sqrt(self)
+            }
+            #[inline(always)]
+            fn abs(self) -> Self {
+                $t::abs(self)
+            }
+            #[inline(always)]
+            fn max(self, o: Self) -> Self {
+                $t::max(self, o)
+            }
+            #[inline(always)]
+            fn ln(self) -> Self {
+                $t::ln(self)
+            }
+            #[inline(always)]
+            fn if_lt(a: Self, b: Self, x: Self, y: Self) -> Self {
+                a.simd_lt(b).bitselect(x, y)
+            }
+            #[inline(always)]
+            fn any_not_positive(self) -> bool {
+                // Not (all lanes > 0): NaN lanes compare false.
+                !$t::ZERO.simd_lt(self).all()
+            }
+        }
+
+        impl Wide for $t {
+            const LANES: usize = $n;
+            #[inline(always)]
+            fn from_fn(f: impl FnMut(usize) -> f64) -> Self {
+                $t::new(std::array::from_fn(f))
+            }
+            #[inline(always)]
+            fn store(self, out: &mut [f64]) {
+                out.copy_from_slice(&self.to_array());
+            }
+            #[inline(always)]
+            fn transpose_store(block: &[Self], out: &mut [f64], s: usize, at: usize) {
+                let t = $t::transpose(std::array::from_fn(|i| block[i]));
+                for (l, tl) in t.iter().enumerate() {
+                    out[s * l + at..s * l + at + $n].copy_from_slice(&tl.to_array());
+                }
+            }
+        }
+    };
 }
 
-/// N groups of four elements, one `f64x4` each, every operation applied to all: the 3x3
-/// eigensolves are one long chain of dependent square roots and divisions, and with
-/// independent chains in flight each waits less ([`element_x8`], two groups).
-#[derive(Clone, Copy, Debug)]
-pub struct Groups<const N: usize>(pub [f64x4; N]);
+/// A SIMD vector of elements, one per lane, as the wide kernels load and store them.
+pub trait Wide: Lane + Default {
+    /// Elements per vector.
+    const LANES: usize;
+    /// Lane l is `f(l)`.
+    fn from_fn(f: impl FnMut(usize) -> f64) -> Self;
+    /// The lanes into `out` (`LANES` long).
+    fn store(self, out: &mut [f64]);
+    /// `LANES` vectors, transposed: lane l of `block[i]` into `out[s l + at + i]`.
+    fn transpose_store(block: &[Self], out: &mut [f64], s: usize, at: usize);
+}
 
-impl<const N: usize> Groups<N> {
+wide_lane!(f64x4, 4);
+// One AVX-512 register where the build has it, two `f64x4` otherwise.
+wide_lane!(f64x8, 8);
+
+/// N groups of elements, one vector `L` each, every operation applied to all: the 3x3
+/// eigensolves are one long chain of dependent square roots and divisions, and with
+/// independent chains in flight each waits less ([`element_x8`], [`element_x16`]: two
+/// groups).
+#[derive(Clone, Copy, Debug)]
+pub struct Groups<const N: usize, L = f64x4>(pub [L; N]);
+
+impl<const N: usize, L: Lane> Groups<N, L> {
     #[inline(always)]
-    fn each(self, f: impl Fn(f64x4) -> f64x4) -> Self {
+    fn each(self, f: impl Fn(L) -> L) -> Self {
         Groups(std::array::from_fn(|g| f(self.0[g])))
     }
     #[inline(always)]
-    fn zip(self, o: Self, f: impl Fn(f64x4, f64x4) -> f64x4) -> Self {
+    fn zip(self, o: Self, f: impl Fn(L, L) -> L) -> Self {
         Groups(std::array::from_fn(|g| f(self.0[g], o.0[g])))
     }
 }
 
 macro_rules! groups_op {
     ($tr:ident, $f:ident) => {
-        impl<const N: usize> $tr for Groups<N> {
+        impl<const N: usize, L: Lane> $tr for Groups<N, L> {
             type Output = Self;
             #[inline(always)]
             fn $f(self, o: Self) -> Self {
@@ -175,7 +216,7 @@ groups_op!(Sub, sub);
 groups_op!(Mul, mul);
 groups_op!(Div, div);
 
-impl<const N: usize> Neg for Groups<N> {
+impl<const N: usize, L: Lane> Neg for Groups<N, L> {
     type Output = Self;
     #[inline(always)]
     fn neg(self) -> Self {
@@ -183,35 +224,35 @@ impl<const N: usize> Neg for Groups<N> {
     }
 }
 
-impl<const N: usize> Lane for Groups<N> {
+impl<const N: usize, L: Lane> Lane for Groups<N, L> {
     #[inline(always)]
     fn splat(v: f64) -> Self {
-        Groups([f64x4::splat(v); N])
+        Groups([L::splat(v); N])
     }
     #[inline(always)]
     fn fma(self, m: Self, a: Self) -> Self {
-        Groups(std::array::from_fn(|g| self.0[g].mul_add(m.0[g], a.0[g])))
+        Groups(std::array::from_fn(|g| self.0[g].fma(m.0[g], a.0[g])))
     }
     #[inline(always)]
     fn sqrt(self) -> Self {
-        self.each(f64x4::sqrt)
+        self.each(L::sqrt)
     }
     #[inline(always)]
     fn abs(self) -> Self {
-        self.each(f64x4::abs)
+        self.each(L::abs)
     }
     #[inline(always)]
     fn max(self, o: Self) -> Self {
-        self.zip(o, f64x4::max)
+        self.zip(o, L::max)
     }
     #[inline(always)]
     fn ln(self) -> Self {
-        self.each(f64x4::ln)
+        self.each(L::ln)
     }
     #[inline(always)]
     fn if_lt(a: Self, b: Self, x: Self, y: Self) -> Self {
         Groups(std::array::from_fn(|g| {
-            <f64x4 as Lane>::if_lt(a.0[g], b.0[g], x.0[g], y.0[g])
+            L::if_lt(a.0[g], b.0[g], x.0[g], y.0[g])
         }))
     }
     #[inline(always)]
@@ -661,8 +702,8 @@ fn element_in_frame<R: Lane>(
 /// The inputs of a mesh's elements as the wide kernels read them, structure of arrays:
 /// element e's vertices are `tets[e]`, vertex i at `(x[0][i], x[1][i], x[2][i])` (m), its
 /// `Dm^-1` entry k (row-major) `dm_inv[k][e]` (1/m), rest volume `vol[e]` (m^3) and Lame
-/// constants `mu[e]`, `lambda[e]` (Pa). Loaded four elements to a vector as they lie,
-/// only the positions gathered.
+/// constants `mu[e]`, `lambda[e]` (Pa). Loaded a vector's elements (four or eight) as
+/// they lie, only the positions gathered.
 #[derive(Clone, Copy, Debug)]
 pub struct Elements<'a> {
     /// Current positions, one array per coordinate.
@@ -680,24 +721,22 @@ pub struct Elements<'a> {
 }
 
 /// One group's lanes: positions, `Dm^-1`, volume, `[mu, lambda]`.
-type GroupInputs = ([[f64x4; 3]; 4], [f64x4; 9], f64x4, [f64x4; 2]);
+type GroupInputs<W> = ([[W; 3]; 4], [W; 9], W, [W; 2]);
 
 impl Elements<'_> {
-    /// Elements `e0..e0 + 4` in lanes. Panics where they or their vertices are out of
-    /// range (a caller's bug: meshes are checked when built).
+    /// Elements `e0..e0 + W::LANES` in lanes. Panics where they or their vertices are out
+    /// of range (a caller's bug: meshes are checked when built).
     #[inline(always)]
-    fn group(&self, e0: usize) -> GroupInputs {
+    fn group<W: Wide>(&self, e0: usize) -> GroupInputs<W> {
         let load = |v: &[f64]| {
-            let w: [f64; 4] = v[e0..e0 + 4].try_into().expect("four elements");
-            f64x4::new(w)
+            let w = &v[e0..e0 + W::LANES];
+            W::from_fn(|l| w[l])
         };
+        let tets = &self.tets[e0..e0 + W::LANES];
         // `from_fn`, not `map`: array maps stayed out-of-line calls (`try_map`) here,
         // 10% of the kernel's time.
-        let tets: &[[u32; 4]; 4] = self.tets[e0..e0 + 4].try_into().expect("four elements");
         let x = std::array::from_fn(|a| {
-            std::array::from_fn(|c| {
-                f64x4::new(std::array::from_fn(|l| self.x[c][tets[l][a] as usize]))
-            })
+            std::array::from_fn(|c| W::from_fn(|l| self.x[c][tets[l][a] as usize]))
         });
         (
             x,
@@ -719,91 +758,134 @@ pub fn element_x4(
     e0: usize,
     iso: &Iso,
 ) -> [f64; 4] {
-    let inputs = els.group(e0);
+    let inputs = els.group::<f64x4>(e0);
     let (u, s, v) = svd3(&gradient(&inputs.0, &inputs.1));
     let mut kl = [f64x4::ZERO; 90];
-    group_outputs(f, k.map(|k| &mut k[..]), (&u, s, &v), &inputs, &mut kl, iso)
+    let mut energy = [0.0; 4];
+    group_outputs(
+        f,
+        k.map(|k| &mut k[..]),
+        (&u, s, &v),
+        &inputs,
+        &mut kl,
+        iso,
+        &mut energy,
+    );
+    energy
 }
 
 /// [`element_x4`] over elements `e0..e0 + 8`, as two groups of four whose SVDs run
 /// interleaved ([`Groups`]): the SVD is a chain of dependent square roots and divisions
 /// (latency-bound, about half of a group's time), and two chains in flight take 0.6 of
 /// the time of two in turn. Measured: three groups gained 3% more, not worth a third
-/// group size; the whole kernel over two groups at once is twice as slow (sixteen
-/// vector registers, spilled). Element `e0 + l`'s outputs at `f[12 l..]` and
+/// group size; the whole kernel over two groups at once is twice as slow with AVX2
+/// (sixteen vector registers, spilled). Element `e0 + l`'s outputs at `f[12 l..]` and
 /// `k[90 l..]`.
 pub fn element_x8(
     f: &mut [f64; 96],
-    mut k: Option<&mut [f64; 720]>,
+    k: Option<&mut [f64; 720]>,
     els: &Elements,
     e0: usize,
     iso: &Iso,
 ) -> [f64; 8] {
-    let inputs = [els.group(e0), els.group(e0 + 4)];
+    let mut energy = [0.0; 8];
+    two_groups::<f64x4>(f, k.map(|k| &mut k[..]), els, e0, iso, &mut energy);
+    energy
+}
+
+/// [`element_x8`] over elements `e0..e0 + 16`, as two groups of eight (`f64x8`), for
+/// builds with AVX-512 (32 vector registers of eight lanes): on 2 cores of an Intel Xeon
+/// its kernel time was 6.14 ms against 7.18 ms for `element_x8` over the bench's 60,000
+/// elements, where one group of eight in an AVX-512 register took as long as
+/// `element_x8` (7.11 ms: one dependent chain in flight waits as long at either width).
+/// Without AVX-512 an `f64x8` is two `f64x4`, and this is four groups at once.
+pub fn element_x16(
+    f: &mut [f64; 192],
+    k: Option<&mut [f64; 1440]>,
+    els: &Elements,
+    e0: usize,
+    iso: &Iso,
+) -> [f64; 16] {
+    let mut energy = [0.0; 16];
+    two_groups::<f64x8>(f, k.map(|k| &mut k[..]), els, e0, iso, &mut energy);
+    energy
+}
+
+/// Elements `e0..e0 + 2 W::LANES` as two groups whose SVDs run interleaved: forces into
+/// f (12 per element), stiffness into k (90 per element), energies into `energy`.
+#[inline(always)]
+fn two_groups<W: Wide>(
+    f: &mut [f64],
+    mut k: Option<&mut [f64]>,
+    els: &Elements,
+    e0: usize,
+    iso: &Iso,
+    energy: &mut [f64],
+) {
+    let n = W::LANES;
+    let inputs = [els.group::<W>(e0), els.group::<W>(e0 + n)];
     let fg: [_; 2] = std::array::from_fn(|g| gradient(&inputs[g].0, &inputs[g].1));
     let (u2, s2, v2) = svd3(&std::array::from_fn(|i| Groups([fg[0][i], fg[1][i]])));
-    let mut energy = [0.0; 8];
     // Overwritten by each group: zeroed once.
-    let mut kl = [f64x4::ZERO; 90];
+    let mut kl = [W::default(); 90];
     for (g, input) in inputs.iter().enumerate() {
-        let u: [f64x4; 9] = std::array::from_fn(|i| u2[i].0[g]);
-        let v: [f64x4; 9] = std::array::from_fn(|i| v2[i].0[g]);
-        let s: [f64x4; 3] = std::array::from_fn(|i| s2[i].0[g]);
-        let kg = k.as_mut().map(|k| &mut k[360 * g..360 * g + 360]);
-        let e = group_outputs(
-            &mut f[48 * g..48 * g + 48],
+        let u: [W; 9] = std::array::from_fn(|i| u2[i].0[g]);
+        let v: [W; 9] = std::array::from_fn(|i| v2[i].0[g]);
+        let s: [W; 3] = std::array::from_fn(|i| s2[i].0[g]);
+        let kg = k.as_mut().map(|k| &mut k[90 * n * g..90 * n * (g + 1)]);
+        group_outputs(
+            &mut f[12 * n * g..12 * n * (g + 1)],
             kg,
             (&u, s, &v),
             input,
             &mut kl,
             iso,
+            &mut energy[n * g..n * (g + 1)],
         );
-        energy[4 * g..4 * g + 4].copy_from_slice(&e);
     }
-    energy
 }
 
-/// One group of four from the SVD of its deformation gradients on: forces into f (48,
-/// element-major), with k its stiffness (360, built in the lanes of `kl` first), the four
-/// energies returned.
+/// One group from the SVD of its deformation gradients on: forces into f (`12 LANES`,
+/// element-major), with k its stiffness (`90 LANES`, built in the lanes of `kl` first),
+/// the energies into `energy`.
 #[inline(always)]
-fn group_outputs(
+fn group_outputs<W: Wide>(
     f: &mut [f64],
     k: Option<&mut [f64]>,
-    frame: (&[f64x4; 9], [f64x4; 3], &[f64x4; 9]),
-    (_, dl, vl, ll): &GroupInputs,
-    kl: &mut [f64x4; 90],
+    frame: (&[W; 9], [W; 3], &[W; 9]),
+    (_, dl, vl, ll): &GroupInputs<W>,
+    kl: &mut [W; 90],
     iso: &Iso,
-) -> [f64; 4] {
-    let mut fl = [[f64x4::ZERO; 3]; 4];
+    energy: &mut [f64],
+) {
+    let mut fl = [[W::default(); 3]; 4];
     let e = match k {
         Some(k) => {
             let e = element_in_frame(&mut fl, Some(kl), frame, dl, *vl, *ll, iso);
-            scatter_lanes::<90>(kl, k);
+            scatter_lanes(&kl[..], k);
             e
         }
         None => element_in_frame(&mut fl, None, frame, dl, *vl, *ll, iso),
     };
-    scatter_lanes::<12>(fl.as_flattened(), f);
-    e.to_array()
+    scatter_lanes(fl.as_flattened(), f);
+    e.store(energy);
 }
 
-/// Lane l of every value into `out[S l..S (l + 1)]`, in order (`values.len() == S`; four
-/// elements' outputs, element-major): four values at a time through 4x4 transposes, the
+/// Lane l of every value into `out[S l..S (l + 1)]`, in order (`S = values.len()`; a
+/// group's outputs, element-major): `LANES` values at a time through transposes, the
 /// rest one by one.
 #[inline(always)]
-fn scatter_lanes<const S: usize>(values: &[f64x4], out: &mut [f64]) {
-    debug_assert_eq!(values.len(), S);
-    let whole = S / 4 * 4;
-    for (q, quad) in values[..whole].chunks_exact(4).enumerate() {
-        let t = f64x4::transpose([quad[0], quad[1], quad[2], quad[3]]);
-        for (l, tl) in t.iter().enumerate() {
-            out[S * l + 4 * q..S * l + 4 * q + 4].copy_from_slice(&tl.to_array());
-        }
+fn scatter_lanes<W: Wide>(values: &[W], out: &mut [f64]) {
+    let (s, n) = (values.len(), W::LANES);
+    let whole = s / n * n;
+    for (q, block) in values[..whole].chunks_exact(n).enumerate() {
+        W::transpose_store(block, out, s, n * q);
     }
+    let mut lanes = [0.0; 8];
     for (i, v) in values.iter().enumerate().skip(whole) {
-        for (l, x) in v.to_array().into_iter().enumerate() {
-            out[S * l + i] = x;
+        v.store(&mut lanes[..n]);
+        for (l, x) in lanes[..n].iter().enumerate() {
+            out[s * l + i] = *x;
         }
     }
 }
