@@ -8,8 +8,8 @@
 //!   (`largestep_kernels::fem_diag::element`, the generic kernel at `f64`; `element_x4`,
 //!   four elements per `f64x4`; `element_x8`, two such groups whose SVDs run
 //!   interleaved, as the model calls it without AVX-512; `element_x16`, two groups of
-//!   eight in `f64x8`, as it calls it with AVX-512), on one core, positions gathered from the state
-//!   (`Fem::elements`). Their flops are counted by running the same generic kernel on a
+//!   eight in `f64x8`, as it calls it with AVX-512), on one core, positions gathered
+//!   from the state (`Fem::elements`). Their flops are counted by running the same generic kernel on a
 //!   counting number type over the same elements (an FMA counts 2, every other
 //!   arithmetic operation, square root, comparison and selection 1), and reported against
 //!   one core's FMA peak, measured right before and after the timing (`machine::peak_fma`,

@@ -794,10 +794,11 @@ pub fn element_x8(
 }
 
 /// [`element_x8`] over elements `e0..e0 + 16`, as two groups of eight (`f64x8`), for
-/// builds with AVX-512 (32 vector registers of eight lanes): on 2 cores of an Intel Xeon
-/// its kernel time was 6.14 ms against 7.18 ms for `element_x8` over the bench's 60,000
-/// elements, where one group of eight in an AVX-512 register took as long as
-/// `element_x8` (7.11 ms: one dependent chain in flight waits as long at either width).
+/// builds with AVX-512 (32 vector registers of eight lanes): on an Intel Xeon core the
+/// bench's 60,000 elements took 6.11 ms against 7.26 ms with `element_x8` (outputs in
+/// cache), where one group of eight in an AVX-512 register took as long as
+/// `element_x8` (7.11 against 7.18 ms in a scratch build: one dependent chain in flight
+/// waits as long at either width).
 /// Without AVX-512 an `f64x8` is two `f64x4`, and this is four groups at once.
 pub fn element_x16(
     f: &mut [f64; 192],

@@ -53,8 +53,9 @@ const CHUNK: usize = 1024;
 /// Doubles per element in the stiffness buffer: the ten blocks `K_ab`, `a <= b`.
 const TET_K: usize = 90;
 
-/// Elements per kernel call: two groups of four, whose SVDs run interleaved
-/// (`element_x8`), or with AVX-512 two groups of eight (`element_x16`, 15% faster).
+/// Elements per kernel call (`element_group`): two groups of four, whose SVDs run
+/// interleaved (`element_x8`), or with AVX-512 two groups of eight (`element_x16`, 15%
+/// faster).
 #[cfg(not(target_feature = "avx512f"))]
 const GROUP: usize = 8;
 #[cfg(target_feature = "avx512f")]
@@ -62,7 +63,6 @@ const GROUP: usize = 16;
 
 #[cfg(target_feature = "avx512f")]
 use largestep_kernels::fem_diag::element_x16 as element_group;
-/// The wide kernel over `GROUP` elements.
 #[cfg(not(target_feature = "avx512f"))]
 use largestep_kernels::fem_diag::element_x8 as element_group;
 const _: () = assert!(CHUNK % GROUP == 0, "chunks hold whole groups");
