@@ -14,6 +14,7 @@
 //! close to linear (Baraff 1992; Cohen et al. 1995, I-COLLIDE).
 
 use super::bv::Aabb;
+use wide::f64x4;
 
 /// How cells map to buckets.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -351,9 +352,28 @@ fn for_cells(lo: [i32; 3], hi: [i32; 3], mut f: impl FnMut([i32; 3])) {
 pub struct SweepAndPrune {
     /// Box ids sorted by their lower bound on `axis`.
     order: Vec<u32>,
+    /// The lower bounds on `axis` in `order`'s order (the sort key).
+    lower: Vec<f64>,
     /// The sweep axis of the last call.
     axis: usize,
-    active: Vec<u32>,
+    /// Per box in sweep order, its bounds on the two other axes `u`, `v` as
+    /// `[min u, -max u, min v, -max v]` (an empty box, or one with a NaN bound: all NaN,
+    /// so it overlaps nothing):
+    /// two boxes overlap on both axes when one's row is <= the other's [`Self::against`].
+    cross: Vec<f64x4>,
+}
+
+/// Whether every bound is a number and no lower bound exceeds its upper one (the boxes
+/// that can overlap another).
+#[inline(always)]
+fn proper(b: &Aabb) -> bool {
+    (0..3).all(|a| b.min[a] <= b.max[a])
+}
+
+/// The row a box's `cross` rows are compared against: `[max u, -min u, max v, -min v]`.
+#[inline(always)]
+fn against(b: &Aabb, u: usize, v: usize) -> f64x4 {
+    f64x4::new([b.max[u], -b.min[u], b.max[v], -b.min[v]])
 }
 
 impl SweepAndPrune {
@@ -382,36 +402,60 @@ impl SweepAndPrune {
             self.order.extend(0..n as u32);
             self.axis = axis;
         }
-        let key = |i: u32| boxes[i as usize].min[axis];
-        // Insertion sort: linear when nearly sorted. `total_cmp` orders NaN last.
+        // Insertion sort of (key, id) side by side: linear when nearly sorted, and the
+        // keys are read in order rather than from the boxes at random. `total_cmp`
+        // orders NaN last.
+        let (order, lower) = (&mut self.order, &mut self.lower);
+        lower.clear();
+        lower.extend(order.iter().map(|&i| boxes[i as usize].min[axis]));
         for s in 1..n {
-            let v = self.order[s];
-            let kv = key(v);
+            let (v, kv) = (order[s], lower[s]);
             let mut t = s;
-            while t > 0 && key(self.order[t - 1]).total_cmp(&kv).is_gt() {
-                self.order[t] = self.order[t - 1];
+            while t > 0 && lower[t - 1].total_cmp(&kv).is_gt() {
+                order[t] = order[t - 1];
+                lower[t] = lower[t - 1];
                 t -= 1;
             }
-            self.order[t] = v;
+            order[t] = v;
+            lower[t] = kv;
         }
-        // Sweep: the active list holds boxes whose upper bound is not yet passed.
-        self.active.clear();
-        for &i in &self.order {
+        // The other two axes' bounds copied into sweep order, so the scan below reads
+        // memory in order and tests a candidate with one four-lane comparison.
+        let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+        self.cross.clear();
+        self.cross.extend(order.iter().map(|&i| {
+            let b = &boxes[i as usize];
+            if !proper(b) {
+                f64x4::splat(f64::NAN)
+            } else {
+                f64x4::new([b.min[u], -b.max[u], b.min[v], -b.max[v]])
+            }
+        }));
+        // Sweep: each box against the boxes after it in the order whose lower bound is
+        // not past its upper bound (on `axis` they then overlap, as lower bounds rise).
+        for s in 0..n {
+            let i = order[s];
             let bi = &boxes[i as usize];
-            if bi.is_empty() {
+            if !proper(bi) {
                 continue;
             }
-            let lo = bi.min[axis];
-            self.active.retain(|&j| boxes[j as usize].max[axis] >= lo);
-            for &j in &self.active {
-                if bi.overlaps(&boxes[j as usize]) {
+            let (hi, row) = (bi.max[axis], against(bi, u, v));
+            for k in s + 1..n {
+                // NaN bounds sort last and end the scan.
+                if matches!(
+                    lower[k].partial_cmp(&hi),
+                    None | Some(std::cmp::Ordering::Greater)
+                ) {
+                    break;
+                }
+                if self.cross[k].simd_le(row).all() {
                     if out.len() > max {
                         return false;
                     }
+                    let j = order[k];
                     out.push([i.min(j), i.max(j)]);
                 }
             }
-            self.active.push(i);
         }
         out.len() <= max
     }
