@@ -211,8 +211,12 @@ pub(crate) fn collide(
     info.contacts = w.contacts.len();
     // Warm start: a point takes the impulse of last step's nearest point of the same pair
     // within a quarter of the smaller body's feature size (in a's frame).
+    // Both lists are sorted by pair, so one walk along last step's finds each pair's.
+    let mut lo = 0;
     for c in &mut w.contacts {
-        let lo = w.previous.partition_point(|p| (p.a, p.b) < (c.a, c.b));
+        while w.previous.get(lo).is_some_and(|p| (p.a, p.b) < (c.a, c.b)) {
+            lo += 1;
+        }
         let tol = 0.25 * m.size[c.a as usize].min(m.size[c.b as usize]);
         let mut best = (tol * tol, None);
         for p in w.previous[lo..]
