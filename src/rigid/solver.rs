@@ -18,7 +18,11 @@
 //! scales its impulse by `a2 / (1 + a2)`, `a2 = hω (2ζ + hω)`, less `1 / (1 + a2)` of what
 //! it has accumulated: the implicit spring-damper that a rigid row is the limit of.
 
-use super::{mat_vec, Correction, Joint, JointKind, Rigid, RigidSolver, RigidState, RigidWork};
+use super::batch::{self, Batch, Batcher, Lanes};
+use super::{
+    clone_keeping_capacity, mat_vec, Correction, Joint, JointKind, Rigid, RigidSolver, RigidState,
+    RigidWork,
+};
 use largestep_kernels::quat;
 use largestep_kernels::v3::{add, cross, dot, length_and_unit, scale, sub, tangent_frame};
 
@@ -33,7 +37,7 @@ const CONTACT_DAMPING: f64 = 20.0;
 const JOINT_HERTZ: f64 = 60.0;
 const JOINT_DAMPING: f64 = 5.0;
 /// The fastest a soft contact pushes overlapping bodies apart (m/s).
-const MAX_PUSH: f64 = 3.0;
+pub(super) const MAX_PUSH: f64 = 3.0;
 
 /// A soft row's coefficients over a sub-step (module docs).
 #[derive(Clone, Copy, Debug)]
@@ -56,6 +60,11 @@ impl Soft {
         }
     }
 
+    /// `(bias_rate, mass_scale, impulse_scale)`, for the batches.
+    fn coefficients(self) -> [f64; 3] {
+        [self.bias_rate, self.mass_scale, self.impulse_scale]
+    }
+
     const RIGID: Soft = Soft {
         bias_rate: 0.0,
         mass_scale: 1.0,
@@ -63,23 +72,21 @@ impl Soft {
     };
 }
 
-/// A body as the solver sees it: its velocities, inverse mass and world inverse
-/// inertia (zero for static and kinematic bodies), in one 128-byte record.
+/// A body as the solver sees it: its velocities and inverse mass (zero for static,
+/// kinematic and asleep bodies), in one 64-byte record that the batches gather whole.
 #[derive(Clone, Copy, Debug, Default)]
-struct SolverBody {
-    v: [f64; 3],
-    w: [f64; 3],
-    inv_mass: f64,
-    inv_inertia: [[f64; 3]; 3],
+#[repr(C, align(64))]
+pub(super) struct SolverBody {
+    pub(super) v: [f64; 3],
+    pub(super) w: [f64; 3],
+    pub(super) inv_mass: f64,
 }
 
-/// A body's motion since the step's start: the displacement of its centre and
-/// `R R0ᵀ - I`, which takes an offset at the start to its change.
+/// A body's motion since the step's start: the displacement of its centre, then the
+/// rows of `R R0ᵀ - I`, which takes an offset at the start to its change.
 #[derive(Clone, Copy, Debug, Default)]
-struct Motion {
-    dx: [f64; 3],
-    dr: [[f64; 3]; 3],
-}
+#[repr(C, align(32))]
+pub(super) struct SolverMotion(pub(super) [f64; 12]);
 
 /// One scalar joint row between bodies a and b (b = `usize::MAX`: the world).
 #[derive(Clone, Copy, Debug, Default)]
@@ -107,53 +114,90 @@ struct Row {
 /// Jacobians are `[-d, -(ra x d), d, rb x d]` for their direction `d`, formed as they are
 /// used, so a contact is 256 bytes and a pile's contacts stay in cache.
 #[derive(Clone, Copy, Debug, Default)]
-struct ContactRow {
-    a: u32,
-    b: u32,
+pub(super) struct ContactRow {
+    pub(super) a: u32,
+    pub(super) b: u32,
     /// The contact's index in `RigidWork::contacts`.
-    index: u32,
+    pub(super) index: u32,
     /// Normal (a into b) and tangents.
-    dir: [[f64; 3]; 3],
+    pub(super) dir: [[f64; 3]; 3],
     /// The contact point from each centre at the step's start.
-    ra: [f64; 3],
-    rb: [f64; 3],
+    pub(super) ra: [f64; 3],
+    pub(super) rb: [f64; 3],
     /// Each row's angular Jacobian `[ra x d, rb x d]`, and the angular velocity a unit
     /// impulse along it gives each body, `[Ia^-1 (ra x d), Ib^-1 (rb x d)]` (world
     /// inverse inertias, fixed over the step): computed once a step instead of at each
     /// of the sub-steps' eight visits (a fifth of the pile's solver time).
-    arm: [[[f64; 3]; 2]; 3],
-    turn: [[[f64; 3]; 2]; 3],
+    pub(super) arm: [[[f64; 3]; 2]; 3],
+    pub(super) turn: [[[f64; 3]; 2]; 3],
     /// Effective masses and accumulated impulses of the three rows.
-    mass: [f64; 3],
-    lambda: [f64; 3],
+    pub(super) mass: [f64; 3],
+    pub(super) lambda: [f64; 3],
     /// Split impulses' normal impulse.
-    plambda: f64,
+    pub(super) plambda: f64,
     /// Penetration now and at the step's start (m), the approach speed then (m/s).
-    error: f64,
-    depth: f64,
-    approach: f64,
+    pub(super) error: f64,
+    pub(super) depth: f64,
+    pub(super) approach: f64,
     /// Baumgarte and split impulses leave this much penetration alone (m).
-    slop: f64,
+    pub(super) slop: f64,
     /// The largest normal impulse of any sub-step (restitution acts only on contacts
     /// that pushed), and the step's total impulse (N s).
-    max_normal: f64,
-    total: [f64; 3],
+    pub(super) max_normal: f64,
+    pub(super) total: [f64; 3],
 }
 
-/// The solver's scratch, kept between steps.
-#[derive(Clone, Debug, Default)]
+/// The solver's scratch, kept between steps (a clone keeps the capacity of the rows).
+#[derive(Debug, Default)]
 pub(crate) struct SolverWork {
+    /// The bodies, then a padding body for the batches' unused lanes.
     bodies: Vec<SolverBody>,
-    /// Split-impulse pseudo-velocities (v, w) of each body in the present sub-step.
-    pseudo: Vec<[[f64; 3]; 2]>,
+    /// World inverse inertias, fixed over the step (zero for bodies that cannot move).
+    inv_inertia: Vec<[[f64; 3]; 3]>,
+    /// Split-impulse pseudo-velocities of each body in the present sub-step.
+    pseudo: Vec<SolverBody>,
     /// Each body's pose at the step's start, and its motion since.
     x0: Vec<[f64; 3]>,
     r0: Vec<[[f64; 3]; 3]>,
-    motion: Vec<Motion>,
+    motion: Vec<SolverMotion>,
     contacts: Vec<ContactRow>,
+    /// The contacts in SIMD batches (all solvers but penalty springs).
+    batches: Vec<Batch>,
+    batcher: Batcher,
     joints: Vec<Row>,
     /// Joint impulses of the last sub-step, for warm starting (rows in a fixed order).
     joint_lambda: Vec<f64>,
+}
+
+#[cfg(test)]
+impl SolverWork {
+    /// Limits the lanes of the batches (see `batch::Batcher::width`).
+    pub(crate) fn batcher_width(&mut self, width: u8) {
+        self.batcher.width = width;
+    }
+
+    /// The batches of the last step.
+    pub(crate) fn batch_count(&self) -> usize {
+        self.batches.len()
+    }
+}
+
+impl Clone for SolverWork {
+    fn clone(&self) -> Self {
+        SolverWork {
+            bodies: self.bodies.clone(),
+            inv_inertia: self.inv_inertia.clone(),
+            pseudo: self.pseudo.clone(),
+            x0: self.x0.clone(),
+            r0: self.r0.clone(),
+            motion: self.motion.clone(),
+            contacts: clone_keeping_capacity(&self.contacts),
+            batches: clone_keeping_capacity(&self.batches),
+            batcher: self.batcher.clone(),
+            joints: self.joints.clone(),
+            joint_lambda: self.joint_lambda.clone(),
+        }
+    }
 }
 
 /// The velocity of a contact row along `d` with lever arms `ca = ra x d`, `cb = rb x d`:
@@ -206,7 +250,7 @@ impl SolverWork {
     fn row_velocity(&self, r: &Row, pseudo: bool) -> f64 {
         let get = |i: usize| {
             if pseudo {
-                self.pseudo[i]
+                self.pseudo[i].vel()
             } else {
                 self.bodies[i].vel()
             }
@@ -228,16 +272,13 @@ impl SolverWork {
                 continue;
             }
             let im = self.bodies[i].inv_mass;
-            let v = if pseudo {
+            let b = if pseudo {
                 &mut self.pseudo[i]
             } else {
-                let b = &mut self.bodies[i];
-                b.v = add(b.v, scale(lin, im * l));
-                b.w = add(b.w, scale(ang, l));
-                continue;
+                &mut self.bodies[i]
             };
-            v[0] = add(v[0], scale(lin, im * l));
-            v[1] = add(v[1], scale(ang, l));
+            b.v = add(b.v, scale(lin, im * l));
+            b.w = add(b.w, scale(ang, l));
         }
     }
 
@@ -245,12 +286,12 @@ impl SolverWork {
     fn row(&self, a: usize, b: usize, j: [[f64; 3]; 4]) -> Row {
         let [la, aa, lb, ab] = j;
         let ba = &self.bodies[a];
-        let ia = mat_vec(ba.inv_inertia, aa);
+        let ia = mat_vec(self.inv_inertia[a], aa);
         let mut k = ba.inv_mass * dot(la, la) + dot(aa, ia);
         let mut ib = [0.0; 3];
         if b != usize::MAX {
             let bb = &self.bodies[b];
-            ib = mat_vec(bb.inv_inertia, ab);
+            ib = mat_vec(self.inv_inertia[b], ab);
             k += bb.inv_mass * dot(lb, lb) + dot(ab, ib);
         }
         Row {
@@ -270,7 +311,7 @@ impl SolverWork {
 
 /// What a sub-step's pass does.
 #[derive(Clone, Copy, PartialEq, Eq)]
-enum Pass {
+pub(super) enum Pass {
     /// Velocities with the position errors as biases.
     Solve,
     /// Velocities without biases (soft correction's relax).
@@ -304,34 +345,56 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
         v: s.v[i],
         w: s.w[i],
         inv_mass: if s.asleep[i] { 0.0 } else { m.inv_mass[i] },
-        inv_inertia: if s.asleep[i] {
+    }));
+    // The batches' padding body.
+    sw.bodies.push(SolverBody::default());
+    sw.inv_inertia.clear();
+    sw.inv_inertia.extend((0..n).map(|i| {
+        if s.asleep[i] {
             [[0.0; 3]; 3]
         } else {
             m.inv_inertia_world(i, s.q[i])
-        },
+        }
     }));
     sw.x0.clone_from(&s.x);
     sw.r0.clear();
     sw.r0.extend(s.q.iter().map(|q| quat::to_matrix(*q)));
     sw.motion.clear();
-    sw.motion.resize(n, Motion::default());
+    sw.motion.resize(n + 1, SolverMotion::default());
+    // Pseudo-velocities start at rest (the split passes reset them each sub-step).
     sw.pseudo.clear();
-    sw.pseudo.resize(n, [[0.0; 3]; 2]);
+    sw.pseudo.extend(sw.bodies.iter().map(|b| SolverBody {
+        inv_mass: b.inv_mass,
+        ..SolverBody::default()
+    }));
     let accumulate = d.solver == RigidSolver::SequentialImpulses;
     let penalty = matches!(d.solver, RigidSolver::Penalty { .. });
 
-    // Contact rows, fixed over the step.
-    sw.contacts.clear();
-    for (index, c) in w.contacts.iter().enumerate() {
+    // Contact rows, fixed over the step: formed as the batches are filled (in
+    // batches only, or also in order for penalty springs).
+    let SolverWork {
+        bodies,
+        inv_inertia,
+        contacts,
+        batches,
+        batcher,
+        ..
+    } = sw;
+    let make = |index: usize| {
+        let c = &w.contacts[index];
         let (a, b) = (c.a as usize, c.b as usize);
         let ra = sub(c.point, s.x[a]);
         let rb = sub(c.point, s.x[b]);
         let nrm = c.normal;
         let (t1, t2) = tangent_frame(nrm);
-        let (ba, bb) = (&sw.bodies[a], &sw.bodies[b]);
+        let (ba, bb) = (&bodies[a], &bodies[b]);
+        let (ia, ib) = (inv_inertia[a], inv_inertia[b]);
         let dir = [nrm, t1, t2];
-        let arm = dir.map(|d| [cross(ra, d), cross(rb, d)]);
-        let turn = arm.map(|[ca, cb]| [mat_vec(ba.inv_inertia, ca), mat_vec(bb.inv_inertia, cb)]);
+        // `from_fn`, not `map`: array maps stayed out-of-line calls here (5% of a step).
+        let arm: [[[f64; 3]; 2]; 3] =
+            std::array::from_fn(|r| [cross(ra, dir[r]), cross(rb, dir[r])]);
+        let turn: [[[f64; 3]; 2]; 3] =
+            std::array::from_fn(|r| [mat_vec(ia, arm[r][0]), mat_vec(ib, arm[r][1])]);
         let mass = std::array::from_fn(|r| {
             let k =
                 ba.inv_mass + bb.inv_mass + dot(arm[r][0], turn[r][0]) + dot(arm[r][1], turn[r][1]);
@@ -371,8 +434,13 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
             }
             row.lambda = [ln, l1, l2];
         }
-        sw.contacts.push(row);
+        row
+    };
+    contacts.clear();
+    if penalty {
+        contacts.extend((0..w.contacts.len()).map(make));
     }
+    batch::build(&w.contacts, bodies, batcher, batches, make);
     if sw.joint_lambda.len() != joint_row_count(m) {
         sw.joint_lambda = vec![0.0; joint_row_count(m)];
     }
@@ -394,15 +462,23 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
         h,
         beta,
         penalty,
-        contact_soft,
-        static_soft,
         joint_soft,
         correction: d.correction,
-        bounce: threshold,
+        lanes: Lanes {
+            h,
+            beta,
+            friction: d.friction,
+            restitution: d.restitution,
+            accumulate,
+            correction: d.correction,
+            contact_soft: contact_soft.coefficients(),
+            static_soft: static_soft.coefficients(),
+            bounce: threshold,
+        },
     };
     for sub_step in 0..substeps {
         // Velocities: gravity and the gyroscopic term.
-        for (i, b) in sw.bodies.iter_mut().enumerate() {
+        for (i, b) in sw.bodies[..n].iter_mut().enumerate() {
             if !s.asleep[i] {
                 m.advance_velocity(i, s.q[i], &mut b.v, &mut b.w, h);
             }
@@ -419,63 +495,41 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
             let r = sw.joints[k];
             sw.row_push(&r, l, false);
         }
-        let SolverWork {
-            bodies, contacts, ..
-        } = sw;
-        for c in contacts.iter_mut() {
-            if !accumulate {
-                c.lambda = [0.0; 3];
-                continue;
-            }
-            if c.lambda == [0.0; 3] {
-                continue;
-            }
-            let (a, b) = (c.a as usize, c.b as usize);
-            let (ba, bb) = (bodies[a], bodies[b]);
-            let (mut va, mut vb) = (ba.vel(), bb.vel());
-            for r in 0..3 {
-                contact_push(c, &ba, &bb, &mut va, &mut vb, r, c.lambda[r]);
-            }
-            store(bodies, a, b, va, vb);
+        if !penalty {
+            batch::warm_start(&mut sw.batches, &mut sw.bodies, accumulate);
         }
         // Present penetrations from the motion since the step's start.
         if sub_step > 0 {
             for i in 0..n {
                 let r = quat::to_matrix(s.q[i]);
-                let mut dr = mat_mul_t(r, sw.r0[i]);
-                for (k, row) in dr.iter_mut().enumerate() {
-                    row[k] -= 1.0;
-                }
-                sw.motion[i] = Motion {
-                    dx: sub(s.x[i], sw.x0[i]),
-                    dr,
-                };
-            }
-            let SolverWork {
-                contacts, motion, ..
-            } = sw;
-            for c in contacts.iter_mut() {
-                let (ma, mb) = (&motion[c.a as usize], &motion[c.b as usize]);
-                let da = add(ma.dx, mat_vec(ma.dr, c.ra));
-                let db = add(mb.dx, mat_vec(mb.dr, c.rb));
-                c.error = c.depth - dot(c.dir[0], sub(db, da));
+                let dr = mat_mul_t(r, sw.r0[i]);
+                let dx = sub(s.x[i], sw.x0[i]);
+                sw.motion[i] = SolverMotion(std::array::from_fn(|k| match k {
+                    0..=2 => dx[k],
+                    _ => dr[(k - 3) / 3][(k - 3) % 3] - if (k - 3) % 4 == 0 { 1.0 } else { 0.0 },
+                }));
             }
         }
         if penalty {
+            if sub_step > 0 {
+                batch::update_errors(&mut sw.batches, &sw.motion);
+                batch::unpack_errors(&sw.batches, &mut sw.contacts);
+            }
             penalty_forces(m, sw, h);
         }
-        solve_pass(m, sw, Pass::Solve, params);
+        // The solve pass brings the penetrations up to date (not needed in the first
+        // sub-step); the sub-step's last pass over the velocities adds up the impulses.
+        let relax = d.correction == Correction::Soft;
+        solve_pass(sw, Pass::Solve, sub_step > 0, !relax, params);
         if d.correction == Correction::Split {
             for p in sw.pseudo.iter_mut() {
-                *p = [[0.0; 3]; 2];
+                (p.v, p.w) = ([0.0; 3], [0.0; 3]);
             }
-            for c in sw.contacts.iter_mut() {
-                c.plambda = 0.0;
-            }
+            batch::clear_split(&mut sw.batches);
             for r in sw.joints.iter_mut() {
                 r.plambda = 0.0;
             }
-            solve_pass(m, sw, Pass::Pseudo, params);
+            solve_pass(sw, Pass::Pseudo, false, false, params);
         }
         // Positions.
         for i in 0..n {
@@ -485,55 +539,44 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
             let b = &mut sw.bodies[i];
             s.v[i] = b.v;
             s.w[i] = b.w;
-            let [pv, pw] = sw.pseudo[i];
-            m.advance_position(s, i, h, pv, pw);
+            let p = sw.pseudo[i];
+            m.advance_position(s, i, h, p.v, p.w);
             b.v = s.v[i];
             b.w = s.w[i];
         }
-        if d.correction == Correction::Soft {
-            solve_pass(m, sw, Pass::Relax, params);
+        if relax {
+            solve_pass(sw, Pass::Relax, false, true, params);
         }
         for k in 0..sw.joints.len() {
             sw.joint_lambda[k] = sw.joints[k].lambda;
         }
-        for c in sw.contacts.iter_mut() {
-            c.max_normal = c.max_normal.max(c.lambda[0]);
-            for r in 0..3 {
-                c.total = add(c.total, scale(c.dir[r], c.lambda[r]));
+        if penalty {
+            // The springs' impulses live in the rows (see `penalty_forces`).
+            for c in sw.contacts.iter_mut() {
+                c.max_normal = c.max_normal.max(c.lambda[0]);
+                for r in 0..3 {
+                    c.total = add(c.total, scale(c.dir[r], c.lambda[r]));
+                }
             }
         }
     }
     // Restitution: contacts that pushed and were approaching faster than the threshold
     // leave at e times their approach speed (one-shot impulses bounced as they went).
     if d.restitution > 0.0 && accumulate {
-        let SolverWork {
-            bodies, contacts, ..
-        } = sw;
-        for c in contacts.iter_mut() {
-            if c.approach < threshold || c.max_normal == 0.0 {
-                continue;
-            }
-            let (a, b) = (c.a as usize, c.b as usize);
-            let (ba, bb) = (bodies[a], bodies[b]);
-            let (mut va, mut vb) = (ba.vel(), bb.vel());
-            let nrm = c.dir[0];
-            let vn = row_velocity(c, &va, &vb, 0);
-            let dl = c.mass[0] * (d.restitution * c.approach - vn);
-            let new = (c.lambda[0] + dl).max(0.0);
-            contact_push(c, &ba, &bb, &mut va, &mut vb, 0, new - c.lambda[0]);
-            store(bodies, a, b, va, vb);
-            c.total = add(c.total, scale(nrm, new - c.lambda[0]));
-            c.lambda[0] = new;
-        }
+        batch::restitute(&mut sw.batches, &mut sw.bodies, &params.lanes);
     }
-    for (i, b) in sw.bodies.iter().enumerate() {
+    for (i, b) in sw.bodies[..n].iter().enumerate() {
         if m.is_dynamic(i) {
             s.v[i] = b.v;
             s.w[i] = b.w;
         }
     }
-    for r in &sw.contacts {
-        w.contacts[r.index as usize].impulse = r.total;
+    if penalty {
+        for r in &sw.contacts {
+            w.contacts[r.index as usize].impulse = r.total;
+        }
+    } else {
+        batch::impulses(&sw.batches, &mut w.contacts);
     }
 }
 
@@ -568,28 +611,23 @@ struct Params {
     h: f64,
     beta: f64,
     penalty: bool,
-    contact_soft: Soft,
-    static_soft: Soft,
     joint_soft: Soft,
     correction: Correction,
-    /// Approach speeds (m/s) above which one-shot impulses bounce.
-    bounce: f64,
+    /// The contacts' share, for the batches.
+    lanes: Lanes,
 }
 
-/// One pass over the joints and contacts (see [`Pass`]).
-fn solve_pass(m: &Rigid, sw: &mut SolverWork, pass: Pass, p: Params) {
+/// One pass over the joints and then the contacts (see [`Pass`]; `moved` and `last` as
+/// `motion` and `last` of [`batch::solve`]).
+fn solve_pass(sw: &mut SolverWork, pass: Pass, moved: bool, last: bool, p: Params) {
     let Params {
         h,
         beta,
         penalty,
-        contact_soft,
-        static_soft,
         joint_soft,
         correction,
-        bounce,
+        lanes,
     } = p;
-    let d = m.desc();
-    let accumulate = d.solver == RigidSolver::SequentialImpulses;
     // Joints: equalities.
     for k in 0..sw.joints.len() {
         let mut r = sw.joints[k];
@@ -611,101 +649,17 @@ fn solve_pass(m: &Rigid, sw: &mut SolverWork, pass: Pass, p: Params) {
         }
         sw.joints[k] = r;
     }
-    if penalty {
-        return;
-    }
-    let SolverWork {
-        bodies,
-        contacts,
-        pseudo,
-        ..
-    } = sw;
-    for c in contacts.iter_mut() {
-        let (a, b) = (c.a as usize, c.b as usize);
-        let (ba, bb) = (bodies[a], bodies[b]);
-        let e = c.error;
-        if pass == Pass::Pseudo {
-            let target = beta * (e - c.slop).max(0.0) / h;
-            if target == 0.0 {
-                continue;
-            }
-            let (mut va, mut vb) = (pseudo[a], pseudo[b]);
-            let dl = c.mass[0] * (target - row_velocity(c, &va, &vb, 0));
-            let new = (c.plambda + dl).max(0.0);
-            contact_push(c, &ba, &bb, &mut va, &mut vb, 0, new - c.plambda);
-            c.plambda = new;
-            if ba.inv_mass > 0.0 {
-                pseudo[a] = va;
-            }
-            if bb.inv_mass > 0.0 {
-                pseudo[b] = vb;
-            }
-            continue;
-        }
-        let (mut va, mut vb) = (ba.vel(), bb.vel());
-        // A speculative point that holds no impulse and is not closing its gap this
-        // sub-step needs nothing: its friction is capped at zero and its normal impulse
-        // would be clamped to zero (most of a pile's points, skipped for speed).
-        if e < 0.0 && c.lambda == [0.0; 3] {
-            let vn = row_velocity(c, &va, &vb, 0);
-            if vn >= e / h && (accumulate || -vn <= bounce) {
-                continue;
-            }
-        }
-        // Friction first, within Coulomb's cone of the normal impulse so far.
-        let cap = d.friction * c.lambda[0];
-        let d1 = c.mass[1] * -row_velocity(c, &va, &vb, 1);
-        let d2 = c.mass[2] * -row_velocity(c, &va, &vb, 2);
-        let (old1, old2) = (c.lambda[1], c.lambda[2]);
-        let (mut l1, mut l2) = (old1 + d1, old2 + d2);
-        let lt = (l1 * l1 + l2 * l2).sqrt();
-        if lt > cap {
-            let f = if lt > 0.0 { cap / lt } else { 0.0 };
-            l1 *= f;
-            l2 *= f;
-        }
-        c.lambda[1] = l1;
-        c.lambda[2] = l2;
-        contact_push(c, &ba, &bb, &mut va, &mut vb, 1, l1 - old1);
-        contact_push(c, &ba, &bb, &mut va, &mut vb, 2, l2 - old2);
-        // Normal: apart, close the gap and no more; overlapping, push out by the bias.
-        let (target, soft) = if e < 0.0 {
-            (e / h, Soft::RIGID)
-        } else {
-            match (pass, correction) {
-                (Pass::Solve, Correction::Soft) => {
-                    let soft = if ba.inv_mass == 0.0 || bb.inv_mass == 0.0 {
-                        static_soft
-                    } else {
-                        contact_soft
-                    };
-                    ((soft.bias_rate * e).min(MAX_PUSH), soft)
-                }
-                (Pass::Solve, Correction::Baumgarte) => {
-                    (beta * (e - c.slop).max(0.0) / h, Soft::RIGID)
-                }
-                _ => (0.0, Soft::RIGID),
-            }
-        };
-        let vn = row_velocity(c, &va, &vb, 0);
-        // One-shot impulses bounce each approaching contact as they meet it (Guendelman
-        // et al. 2003's collision processing): a row of touching balls passes an
-        // impact on from one to the next within the pass (Newton's cradle).
-        let (target, soft) = if !accumulate && -vn > bounce {
-            (target.max(d.restitution * -vn), Soft::RIGID)
-        } else {
-            (target, soft)
-        };
-        let dl = c.mass[0] * soft.mass_scale * (target - vn) - soft.impulse_scale * c.lambda[0];
-        let old = c.lambda[0];
-        let new = if accumulate {
-            (old + dl).max(0.0)
-        } else {
-            old + dl.max(0.0)
-        };
-        c.lambda[0] = new;
-        contact_push(c, &ba, &bb, &mut va, &mut vb, 0, new - old);
-        store(bodies, a, b, va, vb);
+    if !penalty {
+        let motion = moved.then_some(&sw.motion[..]);
+        batch::solve(
+            &mut sw.batches,
+            &mut sw.bodies,
+            &mut sw.pseudo,
+            motion,
+            pass,
+            last,
+            &lanes,
+        );
     }
 }
 
@@ -722,6 +676,7 @@ fn penalty_forces(m: &Rigid, sw: &mut SolverWork, h: f64) {
         bodies, contacts, ..
     } = sw;
     for k in 0..contacts.len() {
+        contacts[k].lambda = [0.0; 3];
         let c = contacts[k];
         let depth = c.error;
         if depth <= 0.0 {
