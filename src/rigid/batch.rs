@@ -119,11 +119,21 @@ struct Vel {
     inv_mass: V,
 }
 
+// The gathers and scatters below spell their four lanes out: array `map`s here stayed
+// out-of-line calls (`try_map`, six a batch).
+
 #[inline(always)]
 fn gather(bodies: &[SolverBody], idx: [u32; 4]) -> Vel {
-    let r = idx.map(|i| &bodies[i as usize]);
-    let lo = V::transpose(r.map(|b| V::new([b.v[0], b.v[1], b.v[2], b.w[0]])));
-    let hi = V::transpose(r.map(|b| V::new([b.w[1], b.w[2], b.inv_mass, 0.0])));
+    let (b0, b1, b2, b3) = (
+        &bodies[idx[0] as usize],
+        &bodies[idx[1] as usize],
+        &bodies[idx[2] as usize],
+        &bodies[idx[3] as usize],
+    );
+    let low = |b: &SolverBody| V::new([b.v[0], b.v[1], b.v[2], b.w[0]]);
+    let high = |b: &SolverBody| V::new([b.w[1], b.w[2], b.inv_mass, 0.0]);
+    let lo = V::transpose([low(b0), low(b1), low(b2), low(b3)]);
+    let hi = V::transpose([high(b0), high(b1), high(b2), high(b3)]);
     Vel {
         v: [lo[0], lo[1], lo[2]],
         w: [lo[3], hi[0], hi[1]],
@@ -134,13 +144,14 @@ fn gather(bodies: &[SolverBody], idx: [u32; 4]) -> Vel {
 /// Writes the lanes of movable bodies back (those that cannot move keep their own).
 #[inline(always)]
 fn scatter(bodies: &mut [SolverBody], idx: [u32; 4], u: &Vel) {
-    let lo = V::transpose([u.v[0], u.v[1], u.v[2], u.w[0]]).map(|x| x.to_array());
-    let hi = V::transpose([u.w[1], u.w[2], u.inv_mass, V::ZERO]).map(|x| x.to_array());
+    let lo = V::transpose([u.v[0], u.v[1], u.v[2], u.w[0]]);
+    let hi = V::transpose([u.w[1], u.w[2], u.inv_mass, V::ZERO]);
     for l in 0..4 {
         let b = &mut bodies[idx[l] as usize];
         if b.inv_mass > 0.0 {
-            b.v = [lo[l][0], lo[l][1], lo[l][2]];
-            b.w = [lo[l][3], hi[l][0], hi[l][1]];
+            let (lo, hi) = (lo[l].as_array(), hi[l].as_array());
+            b.v = [lo[0], lo[1], lo[2]];
+            b.w = [lo[3], hi[0], hi[1]];
         }
     }
 }
@@ -365,8 +376,16 @@ pub(crate) fn warm_start(batches: &mut [Batch], bodies: &mut [SolverBody], accum
 /// and `R R0ᵀ - I`.
 #[inline(always)]
 fn gather_motion(motion: &[SolverMotion], idx: [u32; 4]) -> (V3, [V3; 3]) {
-    let r = idx.map(|i| &motion[i as usize].0);
-    let part = |k: usize| V::transpose(r.map(|m| V::new([m[k], m[k + 1], m[k + 2], m[k + 3]])));
+    let (m0, m1, m2, m3) = (
+        &motion[idx[0] as usize].0,
+        &motion[idx[1] as usize].0,
+        &motion[idx[2] as usize].0,
+        &motion[idx[3] as usize].0,
+    );
+    let part = |k: usize| {
+        let row = |m: &[f64; 12]| V::new([m[k], m[k + 1], m[k + 2], m[k + 3]]);
+        V::transpose([row(m0), row(m1), row(m2), row(m3)])
+    };
     let (p, q, s) = (part(0), part(4), part(8));
     (
         [p[0], p[1], p[2]],
