@@ -182,34 +182,6 @@ impl Batch {
         }
     }
 
-    /// Lane `l` from row `c`.
-    #[inline(always)]
-    fn set(&mut self, l: usize, c: &ContactRow) {
-        let put3 = |x: &mut V3, v: [f64; 3]| {
-            for k in 0..3 {
-                x[k].as_mut_array()[l] = v[k];
-            }
-        };
-        for r in 0..3 {
-            put3(&mut self.dir[r], c.dir[r]);
-            for s in 0..2 {
-                put3(&mut self.arm[r][s], c.arm[r][s]);
-                put3(&mut self.turn[r][s], c.turn[r][s]);
-            }
-        }
-        put3(&mut self.ra, c.ra);
-        put3(&mut self.rb, c.rb);
-        put3(&mut self.mass, c.mass);
-        put3(&mut self.lambda, c.lambda);
-        put3(&mut self.total, c.total);
-        self.plambda.as_mut_array()[l] = c.plambda;
-        self.error.as_mut_array()[l] = c.error;
-        self.depth.as_mut_array()[l] = c.depth;
-        self.slop.as_mut_array()[l] = c.slop;
-        self.max_normal.as_mut_array()[l] = c.max_normal;
-        self.approach.as_mut_array()[l] = c.approach;
-    }
-
     /// The present penetration from the bodies' motion since the step's start.
     #[inline(always)]
     fn update_error(&mut self, motion: &[SolverMotion]) {
@@ -246,15 +218,13 @@ impl Batch {
     }
 }
 
-/// Sorts the contact points into batches (module docs), each lane filled with its
-/// point's rows from `row` (called once a point, in order); `bodies` has the padding
-/// body last.
+/// Sorts the contact points into batches (module docs): each lane gets its point's
+/// bodies and index, the rows come from [`fill`]; `bodies` has the padding body last.
 pub(crate) fn build(
     points: &[ContactPoint],
     bodies: &[SolverBody],
     scratch: &mut Batcher,
     out: &mut Vec<Batch>,
-    row: impl Fn(usize) -> ContactRow,
 ) {
     let pad = (bodies.len() - 1) as u32;
     let width = if scratch.width == 0 { 4 } else { scratch.width };
@@ -300,8 +270,135 @@ pub(crate) fn build(
         t.a[lane] = a;
         t.b[lane] = b;
         t.index[lane] = k as u32;
-        t.set(lane, &row(k));
     }
+}
+
+/// What [`fill`] forms the rows from.
+pub(crate) struct RowInputs<'a> {
+    pub points: &'a [ContactPoint],
+    /// Body centres at the step's start (m).
+    pub x: &'a [[f64; 3]],
+    /// The bodies with the padding body last.
+    pub bodies: &'a [SolverBody],
+    /// World inverse inertias (no entry for the padding body).
+    pub inv_inertia: &'a [[[f64; 3]; 3]],
+    /// Each point's slop (m), by point.
+    pub slop: &'a dyn Fn(&ContactPoint) -> f64,
+    pub friction: f64,
+    pub substeps: usize,
+    /// Warm start from last step's impulses.
+    pub accumulate: bool,
+}
+
+/// The batches' rows, fixed over the step: tangent frame, lever arms `r x d`, the
+/// angular velocity `I^-1 (r x d)` a unit impulse gives each body, effective masses,
+/// the approach speed, and the warm start's impulses per sub-step clamped to the cone.
+/// Formed four lanes at a time with the scalar formulas' operations in the same order
+/// (as `solver::step`'s rows for penalty springs), so every lane's bits are the scalar
+/// ones. Unused lanes take an idle point on the padding body (no normal, depth -1 m,
+/// zero mass), which the passes skip.
+pub(crate) fn fill(batches: &mut [Batch], inp: &RowInputs) {
+    let (zero, one) = (V::ZERO, splat(1.0));
+    let per = splat(1.0 / inp.substeps as f64);
+    let friction = splat(inp.friction);
+    for t in batches.iter_mut() {
+        // Per lane inputs, transposed by hand: unused lanes keep the idle values.
+        let mut p = [[0.0; 4]; 3];
+        let mut n = [[0.0; 4]; 3];
+        let mut imp = [[0.0; 4]; 3];
+        let mut xa = [[0.0; 4]; 3];
+        let mut xb = [[0.0; 4]; 3];
+        let mut ia = [[[0.0; 4]; 3]; 3];
+        let mut ib = [[[0.0; 4]; 3]; 3];
+        let mut depth = [-1.0; 4];
+        let mut slop = [0.0; 4];
+        for l in 0..4 {
+            if t.index[l] == UNUSED {
+                continue;
+            }
+            let c = &inp.points[t.index[l] as usize];
+            let (a, b) = (c.a as usize, c.b as usize);
+            for k in 0..3 {
+                p[k][l] = c.point[k];
+                n[k][l] = c.normal[k];
+                imp[k][l] = c.impulse[k];
+                xa[k][l] = inp.x[a][k];
+                xb[k][l] = inp.x[b][k];
+                for j in 0..3 {
+                    ia[k][j][l] = inp.inv_inertia[a][k][j];
+                    ib[k][j][l] = inp.inv_inertia[b][k][j];
+                }
+            }
+            depth[l] = c.depth;
+            slop[l] = (inp.slop)(c);
+        }
+        let v3 = |x: [[f64; 4]; 3]| x.map(V::new);
+        let m3 = |x: [[[f64; 4]; 3]; 3]| [v3(x[0]), v3(x[1]), v3(x[2])];
+        let (p, n, xa, xb) = (v3(p), v3(n), v3(xa), v3(xb));
+        let (ia, ib) = (m3(ia), m3(ib));
+        let (ra, rb) = (sub(p, xa), sub(p, xb));
+        // `v3::tangent_frame` lane by lane: t1 from the world axis least aligned with n.
+        let near_x = n[0].abs().simd_lt(splat(0.57));
+        let axis = [
+            near_x.bitselect(one, zero),
+            near_x.bitselect(zero, one),
+            zero,
+        ];
+        let c = cross(n, axis);
+        let len = dot(c, c).sqrt();
+        let ok = len.simd_gt(zero) & len.simd_lt(splat(f64::INFINITY));
+        let t1 = [
+            ok.bitselect(c[0] / len, zero),
+            ok.bitselect(c[1] / len, zero),
+            ok.bitselect(c[2] / len, one),
+        ];
+        let t2 = cross(n, t1);
+        let dir = [n, t1, t2];
+        let arm: [[V3; 2]; 3] = std::array::from_fn(|r| [cross(ra, dir[r]), cross(rb, dir[r])]);
+        let turn: [[V3; 2]; 3] =
+            std::array::from_fn(|r| [mat_vec(ia, arm[r][0]), mat_vec(ib, arm[r][1])]);
+        let (ua, ub) = (gather(inp.bodies, t.a), gather(inp.bodies, t.b));
+        let mass: V3 = std::array::from_fn(|r| {
+            let k =
+                ua.inv_mass + ub.inv_mass + dot(arm[r][0], turn[r][0]) + dot(arm[r][1], turn[r][1]);
+            k.simd_gt(zero).bitselect(one / k, zero)
+        });
+        t.dir = dir;
+        t.ra = ra;
+        t.rb = rb;
+        t.arm = arm;
+        t.turn = turn;
+        t.mass = mass;
+        let depth = V::new(depth);
+        t.depth = depth;
+        t.error = depth;
+        t.slop = V::new(slop);
+        t.approach = -t.velocity(&ua, &ub, 0);
+        t.lambda = if inp.accumulate {
+            // Warm start from last step's impulse per sub-step, inside the cone.
+            let per = scale(v3(imp), per);
+            let ln = dot(per, n).max(zero);
+            let (l1, l2) = (dot(per, t1), dot(per, t2));
+            let cap = friction * ln;
+            let lt = (l1 * l1 + l2 * l2).sqrt();
+            let f = lt
+                .simd_gt(cap)
+                .bitselect(lt.simd_gt(zero).bitselect(cap / lt, zero), one);
+            let over = lt.simd_gt(cap);
+            [ln, over.bitselect(l1 * f, l1), over.bitselect(l2 * f, l2)]
+        } else {
+            [zero; 3]
+        };
+    }
+}
+
+#[inline(always)]
+fn cross(a: V3, b: V3) -> V3 {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
 }
 
 /// Each point's impulse over the step into its contact.

@@ -110,9 +110,9 @@ struct Row {
     plambda: f64,
 }
 
-/// One contact point's three rows (normal, two tangents) in compact form: the rows'
-/// Jacobians are `[-d, -(ra x d), d, rb x d]` for their direction `d`, formed as they are
-/// used, so a contact is 256 bytes and a pile's contacts stay in cache.
+/// One contact point's three rows (normal, two tangents) for penalty springs, in order
+/// (the other solvers keep theirs in `batch::Batch`, four points a batch, formed by
+/// `batch::fill` with the same formulas).
 #[derive(Clone, Copy, Debug, Default)]
 pub(super) struct ContactRow {
     pub(super) a: u32,
@@ -121,29 +121,16 @@ pub(super) struct ContactRow {
     pub(super) index: u32,
     /// Normal (a into b) and tangents.
     pub(super) dir: [[f64; 3]; 3],
-    /// The contact point from each centre at the step's start.
-    pub(super) ra: [f64; 3],
-    pub(super) rb: [f64; 3],
     /// Each row's angular Jacobian `[ra x d, rb x d]`, and the angular velocity a unit
     /// impulse along it gives each body, `[Ia^-1 (ra x d), Ib^-1 (rb x d)]` (world
-    /// inverse inertias, fixed over the step): computed once a step instead of at each
-    /// of the sub-steps' eight visits (a fifth of the pile's solver time).
+    /// inverse inertias, fixed over the step).
     pub(super) arm: [[[f64; 3]; 2]; 3],
     pub(super) turn: [[[f64; 3]; 2]; 3],
-    /// Effective masses and accumulated impulses of the three rows.
-    pub(super) mass: [f64; 3],
+    /// The springs' impulses of the present sub-step.
     pub(super) lambda: [f64; 3],
-    /// Split impulses' normal impulse.
-    pub(super) plambda: f64,
-    /// Penetration now and at the step's start (m), the approach speed then (m/s).
+    /// Penetration now (m).
     pub(super) error: f64,
-    pub(super) depth: f64,
-    pub(super) approach: f64,
-    /// Baumgarte and split impulses leave this much penetration alone (m).
-    pub(super) slop: f64,
-    /// The largest normal impulse of any sub-step (restitution acts only on contacts
-    /// that pushed), and the step's total impulse (N s).
-    pub(super) max_normal: f64,
+    /// The step's total impulse (N s).
     pub(super) total: [f64; 3],
 }
 
@@ -370,8 +357,8 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
     let accumulate = d.solver == RigidSolver::SequentialImpulses;
     let penalty = matches!(d.solver, RigidSolver::Penalty { .. });
 
-    // Contact rows, fixed over the step: formed as the batches are filled (in
-    // batches only, or also in order for penalty springs).
+    // Contact rows, fixed over the step: in the batches (`batch::fill`), and for
+    // penalty springs also in order, by `make` with the same formulas.
     let SolverWork {
         bodies,
         inv_inertia,
@@ -385,62 +372,44 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
         let (a, b) = (c.a as usize, c.b as usize);
         let ra = sub(c.point, s.x[a]);
         let rb = sub(c.point, s.x[b]);
-        let nrm = c.normal;
-        let (t1, t2) = tangent_frame(nrm);
-        let (ba, bb) = (&bodies[a], &bodies[b]);
+        let (t1, t2) = tangent_frame(c.normal);
         let (ia, ib) = (inv_inertia[a], inv_inertia[b]);
-        let dir = [nrm, t1, t2];
-        // `from_fn`, not `map`: array maps stayed out-of-line calls here (5% of a step).
+        let dir = [c.normal, t1, t2];
+        // `from_fn`, not `map`: array maps stayed out-of-line calls (`try_map`).
         let arm: [[[f64; 3]; 2]; 3] =
             std::array::from_fn(|r| [cross(ra, dir[r]), cross(rb, dir[r])]);
         let turn: [[[f64; 3]; 2]; 3] =
             std::array::from_fn(|r| [mat_vec(ia, arm[r][0]), mat_vec(ib, arm[r][1])]);
-        let mass = std::array::from_fn(|r| {
-            let k =
-                ba.inv_mass + bb.inv_mass + dot(arm[r][0], turn[r][0]) + dot(arm[r][1], turn[r][1]);
-            if k > 0.0 {
-                1.0 / k
-            } else {
-                0.0
-            }
-        });
-        let mut row = ContactRow {
+        ContactRow {
             a: c.a,
             b: c.b,
             index: index as u32,
             dir,
-            ra,
-            rb,
             arm,
             turn,
-            mass,
-            depth: c.depth,
             error: c.depth,
-            slop: SLOP * m.size[a].min(m.size[b]),
             ..ContactRow::default()
-        };
-        row.approach = -row_velocity(&row, &ba.vel(), &bb.vel(), 0);
-        if accumulate {
-            // Warm start from last step's impulse per sub-step, inside the cone.
-            let per = scale(c.impulse, 1.0 / substeps as f64);
-            let ln = dot(per, nrm).max(0.0);
-            let (mut l1, mut l2) = (dot(per, t1), dot(per, t2));
-            let cap = d.friction * ln;
-            let lt = (l1 * l1 + l2 * l2).sqrt();
-            if lt > cap {
-                let f = if lt > 0.0 { cap / lt } else { 0.0 };
-                l1 *= f;
-                l2 *= f;
-            }
-            row.lambda = [ln, l1, l2];
         }
-        row
     };
     contacts.clear();
     if penalty {
         contacts.extend((0..w.contacts.len()).map(make));
     }
-    batch::build(&w.contacts, bodies, batcher, batches, make);
+    batch::build(&w.contacts, bodies, batcher, batches);
+    let slop = |c: &super::ContactPoint| SLOP * m.size[c.a as usize].min(m.size[c.b as usize]);
+    batch::fill(
+        batches,
+        &batch::RowInputs {
+            points: &w.contacts,
+            x: &s.x,
+            bodies,
+            inv_inertia,
+            slop: &slop,
+            friction: d.friction,
+            substeps,
+            accumulate,
+        },
+    );
     if sw.joint_lambda.len() != joint_row_count(m) {
         sw.joint_lambda = vec![0.0; joint_row_count(m)];
     }
@@ -553,7 +522,6 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
         if penalty {
             // The springs' impulses live in the rows (see `penalty_forces`).
             for c in sw.contacts.iter_mut() {
-                c.max_normal = c.max_normal.max(c.lambda[0]);
                 for r in 0..3 {
                     c.total = add(c.total, scale(c.dir[r], c.lambda[r]));
                 }
