@@ -1,8 +1,13 @@
 //! The contact rows in SIMD batches: four contact points a batch, one per lane of an
 //! `f64x4`, no two lanes moving the same body, so a batch is solved at once.
 //!
-//! Batching keeps the sequential solver's answer. Each point goes to the first batch
-//! with a free lane after every batch that holds an earlier point on one of its movable
+//! The lanes hold manifolds: a group of batches gives each lane the points of one body
+//! pair (up to [`MANIFOLD`] of them, in order, one a batch), so the passes gather the
+//! bodies' velocities once per group and keep them in registers from point to point, as
+//! rapier solves a manifold's points together.
+//!
+//! Batching keeps the sequential solver's answer. Each manifold goes to the first group
+//! with a free lane after every group that holds an earlier point on one of its movable
 //! bodies (Tonge, Benevolenskiy and Voronov 2012, "Mass splitting for jitter-free
 //! parallel rigid body simulation", describe the colouring; rapier and Box2D v3 colour
 //! their constraint graphs the same way). Two points that share no movable body commute
@@ -14,8 +19,9 @@
 //! Bodies are gathered and scattered as 64-byte records (velocity, angular velocity,
 //! inverse mass) by two 4 x 4 transposes; static, kinematic and asleep bodies (inverse
 //! mass 0) may sit in several lanes of a batch and are never written. Unused lanes point
-//! at a padding body past the last one and hold an idle speculative point (depth -1 m,
-//! no mass), which changes nothing.
+//! at a padding body past the last one, and lanes whose manifold has fewer points than
+//! the group's longest at the manifold's own bodies; both hold an idle speculative point
+//! (no direction, depth -1 m, no mass), which changes nothing.
 
 use super::solver::{ContactRow, Pass, SolverBody, SolverMotion, MAX_PUSH};
 use super::{ContactPoint, Correction};
@@ -26,6 +32,36 @@ type V3 = [V; 3];
 
 /// A lane not in use.
 pub(crate) const UNUSED: u32 = u32::MAX;
+
+/// The most points of one pair a lane holds in a group (box-box manifolds are reduced to
+/// four; longer runs continue in a later group).
+pub(crate) const MANIFOLD: usize = 4;
+
+/// The batches, and the groups of consecutive batches that share their lanes' bodies.
+#[derive(Debug, Default)]
+pub(crate) struct Batches {
+    batches: Vec<Batch>,
+    /// Each group's batches, `start..end` in `batches`.
+    groups: Vec<(u32, u32)>,
+}
+
+impl Clone for Batches {
+    /// Keeps the capacity (criterion steps clones of a state's scratch).
+    fn clone(&self) -> Self {
+        Batches {
+            batches: super::clone_keeping_capacity(&self.batches),
+            groups: super::clone_keeping_capacity(&self.groups),
+        }
+    }
+}
+
+impl Batches {
+    /// How many batches (for the tests).
+    #[cfg(test)]
+    pub(crate) fn len(&self) -> usize {
+        self.batches.len()
+    }
+}
 
 /// Four contact points in structure-of-arrays form (fields as in [`ContactRow`]).
 #[derive(Clone, Copy, Debug)]
@@ -71,11 +107,13 @@ pub(crate) struct Lanes {
 /// The batching's scratch, kept between steps.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct Batcher {
-    /// Per body: one past the last batch holding one of its points.
+    /// Per body: one past the last group holding one of its points.
     after: Vec<u32>,
-    /// Per batch: itself if it has a free lane, else a later batch to look at.
+    /// Per group: itself if it has a free lane, else a later group to look at.
     next: Vec<u32>,
     fill: Vec<u8>,
+    /// Per group and lane: the manifold's first point and its number of points.
+    lanes: Vec<[(u32, u32); 4]>,
     /// Lanes a batch may fill (4; 1 in the tests that check the batching against the
     /// sequential order).
     pub(crate) width: u8,
@@ -182,11 +220,11 @@ impl Batch {
         }
     }
 
-    /// The present penetration from the bodies' motion since the step's start.
+    /// The present penetration from the motion of the bodies since the step's start
+    /// (`gather_motion` of `a` and of `b`).
     #[inline(always)]
-    fn update_error(&mut self, motion: &[SolverMotion]) {
-        let (xa, ra) = gather_motion(motion, self.a);
-        let (xb, rb) = gather_motion(motion, self.b);
+    fn update_error(&mut self, (xa, ra): &(V3, [V3; 3]), (xb, rb): &(V3, [V3; 3])) {
+        let (xa, ra, xb, rb) = (*xa, *ra, *xb, *rb);
         let da = add(xa, mat_vec(ra, self.ra));
         let db = add(xb, mat_vec(rb, self.rb));
         self.error = self.depth - dot(self.dir[0], sub(db, da));
@@ -218,31 +256,37 @@ impl Batch {
     }
 }
 
-/// Sorts the contact points into batches (module docs): each lane gets its point's
-/// bodies and index, the rows come from [`fill`]; `bodies` has the padding body last.
+/// Sorts the contact points into groups of batches (module docs): each lane gets its
+/// manifold's bodies and point indices, the rows come from [`fill`]; `bodies` has the
+/// padding body last, and `points` a pair's points one after another.
 pub(crate) fn build(
     points: &[ContactPoint],
     bodies: &[SolverBody],
     scratch: &mut Batcher,
-    out: &mut Vec<Batch>,
+    out: &mut Batches,
 ) {
     let pad = (bodies.len() - 1) as u32;
     let width = if scratch.width == 0 { 4 } else { scratch.width };
-    out.clear();
     scratch.after.clear();
     scratch.after.resize(bodies.len(), 0);
     scratch.next.clear();
     scratch.fill.clear();
-    for (k, c) in points.iter().enumerate() {
-        let movable = |i: u32| bodies[i as usize].inv_mass > 0.0;
-        let (a, b) = (c.a, c.b);
+    scratch.lanes.clear();
+    let movable = |i: u32| bodies[i as usize].inv_mass > 0.0;
+    let mut k = 0;
+    while k < points.len() {
+        let (a, b) = (points[k].a, points[k].b);
+        let mut end = k + 1;
+        while end < points.len() && end - k < MANIFOLD && points[end].a == a && points[end].b == b {
+            end += 1;
+        }
         let mut first = 0;
         for i in [a, b] {
             if movable(i) {
                 first = first.max(scratch.after[i as usize]);
             }
         }
-        // The first batch from `first` on with a free lane, halving the paths walked.
+        // The first group from `first` on with a free lane, halving the paths walked.
         let mut at = first as usize;
         while at < scratch.next.len() && scratch.next[at] as usize != at {
             let up = scratch.next[at] as usize;
@@ -254,7 +298,7 @@ pub(crate) fn build(
         if at == scratch.next.len() {
             scratch.next.push(at as u32);
             scratch.fill.push(0);
-            out.push(Batch::empty(pad));
+            scratch.lanes.push([(UNUSED, 0); 4]);
         }
         let lane = scratch.fill[at] as usize;
         scratch.fill[at] += 1;
@@ -266,10 +310,30 @@ pub(crate) fn build(
                 scratch.after[i as usize] = at as u32 + 1;
             }
         }
-        let t = &mut out[at];
-        t.a[lane] = a;
-        t.b[lane] = b;
-        t.index[lane] = k as u32;
+        scratch.lanes[at][lane] = (k as u32, (end - k) as u32);
+        k = end;
+    }
+    // A group's batches: as many as its longest manifold has points.
+    out.batches.clear();
+    out.groups.clear();
+    for lanes in &scratch.lanes {
+        let start = out.batches.len() as u32;
+        let slots = lanes.iter().map(|l| l.1).max().unwrap_or(0);
+        for slot in 0..slots {
+            let mut t = Batch::empty(pad);
+            for (l, &(first, count)) in lanes.iter().enumerate() {
+                if count > 0 {
+                    let c = &points[first as usize];
+                    t.a[l] = c.a;
+                    t.b[l] = c.b;
+                    if slot < count {
+                        t.index[l] = first + slot;
+                    }
+                }
+            }
+            out.batches.push(t);
+        }
+        out.groups.push((start, out.batches.len() as u32));
     }
 }
 
@@ -297,11 +361,11 @@ pub(crate) struct RowInputs<'a> {
 /// (as `solver::step`'s rows for penalty springs), so every lane's bits are the scalar
 /// ones. Unused lanes take an idle point on the padding body (no normal, depth -1 m,
 /// zero mass), which the passes skip.
-pub(crate) fn fill(batches: &mut [Batch], inp: &RowInputs) {
+pub(crate) fn fill(batches: &mut Batches, inp: &RowInputs) {
     let (zero, one) = (V::ZERO, splat(1.0));
     let per = splat(1.0 / inp.substeps as f64);
     let friction = splat(inp.friction);
-    for t in batches.iter_mut() {
+    for t in batches.batches.iter_mut() {
         // Per lane inputs, transposed by hand: unused lanes keep the idle values.
         let mut p = [[0.0; 4]; 3];
         let mut n = [[0.0; 4]; 3];
@@ -312,10 +376,12 @@ pub(crate) fn fill(batches: &mut [Batch], inp: &RowInputs) {
         let mut ib = [[[0.0; 4]; 3]; 3];
         let mut depth = [-1.0; 4];
         let mut slop = [0.0; 4];
+        let mut used = [0.0; 4];
         for l in 0..4 {
             if t.index[l] == UNUSED {
                 continue;
             }
+            used[l] = 1.0;
             let c = &inp.points[t.index[l] as usize];
             let (a, b) = (c.a as usize, c.b as usize);
             for k in 0..3 {
@@ -358,10 +424,12 @@ pub(crate) fn fill(batches: &mut [Batch], inp: &RowInputs) {
         let turn: [[V3; 2]; 3] =
             std::array::from_fn(|r| [mat_vec(ia, arm[r][0]), mat_vec(ib, arm[r][1])]);
         let (ua, ub) = (gather(inp.bodies, t.a), gather(inp.bodies, t.b));
+        // An idle lane of a group may sit on its manifold's bodies: no mass there.
+        let used = V::new(used).simd_gt(zero);
         let mass: V3 = std::array::from_fn(|r| {
             let k =
                 ua.inv_mass + ub.inv_mass + dot(arm[r][0], turn[r][0]) + dot(arm[r][1], turn[r][1]);
-            k.simd_gt(zero).bitselect(one / k, zero)
+            (k.simd_gt(zero) & used).bitselect(one / k, zero)
         });
         t.dir = dir;
         t.ra = ra;
@@ -402,8 +470,8 @@ fn cross(a: V3, b: V3) -> V3 {
 }
 
 /// Each point's impulse over the step into its contact.
-pub(crate) fn impulses(batches: &[Batch], points: &mut [ContactPoint]) {
-    for t in batches {
+pub(crate) fn impulses(batches: &Batches, points: &mut [ContactPoint]) {
+    for t in &batches.batches {
         let total = t.total.map(|x| x.to_array());
         for l in 0..4 {
             if t.index[l] != UNUSED {
@@ -414,8 +482,8 @@ pub(crate) fn impulses(batches: &[Batch], points: &mut [ContactPoint]) {
 }
 
 /// Writes the batches' present penetrations back to their rows.
-pub(crate) fn unpack_errors(batches: &[Batch], rows: &mut [ContactRow]) {
-    for t in batches {
+pub(crate) fn unpack_errors(batches: &Batches, rows: &mut [ContactRow]) {
+    for t in &batches.batches {
         for l in 0..4 {
             if t.index[l] != UNUSED {
                 rows[t.index[l] as usize].error = t.error.to_array()[l];
@@ -426,9 +494,9 @@ pub(crate) fn unpack_errors(batches: &[Batch], rows: &mut [ContactRow]) {
 
 /// Restitution after the sub-steps: points that pushed and were approaching faster than
 /// the bounce threshold leave at `restitution` times their approach speed.
-pub(crate) fn restitute(batches: &mut [Batch], bodies: &mut [SolverBody], p: &Lanes) {
+pub(crate) fn restitute(batches: &mut Batches, bodies: &mut [SolverBody], p: &Lanes) {
     let (zero, threshold, e) = (V::ZERO, V::splat(p.bounce), V::splat(p.restitution));
-    for t in batches.iter_mut() {
+    for t in batches.batches.iter_mut() {
         let on = !t.approach.simd_lt(threshold) & t.max_normal.simd_ne(zero);
         if !on.any() {
             continue;
@@ -448,24 +516,33 @@ pub(crate) fn restitute(batches: &mut [Batch], bodies: &mut [SolverBody], p: &La
 
 /// Warm start: each point's impulses so far applied again (one-shot impulses start
 /// from zero instead).
-pub(crate) fn warm_start(batches: &mut [Batch], bodies: &mut [SolverBody], accumulate: bool) {
-    for t in batches.iter_mut() {
-        if !accumulate {
+pub(crate) fn warm_start(batches: &mut Batches, bodies: &mut [SolverBody], accumulate: bool) {
+    let Batches { batches, groups } = batches;
+    if !accumulate {
+        for t in batches.iter_mut() {
             t.lambda = [V::ZERO; 3];
+        }
+        return;
+    }
+    for &(start, end) in groups.iter() {
+        let group = &batches[start as usize..end as usize];
+        let held = |t: &Batch| {
+            let zero = t.lambda[0].simd_eq(V::ZERO)
+                & t.lambda[1].simd_eq(V::ZERO)
+                & t.lambda[2].simd_eq(V::ZERO);
+            !zero.all()
+        };
+        if !group.iter().any(held) {
             continue;
         }
-        let zero = t.lambda[0].simd_eq(V::ZERO)
-            & t.lambda[1].simd_eq(V::ZERO)
-            & t.lambda[2].simd_eq(V::ZERO);
-        if zero.all() {
-            continue;
+        let (mut ua, mut ub) = (gather(bodies, group[0].a), gather(bodies, group[0].b));
+        for t in group.iter().filter(|t| held(t)) {
+            for r in 0..3 {
+                t.push(&mut ua, &mut ub, r, t.lambda[r]);
+            }
         }
-        let (mut ua, mut ub) = (gather(bodies, t.a), gather(bodies, t.b));
-        for r in 0..3 {
-            t.push(&mut ua, &mut ub, r, t.lambda[r]);
-        }
-        scatter(bodies, t.a, &ua);
-        scatter(bodies, t.b, &ub);
+        scatter(bodies, group[0].a, &ua);
+        scatter(bodies, group[0].b, &ub);
     }
 }
 
@@ -492,15 +569,15 @@ fn gather_motion(motion: &[SolverMotion], idx: [u32; 4]) -> (V3, [V3; 3]) {
 
 /// Present penetrations from the bodies' motion since the step's start (penalty
 /// springs; the other solvers update them in their solve pass).
-pub(crate) fn update_errors(batches: &mut [Batch], motion: &[SolverMotion]) {
-    for t in batches.iter_mut() {
-        t.update_error(motion);
+pub(crate) fn update_errors(batches: &mut Batches, motion: &[SolverMotion]) {
+    for t in batches.batches.iter_mut() {
+        t.update_error(&gather_motion(motion, t.a), &gather_motion(motion, t.b));
     }
 }
 
 /// Resets the split impulses before a pseudo pass.
-pub(crate) fn clear_split(batches: &mut [Batch]) {
-    for t in batches.iter_mut() {
+pub(crate) fn clear_split(batches: &mut Batches) {
+    for t in batches.batches.iter_mut() {
         t.plambda = V::ZERO;
     }
 }
@@ -511,7 +588,7 @@ pub(crate) fn clear_split(batches: &mut [Batch]) {
 /// pass over the velocities), its impulses are added to the step's totals after.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn solve(
-    batches: &mut [Batch],
+    batches: &mut Batches,
     bodies: &mut [SolverBody],
     pseudo: &mut [SolverBody],
     motion: Option<&[SolverMotion]>,
@@ -519,8 +596,9 @@ pub(crate) fn solve(
     last: bool,
     p: &Lanes,
 ) {
-    let (h, zero, one) = (splat(p.h), V::ZERO, splat(1.0));
+    let (h, zero) = (splat(p.h), V::ZERO);
     let beta = splat(p.beta);
+    let Batches { batches, groups } = batches;
     if pass == Pass::Pseudo {
         for t in batches.iter_mut() {
             let target = beta * (t.error - t.slop).max(zero) / h;
@@ -538,81 +616,105 @@ pub(crate) fn solve(
         }
         return;
     }
+    for &(start, end) in groups.iter() {
+        let group = &mut batches[start as usize..end as usize];
+        let (a, b) = (group[0].a, group[0].b);
+        let moved = motion.map(|m| (gather_motion(m, a), gather_motion(m, b)));
+        let (mut ua, mut ub) = (gather(bodies, a), gather(bodies, b));
+        let mut touched = false;
+        for t in group.iter_mut() {
+            if let Some((ma, mb)) = &moved {
+                t.update_error(ma, mb);
+            }
+            touched |= solve_point(t, &mut ua, &mut ub, pass, last, p);
+        }
+        if touched {
+            scatter(bodies, a, &ua);
+            scatter(bodies, b, &ub);
+        }
+    }
+}
+
+/// One point of each lane in the velocity passes (`Pass::Solve`, `Pass::Relax`), on the
+/// lanes' bodies `ua`, `ub`; false if all four were idle and nothing changed.
+#[inline(always)]
+fn solve_point(
+    t: &mut Batch,
+    ua: &mut Vel,
+    ub: &mut Vel,
+    pass: Pass,
+    last: bool,
+    p: &Lanes,
+) -> bool {
+    let (h, zero, one) = (splat(p.h), V::ZERO, splat(1.0));
+    let beta = splat(p.beta);
     let (friction, restitution, bounce) =
         (splat(p.friction), splat(p.restitution), splat(p.bounce));
     let soft = |s: [f64; 3]| s.map(splat);
     let (cs, ss) = (soft(p.contact_soft), soft(p.static_soft));
     let max_push = splat(MAX_PUSH);
-    for t in batches.iter_mut() {
-        if let Some(motion) = motion {
-            t.update_error(motion);
-        }
-        let (mut ua, mut ub) = (gather(bodies, t.a), gather(bodies, t.b));
-        let e = t.error;
-        let apart = e.simd_lt(zero);
-        // Idle speculative points (see `solver::solve_pass`): a batch of them is skipped;
-        // in a busy batch they change nothing.
-        let held =
-            t.lambda[0].simd_ne(zero) | t.lambda[1].simd_ne(zero) | t.lambda[2].simd_ne(zero);
-        let vn0 = t.velocity(&ua, &ub, 0);
-        let mut idle = apart & !held & vn0.simd_ge(e / h);
-        if !p.accumulate {
-            idle &= (-vn0).simd_le(bounce);
-        }
-        if idle.all() {
-            // Idle points hold no impulse: there is nothing to add to the totals.
-            continue;
-        }
-        // Friction within the cone of the normal impulse so far.
-        let cap = friction * t.lambda[0];
-        let d1 = t.mass[1] * -t.velocity(&ua, &ub, 1);
-        let d2 = t.mass[2] * -t.velocity(&ua, &ub, 2);
-        let (old1, old2) = (t.lambda[1], t.lambda[2]);
-        let (l1, l2) = (old1 + d1, old2 + d2);
-        let lt = (l1 * l1 + l2 * l2).sqrt();
-        let f = lt
-            .simd_gt(cap)
-            .bitselect(lt.simd_gt(zero).bitselect(cap / lt, zero), one);
-        let (l1, l2) = (l1 * f, l2 * f);
-        t.lambda[1] = l1;
-        t.lambda[2] = l2;
-        t.push(&mut ua, &mut ub, 1, l1 - old1);
-        t.push(&mut ua, &mut ub, 2, l2 - old2);
-        // Normal: the target and softness of `solver::solve_pass`, lane by lane.
-        let (mut target, mut scale_m, mut scale_i) = match (pass, p.correction) {
-            (Pass::Solve, Correction::Soft) => {
-                let fixed = ua.inv_mass.simd_eq(zero) | ub.inv_mass.simd_eq(zero);
-                let s: [V; 3] = std::array::from_fn(|k| fixed.bitselect(ss[k], cs[k]));
-                ((s[0] * e).min(max_push), s[1], s[2])
-            }
-            (Pass::Solve, Correction::Baumgarte) => (beta * (e - t.slop).max(zero) / h, one, zero),
-            _ => (zero, one, zero),
-        };
-        target = apart.bitselect(e / h, target);
-        scale_m = apart.bitselect(one, scale_m);
-        scale_i = apart.bitselect(zero, scale_i);
-        let vn = t.velocity(&ua, &ub, 0);
-        if !p.accumulate {
-            let bouncing = (-vn).simd_gt(bounce);
-            target = bouncing.bitselect(target.max(restitution * -vn), target);
-            scale_m = bouncing.bitselect(one, scale_m);
-            scale_i = bouncing.bitselect(zero, scale_i);
-        }
-        let dl = t.mass[0] * scale_m * (target - vn) - scale_i * t.lambda[0];
-        let old = t.lambda[0];
-        let new = if p.accumulate {
-            (old + dl).max(zero)
-        } else {
-            old + dl.max(zero)
-        };
-        t.lambda[0] = new;
-        t.push(&mut ua, &mut ub, 0, new - old);
-        scatter(bodies, t.a, &ua);
-        scatter(bodies, t.b, &ub);
-        if last {
-            t.accumulate();
-        }
+    let e = t.error;
+    let apart = e.simd_lt(zero);
+    // Idle speculative points (see `solver::solve_pass`): a batch of them is skipped;
+    // in a busy batch they change nothing.
+    let held = t.lambda[0].simd_ne(zero) | t.lambda[1].simd_ne(zero) | t.lambda[2].simd_ne(zero);
+    let vn0 = t.velocity(ua, ub, 0);
+    let mut idle = apart & !held & vn0.simd_ge(e / h);
+    if !p.accumulate {
+        idle &= (-vn0).simd_le(bounce);
     }
+    if idle.all() {
+        // Idle points hold no impulse: there is nothing to add to the totals.
+        return false;
+    }
+    // Friction within the cone of the normal impulse so far.
+    let cap = friction * t.lambda[0];
+    let d1 = t.mass[1] * -t.velocity(ua, ub, 1);
+    let d2 = t.mass[2] * -t.velocity(ua, ub, 2);
+    let (old1, old2) = (t.lambda[1], t.lambda[2]);
+    let (l1, l2) = (old1 + d1, old2 + d2);
+    let lt = (l1 * l1 + l2 * l2).sqrt();
+    let f = lt
+        .simd_gt(cap)
+        .bitselect(lt.simd_gt(zero).bitselect(cap / lt, zero), one);
+    let (l1, l2) = (l1 * f, l2 * f);
+    t.lambda[1] = l1;
+    t.lambda[2] = l2;
+    t.push(ua, ub, 1, l1 - old1);
+    t.push(ua, ub, 2, l2 - old2);
+    // Normal: the target and softness of `solver::solve_pass`, lane by lane.
+    let (mut target, mut scale_m, mut scale_i) = match (pass, p.correction) {
+        (Pass::Solve, Correction::Soft) => {
+            let fixed = ua.inv_mass.simd_eq(zero) | ub.inv_mass.simd_eq(zero);
+            let s: [V; 3] = std::array::from_fn(|k| fixed.bitselect(ss[k], cs[k]));
+            ((s[0] * e).min(max_push), s[1], s[2])
+        }
+        (Pass::Solve, Correction::Baumgarte) => (beta * (e - t.slop).max(zero) / h, one, zero),
+        _ => (zero, one, zero),
+    };
+    target = apart.bitselect(e / h, target);
+    scale_m = apart.bitselect(one, scale_m);
+    scale_i = apart.bitselect(zero, scale_i);
+    let vn = t.velocity(ua, ub, 0);
+    if !p.accumulate {
+        let bouncing = (-vn).simd_gt(bounce);
+        target = bouncing.bitselect(target.max(restitution * -vn), target);
+        scale_m = bouncing.bitselect(one, scale_m);
+        scale_i = bouncing.bitselect(zero, scale_i);
+    }
+    let dl = t.mass[0] * scale_m * (target - vn) - scale_i * t.lambda[0];
+    let old = t.lambda[0];
+    let new = if p.accumulate {
+        (old + dl).max(zero)
+    } else {
+        old + dl.max(zero)
+    };
+    t.lambda[0] = new;
+    t.push(ua, ub, 0, new - old);
+    if last {
+        t.accumulate();
+    }
+    true
 }
 
 #[cfg(test)]

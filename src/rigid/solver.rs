@@ -18,7 +18,7 @@
 //! scales its impulse by `a2 / (1 + a2)`, `a2 = hω (2ζ + hω)`, less `1 / (1 + a2)` of what
 //! it has accumulated: the implicit spring-damper that a rigid row is the limit of.
 
-use super::batch::{self, Batch, Batcher, Lanes};
+use super::batch::{self, Batcher, Batches, Lanes};
 use super::{
     clone_keeping_capacity, mat_vec, Correction, Joint, JointKind, Rigid, RigidSolver, RigidState,
     RigidWork,
@@ -149,7 +149,7 @@ pub(crate) struct SolverWork {
     motion: Vec<SolverMotion>,
     contacts: Vec<ContactRow>,
     /// The contacts in SIMD batches (all solvers but penalty springs).
-    batches: Vec<Batch>,
+    batches: Batches,
     batcher: Batcher,
     joints: Vec<Row>,
     /// Joint impulses of the last sub-step, for warm starting (rows in a fixed order).
@@ -179,7 +179,7 @@ impl Clone for SolverWork {
             r0: self.r0.clone(),
             motion: self.motion.clone(),
             contacts: clone_keeping_capacity(&self.contacts),
-            batches: clone_keeping_capacity(&self.batches),
+            batches: self.batches.clone(),
             batcher: self.batcher.clone(),
             joints: self.joints.clone(),
             joint_lambda: self.joint_lambda.clone(),
