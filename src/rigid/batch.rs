@@ -63,7 +63,9 @@ impl Batches {
     }
 }
 
-/// Four contact points in structure-of-arrays form (fields as in [`ContactRow`]).
+/// Four contact points in structure-of-arrays form (fields as in [`ContactRow`], less
+/// the lever arms `r x d`: a row's velocity is `d` dotted with the points' relative
+/// velocity, which takes two cross products a visit instead of 576 bytes a batch).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Batch {
     a: [u32; 4],
@@ -73,7 +75,6 @@ pub(crate) struct Batch {
     dir: [V3; 3],
     ra: V3,
     rb: V3,
-    arm: [[V3; 2]; 3],
     turn: [[V3; 2]; 3],
     mass: V3,
     lambda: V3,
@@ -206,7 +207,6 @@ impl Batch {
             dir: [z3; 3],
             ra: z3,
             rb: z3,
-            arm: [[z3; 2]; 3],
             turn: [[z3; 2]; 3],
             mass: z3,
             lambda: z3,
@@ -239,10 +239,21 @@ impl Batch {
         }
     }
 
-    /// The relative velocity along row `r` (as `solver::row_velocity`).
+    /// The velocity of b's contact point relative to a's, `vb + wb x rb - va - wa x ra`
+    /// (the lever arms of the step's start, as the rows' Jacobians).
+    #[inline(always)]
+    fn relative(&self, ua: &Vel, ub: &Vel) -> V3 {
+        sub(
+            add(ub.v, cross(ub.w, self.rb)),
+            add(ua.v, cross(ua.w, self.ra)),
+        )
+    }
+
+    /// The relative velocity along row `r`: `d (vb - va) + (rb x d) wb - (ra x d) wa`
+    /// (`solver::row_velocity`) as `d` dotted with [`Batch::relative`].
     #[inline(always)]
     fn velocity(&self, ua: &Vel, ub: &Vel, r: usize) -> V {
-        dot(self.dir[r], sub(ub.v, ua.v)) + dot(self.arm[r][1], ub.w) - dot(self.arm[r][0], ua.w)
+        dot(self.dir[r], self.relative(ua, ub))
     }
 
     /// Applies the impulses `l` along row `r` (as `solver::contact_push`).
@@ -434,7 +445,6 @@ pub(crate) fn fill(batches: &mut Batches, inp: &RowInputs) {
         t.dir = dir;
         t.ra = ra;
         t.rb = rb;
-        t.arm = arm;
         t.turn = turn;
         t.mass = mass;
         let depth = V::new(depth);
@@ -658,7 +668,8 @@ fn solve_point(
     // Idle speculative points (see `solver::solve_pass`): a batch of them is skipped;
     // in a busy batch they change nothing.
     let held = t.lambda[0].simd_ne(zero) | t.lambda[1].simd_ne(zero) | t.lambda[2].simd_ne(zero);
-    let vn0 = t.velocity(ua, ub, 0);
+    let dv = t.relative(ua, ub);
+    let vn0 = dot(t.dir[0], dv);
     let mut idle = apart & !held & vn0.simd_ge(e / h);
     if !p.accumulate {
         idle &= (-vn0).simd_le(bounce);
@@ -669,8 +680,8 @@ fn solve_point(
     }
     // Friction within the cone of the normal impulse so far.
     let cap = friction * t.lambda[0];
-    let d1 = t.mass[1] * -t.velocity(ua, ub, 1);
-    let d2 = t.mass[2] * -t.velocity(ua, ub, 2);
+    let d1 = t.mass[1] * -dot(t.dir[1], dv);
+    let d2 = t.mass[2] * -dot(t.dir[2], dv);
     let (old1, old2) = (t.lambda[1], t.lambda[2]);
     let (l1, l2) = (old1 + d1, old2 + d2);
     let lt = (l1 * l1 + l2 * l2).sqrt();
