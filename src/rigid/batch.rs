@@ -12,9 +12,10 @@
 //! parallel rigid body simulation", describe the colouring; rapier and Box2D v3 colour
 //! their constraint graphs the same way). Two points that share no movable body commute
 //! in Gauss-Seidel, and the points on any one body keep their order, so the batched
-//! passes are a reordering of the sequential ones that gives the same impulses. The lane
-//! arithmetic is the scalar code's, operation for operation (no fused multiply-adds), so
-//! the bits agree too (the test below checks it against the one-lane order).
+//! passes are a reordering of the sequential ones that gives the same impulses. Every
+//! lane does the same operations in the same order whatever the batch (no fused
+//! multiply-adds), so the bits agree too (the test below checks four-lane batches
+//! against one-lane ones, the sequential order).
 //!
 //! Bodies are gathered and scattered as 64-byte records (velocity, angular velocity,
 //! inverse mass) by two 4 x 4 transposes; static, kinematic and asleep bodies (inverse
