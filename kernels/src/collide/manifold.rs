@@ -116,6 +116,8 @@ const ABSOLUTE_TOL: f64 = 0.01;
 
 /// Box against box (see the module docs): `None` when they are more than `margin` (m)
 /// apart.
+// Axis k indexes four parallel arrays (axes, halves, cosines, projections).
+#[allow(clippy::needless_range_loop)]
 pub fn box_box(a: &BoxPose, b: &BoxPose, margin: f64) -> Option<Manifold> {
     let t = sub(b.center, a.center);
     // The axes' cosines `r[i][j] = a_i . b_j` (B's axes in A's frame, columns), from
@@ -160,7 +162,7 @@ pub fn box_box(a: &BoxPose, b: &BoxPose, margin: f64) -> Option<Manifold> {
             let (j1, j2) = ((j + 1) % 3, (j + 2) % 3);
             let len = (r[i1][j] * r[i1][j] + r[i2][j] * r[i2][j]).sqrt();
             // Parallel edges give no axis (their faces' axes cover them).
-            if !(len >= 1e-6) {
+            if len.is_nan() || len < 1e-6 {
                 continue;
             }
             let tl = ta[i2] * r[i1][j] - ta[i1] * r[i2][j];
