@@ -196,6 +196,30 @@ fn scatter(bodies: &mut [SolverBody], idx: [u32; 4], u: &Vel) {
     }
 }
 
+/// Runs `f` on every batch of every group that `skip` leaves, with the group's bodies
+/// gathered from `bodies` once, at its first such batch, and scattered after its last.
+fn each_group(
+    b: &mut Batches,
+    bodies: &mut [SolverBody],
+    skip: impl Fn(&Batch) -> bool,
+    mut f: impl FnMut(&mut Batch, &mut Vel, &mut Vel),
+) {
+    let Batches { batches, groups } = b;
+    for &(start, end) in groups.iter() {
+        let group = &mut batches[start as usize..end as usize];
+        let (a, b) = (group[0].a, group[0].b);
+        let mut u = None;
+        for t in group.iter_mut().filter(|t| !skip(t)) {
+            let (ua, ub) = u.get_or_insert_with(|| (gather(bodies, a), gather(bodies, b)));
+            f(t, ua, ub);
+        }
+        if let Some((ua, ub)) = u {
+            scatter(bodies, a, &ua);
+            scatter(bodies, b, &ub);
+        }
+    }
+}
+
 impl Batch {
     /// A batch of unused lanes (`pad`: the padding body's index).
     fn empty(pad: u32) -> Batch {
@@ -366,13 +390,13 @@ pub(crate) struct RowInputs<'a> {
     pub accumulate: bool,
 }
 
-/// The batches' rows, fixed over the step: tangent frame, lever arms `r x d`, the
-/// angular velocity `I^-1 (r x d)` a unit impulse gives each body, effective masses,
-/// the approach speed, and the warm start's impulses per sub-step clamped to the cone.
-/// Formed four lanes at a time with the scalar formulas' operations in the same order
-/// (as `solver::step`'s rows for penalty springs), so every lane's bits are the scalar
-/// ones. Unused lanes take an idle point on the padding body (no normal, depth -1 m,
-/// zero mass), which the passes skip.
+/// The batches' rows, fixed over the step: tangent frame, the angular velocity
+/// `I^-1 (r x d)` a unit impulse gives each body (from the lever arms `r x d`, not
+/// kept), effective masses, the approach speed, and the warm start's impulses per
+/// sub-step clamped to the cone. Formed four lanes at a time with the scalar formulas'
+/// operations in the same order (as `solver::step`'s rows for penalty springs). Lanes
+/// without a point keep the idle point of [`Batch::empty`] (no direction, depth -1 m)
+/// and get no mass, whether on the padding body or on their manifold's bodies.
 pub(crate) fn fill(batches: &mut Batches, inp: &RowInputs) {
     let (zero, one) = (V::ZERO, splat(1.0));
     let per = splat(1.0 / inp.substeps as f64);
@@ -507,54 +531,41 @@ pub(crate) fn unpack_errors(batches: &Batches, rows: &mut [ContactRow]) {
 /// the bounce threshold leave at `restitution` times their approach speed.
 pub(crate) fn restitute(batches: &mut Batches, bodies: &mut [SolverBody], p: &Lanes) {
     let (zero, threshold, e) = (V::ZERO, V::splat(p.bounce), V::splat(p.restitution));
-    for t in batches.batches.iter_mut() {
-        let on = !t.approach.simd_lt(threshold) & t.max_normal.simd_ne(zero);
-        if !on.any() {
-            continue;
-        }
-        let (mut ua, mut ub) = (gather(bodies, t.a), gather(bodies, t.b));
-        let vn = t.velocity(&ua, &ub, 0);
-        let dl = t.mass[0] * (e * t.approach - vn);
-        let new = on.bitselect((t.lambda[0] + dl).max(zero), t.lambda[0]);
-        let delta = new - t.lambda[0];
-        t.push(&mut ua, &mut ub, 0, delta);
-        scatter(bodies, t.a, &ua);
-        scatter(bodies, t.b, &ub);
-        t.total = add(t.total, scale(t.dir[0], delta));
-        t.lambda[0] = new;
-    }
+    let on = |t: &Batch| !t.approach.simd_lt(threshold) & t.max_normal.simd_ne(zero);
+    each_group(
+        batches,
+        bodies,
+        |t| !on(t).any(),
+        |t, ua, ub| {
+            let vn = t.velocity(ua, ub, 0);
+            let dl = t.mass[0] * (e * t.approach - vn);
+            let new = on(t).bitselect((t.lambda[0] + dl).max(zero), t.lambda[0]);
+            let delta = new - t.lambda[0];
+            t.push(ua, ub, 0, delta);
+            t.total = add(t.total, scale(t.dir[0], delta));
+            t.lambda[0] = new;
+        },
+    );
 }
 
 /// Warm start: each point's impulses so far applied again (one-shot impulses start
 /// from zero instead).
 pub(crate) fn warm_start(batches: &mut Batches, bodies: &mut [SolverBody], accumulate: bool) {
-    let Batches { batches, groups } = batches;
     if !accumulate {
-        for t in batches.iter_mut() {
+        for t in batches.batches.iter_mut() {
             t.lambda = [V::ZERO; 3];
         }
         return;
     }
-    for &(start, end) in groups.iter() {
-        let group = &batches[start as usize..end as usize];
-        let held = |t: &Batch| {
-            let zero = t.lambda[0].simd_eq(V::ZERO)
-                & t.lambda[1].simd_eq(V::ZERO)
-                & t.lambda[2].simd_eq(V::ZERO);
-            !zero.all()
-        };
-        if !group.iter().any(held) {
-            continue;
+    let none = |t: &Batch| {
+        (t.lambda[0].simd_eq(V::ZERO) & t.lambda[1].simd_eq(V::ZERO) & t.lambda[2].simd_eq(V::ZERO))
+            .all()
+    };
+    each_group(batches, bodies, none, |t, ua, ub| {
+        for r in 0..3 {
+            t.push(ua, ub, r, t.lambda[r]);
         }
-        let (mut ua, mut ub) = (gather(bodies, group[0].a), gather(bodies, group[0].b));
-        for t in group.iter().filter(|t| held(t)) {
-            for r in 0..3 {
-                t.push(&mut ua, &mut ub, r, t.lambda[r]);
-            }
-        }
-        scatter(bodies, group[0].a, &ua);
-        scatter(bodies, group[0].b, &ub);
-    }
+    });
 }
 
 /// The bodies' motion since the step's start, in the lanes of `idx`: displacement
@@ -607,26 +618,25 @@ pub(crate) fn solve(
     last: bool,
     p: &Lanes,
 ) {
-    let (h, zero) = (splat(p.h), V::ZERO);
-    let beta = splat(p.beta);
-    let Batches { batches, groups } = batches;
     if pass == Pass::Pseudo {
-        for t in batches.iter_mut() {
-            let target = beta * (t.error - t.slop).max(zero) / h;
-            let on = target.simd_ne(zero);
-            if !on.any() {
-                continue;
-            }
-            let (mut ua, mut ub) = (gather(pseudo, t.a), gather(pseudo, t.b));
-            let dl = t.mass[0] * (target - t.velocity(&ua, &ub, 0));
-            let new = on.bitselect((t.plambda + dl).max(zero), t.plambda);
-            t.push(&mut ua, &mut ub, 0, new - t.plambda);
-            t.plambda = new;
-            scatter(pseudo, t.a, &ua);
-            scatter(pseudo, t.b, &ub);
-        }
+        let (h, zero, beta) = (splat(p.h), V::ZERO, splat(p.beta));
+        let target = |t: &Batch| beta * (t.error - t.slop).max(zero) / h;
+        each_group(
+            batches,
+            pseudo,
+            |t| !target(t).simd_ne(zero).any(),
+            |t, ua, ub| {
+                let target = target(t);
+                let on = target.simd_ne(zero);
+                let dl = t.mass[0] * (target - t.velocity(ua, ub, 0));
+                let new = on.bitselect((t.plambda + dl).max(zero), t.plambda);
+                t.push(ua, ub, 0, new - t.plambda);
+                t.plambda = new;
+            },
+        );
         return;
     }
+    let Batches { batches, groups } = batches;
     for &(start, end) in groups.iter() {
         let group = &mut batches[start as usize..end as usize];
         let (a, b) = (group[0].a, group[0].b);
