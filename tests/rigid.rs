@@ -1359,3 +1359,72 @@ fn a_resting_stack_sleeps_and_a_ball_dropped_on_it_wakes_it() {
     }
     assert!(s.asleep.iter().all(|&a| !a));
 }
+
+/// Persistent manifolds: a pair whose relative pose has barely moved keeps its manifold
+/// (moved with the bodies) instead of running the narrow phase again. On a tumbling,
+/// settling pile of turned boxes, the kept manifolds match the narrow phase's, run afresh
+/// on the same state: the same pairs, deepest points within 0.1% of the box size, and
+/// normals within 0.05 rad (two nearly parallel faces may swap which one gives the
+/// normal: both are right to within their tilt).
+#[test]
+fn kept_manifolds_match_the_narrow_phase_run_afresh() {
+    use largestep::kernels::v3::dot;
+    let mut d = RigidDesc::default();
+    d.bodies.push(ground());
+    for k in 0..27 {
+        let (i, j, l) = ((k % 3) as f64, ((k / 3) % 3) as f64, (k / 9) as f64);
+        let t = 0.37 * k as f64;
+        let q = quat::exp([0.1 * t.sin(), 0.5 * t, 0.05 * t.cos()]);
+        d.bodies.push(BodyDesc {
+            orientation: q,
+            ..BodyDesc::new(
+                Shape::Box {
+                    half: [0.5, 0.3, 0.4],
+                },
+                [1.2 * i - 1.2, 0.5 + 0.9 * l, 1.2 * j - 1.2],
+            )
+        });
+    }
+    let (m, mut s, mut w) = d.build().unwrap();
+    let fresh = w.clone();
+    let dt = 1.0 / 60.0;
+    let (mut reused, mut compared) = (0, 0);
+    let (mut worst_depth, mut worst_angle) = (0.0f64, 0.0f64);
+    for step in 0..240 {
+        if step >= 30 {
+            let mut kept = w.clone();
+            let info = m.find_contacts(&s, &mut kept, dt).unwrap();
+            reused += info.reused;
+            let mut again = fresh.clone();
+            m.find_contacts(&s, &mut again, dt).unwrap();
+            let pairs = |c: &[largestep::rigid::ContactPoint]| {
+                let mut p: Vec<_> = c.iter().map(|c| (c.a, c.b)).collect();
+                p.dedup();
+                p
+            };
+            let (a, b) = (kept.contacts(), again.contacts());
+            assert_eq!(pairs(a), pairs(b), "step {step}");
+            for (pa, pb) in pairs(a).iter().zip(pairs(b)) {
+                let of = |c: &[largestep::rigid::ContactPoint], p: (u32, u32)| {
+                    let v: Vec<_> = c.iter().filter(|c| (c.a, c.b) == p).copied().collect();
+                    v
+                };
+                let (ka, kb) = (of(a, *pa), of(b, pb));
+                let deepest = |v: &[largestep::rigid::ContactPoint]| {
+                    v.iter().map(|c| c.depth).fold(f64::NEG_INFINITY, f64::max)
+                };
+                worst_depth = worst_depth.max((deepest(&ka) - deepest(&kb)).abs());
+                let c = dot(ka[0].normal, kb[0].normal).clamp(-1.0, 1.0);
+                worst_angle = worst_angle.max(c.acos());
+                compared += 1;
+            }
+        }
+        m.step(&mut s, &mut w, dt).unwrap();
+    }
+    eprintln!(
+        "kept manifolds: {reused} reused of {compared} compared; deepest point within {worst_depth:.2e} m, normal within {worst_angle:.2e} rad"
+    );
+    assert!(reused > compared / 4, "{reused} of {compared}");
+    assert!(worst_depth < 1e-3 * 0.3, "{worst_depth}");
+    assert!(worst_angle < 0.05, "{worst_angle}");
+}

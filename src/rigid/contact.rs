@@ -1,15 +1,22 @@
 //! The rigid bodies' collision stage: boxes, sweep and prune, manifolds, and the match of
 //! each new contact point with last step's (for warm starting).
+//!
+//! Manifolds persist: a pair of polyhedra keeps its points in the two bodies' frames,
+//! with the relative pose they were found at, and while the pose stays within [`REUSE`]
+//! of it (a resting pair) the points are moved with the bodies and their depths measured
+//! again instead of running the narrow phase (PhysX's persistent contact manifolds;
+//! Bullet's `refreshContactPoints`). The pose is measured against the one the manifold
+//! was found at, not last step's, so slow creep cannot carry a manifold further than that.
 
-use super::{Collider, Rigid, RigidError, RigidState, RigidStepInfo, RigidWork};
+use super::{mat_vec, Collider, Rigid, RigidError, RigidState, RigidStepInfo, RigidWork};
 use largestep_kernels::collide::bv::Aabb;
 use largestep_kernels::collide::manifold::{
     box_box, capsule_box, capsule_capsule_manifold, convex_convex, sphere_box,
-    sphere_sphere_manifold, BoxPose, Manifold,
+    sphere_sphere_manifold, BoxPose, Manifold, MAX_POINTS,
 };
 use largestep_kernels::collide::narrow::Convex;
-use largestep_kernels::quat;
-use largestep_kernels::v3::{add, dot, sub};
+use largestep_kernels::quat::{self, Quat};
+use largestep_kernels::v3::{add, dot, scale, sub};
 
 /// Contact margin as a fraction of the smaller body's feature size: points this far apart
 /// are kept as speculative contacts.
@@ -37,19 +44,117 @@ pub struct ContactPoint {
     pub(crate) pseudo: f64,
 }
 
+/// How far a pair's relative pose may move from the pose its manifold was found at
+/// before the narrow phase runs again: the offset by this fraction of the smaller body's
+/// feature size, the relative rotation by this angle (rad). Below it the kept points are
+/// moved with their bodies (a persistent manifold: PhysX's contact reuse, Bullet's
+/// `refreshContactPoints`).
+pub(crate) const REUSE: f64 = 0.01;
+
+/// A pair's manifold in its bodies' frames, kept while their relative pose stays within
+/// [`REUSE`] of the pose it was found at.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct Kept {
+    pair: [u32; 2],
+    /// b's centre in a's frame (m) and b's orientation relative to a's, when found.
+    offset: [f64; 3],
+    rel: Quat,
+    /// The normal in a's frame.
+    normal: [f64; 3],
+    /// The points on a's surface in a's frame, and on b's in b's frame (m).
+    on_a: [[f64; 3]; MAX_POINTS],
+    on_b: [[f64; 3]; MAX_POINTS],
+    count: usize,
+}
+
+/// `rᵀ v`.
+fn mat_t_vec(r: &[[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
+    std::array::from_fn(|k| r[0][k] * v[0] + r[1][k] * v[1] + r[2][k] * v[2])
+}
+
+/// b's centre in a's frame and b's orientation relative to a's (`rot`: the bodies'
+/// rotation matrices).
+fn relative_pose(s: &RigidState, rot: &[[[f64; 3]; 3]], i: usize, j: usize) -> ([f64; 3], Quat) {
+    (
+        mat_t_vec(&rot[i], sub(s.x[j], s.x[i])),
+        quat::mul(quat::conj(s.q[i]), s.q[j]),
+    )
+}
+
+impl Kept {
+    fn new(
+        s: &RigidState,
+        rot: &[[[f64; 3]; 3]],
+        [i, j]: [usize; 2],
+        pose: ([f64; 3], Quat),
+        m: &Manifold,
+    ) -> Kept {
+        let mut k = Kept {
+            pair: [i as u32, j as u32],
+            offset: pose.0,
+            rel: pose.1,
+            normal: mat_t_vec(&rot[i], m.normal),
+            count: m.count,
+            ..Kept::default()
+        };
+        for (n, p) in m.points().iter().enumerate() {
+            // The midpoint's surface points: a's reaches depth/2 along the normal into b.
+            let half = scale(m.normal, 0.5 * p.depth);
+            k.on_a[n] = mat_t_vec(&rot[i], sub(add(p.point, half), s.x[i]));
+            k.on_b[n] = mat_t_vec(&rot[j], sub(sub(p.point, half), s.x[j]));
+        }
+        k
+    }
+
+    /// Whether the pair's present pose is close enough to the kept one.
+    fn holds(&self, pose: ([f64; 3], Quat), size: f64) -> bool {
+        let d = sub(pose.0, self.offset);
+        let c = dot4(pose.1, self.rel).abs();
+        // cos(angle / 2) > 1 - angle^2 / 8 for the angle between the orientations.
+        dot(d, d) < (REUSE * size) * (REUSE * size) && c > 1.0 - REUSE * REUSE / 8.0
+    }
+
+    /// The kept points at the bodies' present poses, less those now more than `margin`
+    /// (m) apart (the margin shrinks as the pair slows); `None` if none is left.
+    fn manifold(
+        &self,
+        s: &RigidState,
+        rot: &[[[f64; 3]; 3]],
+        [i, j]: [usize; 2],
+        margin: f64,
+    ) -> Option<Manifold> {
+        let normal = mat_vec(rot[i], self.normal);
+        let mut m = Manifold {
+            normal,
+            ..Manifold::default()
+        };
+        for n in 0..self.count {
+            let pa = add(s.x[i], mat_vec(rot[i], self.on_a[n]));
+            let pb = add(s.x[j], mat_vec(rot[j], self.on_b[n]));
+            let depth = dot(sub(pa, pb), normal);
+            if depth >= -margin {
+                m.points[m.count].point = scale(add(pa, pb), 0.5);
+                m.points[m.count].depth = depth;
+                m.count += 1;
+            }
+        }
+        (m.count > 0).then_some(m)
+    }
+}
+
+fn dot4(a: Quat, b: Quat) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3]
+}
+
 /// The box of body `i` at its pose, grown by `grow` (m).
-fn body_box(m: &Rigid, s: &RigidState, i: usize, grow: f64) -> Aabb {
+fn body_box(m: &Rigid, s: &RigidState, r: &[[f64; 3]; 3], i: usize, grow: f64) -> Aabb {
     let x = s.x[i];
     let ext = match &m.colliders[i] {
         Collider::Sphere(r) => [*r; 3],
         Collider::Box(h) => {
-            let r = quat::to_matrix(s.q[i]);
             [0, 1, 2].map(|a| r[a][0].abs() * h[0] + r[a][1].abs() * h[1] + r[a][2].abs() * h[2])
         }
-        Collider::Capsule(hh, r) => {
-            let d = quat::rotate(s.q[i], [0.0, *hh, 0.0]);
-            d.map(|c| c.abs() + r)
-        }
+        Collider::Capsule(hh, rad) => [0, 1, 2].map(|a| (r[a][1] * hh).abs() + rad),
         Collider::Hull(_) => [m.bound[i]; 3],
     };
     let e = ext.map(|c| c + grow);
@@ -59,15 +164,11 @@ fn body_box(m: &Rigid, s: &RigidState, i: usize, grow: f64) -> Aabb {
     }
 }
 
-pub(crate) fn box_pose(s: &RigidState, i: usize, half: [f64; 3]) -> BoxPose {
-    let q = s.q[i];
+/// Body `i`'s box: its axes are the columns of its rotation matrix `r`.
+pub(crate) fn box_pose(s: &RigidState, r: &[[f64; 3]; 3], i: usize, half: [f64; 3]) -> BoxPose {
     BoxPose {
         center: s.x[i],
-        axes: [
-            quat::rotate(q, [1.0, 0.0, 0.0]),
-            quat::rotate(q, [0.0, 1.0, 0.0]),
-            quat::rotate(q, [0.0, 0.0, 1.0]),
-        ],
+        axes: std::array::from_fn(|k| [r[0][k], r[1][k], r[2][k]]),
         half,
     }
 }
@@ -81,6 +182,7 @@ pub(crate) fn segment(s: &RigidState, i: usize, hh: f64) -> [[f64; 3]; 2] {
 fn manifold(
     m: &Rigid,
     s: &RigidState,
+    rot: &[[[f64; 3]; 3]],
     hulls: &[Vec<[f64; 3]>],
     i: usize,
     j: usize,
@@ -100,17 +202,17 @@ fn manifold(
             let (sb, rb) = as_segment(j)?;
             capsule_capsule_manifold(sa, ra, sb, rb, margin)
         }
-        (Sphere(r), Box(h)) => sphere_box(s.x[i], *r, &box_pose(s, j, *h), margin),
+        (Sphere(r), Box(h)) => sphere_box(s.x[i], *r, &box_pose(s, &rot[j], j, *h), margin),
         (Box(h), Sphere(r)) => {
-            sphere_box(s.x[j], *r, &box_pose(s, i, *h), margin).map(Manifold::flipped)
+            sphere_box(s.x[j], *r, &box_pose(s, &rot[i], i, *h), margin).map(Manifold::flipped)
         }
         (Capsule(hh, r), Box(h)) => {
-            capsule_box(segment(s, i, *hh), *r, &box_pose(s, j, *h), margin)
+            capsule_box(segment(s, i, *hh), *r, &box_pose(s, &rot[j], j, *h), margin)
         }
         (Box(h), Capsule(hh, r)) => {
-            capsule_box(segment(s, j, *hh), *r, &box_pose(s, i, *h), margin).map(Manifold::flipped)
+            capsule_box(segment(s, j, *hh), *r, &box_pose(s, &rot[i], i, *h), margin).map(Manifold::flipped)
         }
-        (Box(ha), Box(hb)) => box_box(&box_pose(s, i, *ha), &box_pose(s, j, *hb), margin),
+        (Box(ha), Box(hb)) => box_box(&box_pose(s, &rot[i], i, *ha), &box_pose(s, &rot[j], j, *hb), margin),
         _ => {
             let convex = |k: usize| match &m.colliders[k] {
                 Sphere(r) => Convex::Sphere {
@@ -121,7 +223,7 @@ fn manifold(
                     let [a, b] = segment(s, k, *hh);
                     Convex::Capsule { a, b, radius: *r }
                 }
-                Box(h) => box_pose(s, k, *h).convex(),
+                Box(h) => box_pose(s, &rot[k], k, *h).convex(),
                 Hull(_) => Convex::Hull(&hulls[k]),
             };
             convex_convex(&convex(i), &convex(j), margin)
@@ -152,11 +254,13 @@ pub(crate) fn collide(
             out.extend(h.iter().map(|p| add(s.x[i], quat::rotate(s.q[i], *p))));
         }
     }
+    w.rot.clear();
+    w.rot.extend(s.q.iter().map(|q| quat::to_matrix(*q)));
     // Boxes grown by the margin and the distance the body may move this step.
     w.boxes.clear();
     for i in 0..n {
         let sweep = (dot(s.v[i], s.v[i]).sqrt() + dot(s.w[i], s.w[i]).sqrt() * m.bound[i]) * dt;
-        w.boxes.push(body_box(m, s, i, MARGIN * m.size[i] + sweep));
+        w.boxes.push(body_box(m, s, &w.rot[i], i, MARGIN * m.size[i] + sweep));
     }
     // The sweep stops past the limit, before the list outgrows memory.
     let max = m.desc().max_pairs;
@@ -169,6 +273,8 @@ pub(crate) fn collide(
     // Pairs in order, so the contacts come out sorted by pair (warm starting looks last
     // step's up by pair) without sorting the contacts themselves.
     w.pairs.sort_unstable();
+    w.kept_next.clear();
+    let mut kept = 0;
     for &[a, b] in &w.pairs {
         let (i, j) = (a as usize, b as usize);
         if !m.is_dynamic(i) && !m.is_dynamic(j) {
@@ -187,9 +293,35 @@ pub(crate) fn collide(
         let rel = sub(s.v[j], s.v[i]);
         let spin =
             dot(s.w[i], s.w[i]).sqrt() * m.bound[i] + dot(s.w[j], s.w[j]).sqrt() * m.bound[j];
-        let margin = MARGIN * m.size[i].min(m.size[j]) + (dot(rel, rel).sqrt() + spin) * dt;
-        let Some(man) = manifold(m, s, &w.hulls, i, j, margin) else {
-            continue;
+        let size = m.size[i].min(m.size[j]);
+        let margin = MARGIN * size + (dot(rel, rel).sqrt() + spin) * dt;
+        // Only polyhedra keep manifolds: their contact features move with them. A
+        // rolling ball's or capsule's contact point does not (and theirs are cheap).
+        let polyhedra = [i, j]
+            .iter()
+            .all(|&k| matches!(m.colliders[k], Collider::Box(_) | Collider::Hull(_)));
+        let pose = polyhedra.then(|| relative_pose(s, &w.rot, i, j));
+        while w.kept.get(kept).is_some_and(|k| k.pair < [a, b]) {
+            kept += 1;
+        }
+        let man = match (w.kept.get(kept), pose) {
+            (Some(k), Some(pose)) if k.pair == [a, b] && k.holds(pose, size) => {
+                w.kept_next.push(*k);
+                let Some(man) = k.manifold(s, &w.rot, [i, j], margin) else {
+                    continue;
+                };
+                info.reused += 1;
+                man
+            }
+            _ => {
+                let Some(man) = manifold(m, s, &w.rot, &w.hulls, i, j, margin) else {
+                    continue;
+                };
+                if let Some(pose) = pose {
+                    w.kept_next.push(Kept::new(s, &w.rot, [i, j], pose, &man));
+                }
+                man
+            }
         };
         for p in man.points() {
             if !(p.depth.is_finite() && p.point.iter().all(|c| c.is_finite())) {
@@ -202,12 +334,13 @@ pub(crate) fn collide(
                 normal: man.normal,
                 point: p.point,
                 depth: p.depth,
-                local_a: quat::rotate_inv(s.q[i], sub(p.point, s.x[i])),
+                local_a: mat_t_vec(&w.rot[i], sub(p.point, s.x[i])),
                 impulse: [0.0; 3],
                 pseudo: 0.0,
             });
         }
     }
+    std::mem::swap(&mut w.kept, &mut w.kept_next);
     info.contacts = w.contacts.len();
     // Warm start: a point takes the impulse of last step's nearest point of the same pair
     // within a quarter of the smaller body's feature size (in a's frame).

@@ -481,6 +481,10 @@ pub struct RigidWork {
     pub(crate) pairs: Vec<[u32; 2]>,
     pub(crate) contacts: Vec<ContactPoint>,
     pub(crate) previous: Vec<ContactPoint>,
+    /// The bodies' rotation matrices at the collision stage.
+    pub(crate) rot: Vec<[[f64; 3]; 3]>,
+    pub(crate) kept: Vec<contact::Kept>,
+    pub(crate) kept_next: Vec<contact::Kept>,
     pub(crate) solver: solver::SolverWork,
     pub(crate) hulls: Vec<Vec<[f64; 3]>>,
     pub(crate) sleep: sleep::SleepWork,
@@ -494,6 +498,9 @@ impl Clone for RigidWork {
             pairs: clone_keeping_capacity(&self.pairs),
             contacts: clone_keeping_capacity(&self.contacts),
             previous: clone_keeping_capacity(&self.previous),
+            rot: self.rot.clone(),
+            kept: clone_keeping_capacity(&self.kept),
+            kept_next: clone_keeping_capacity(&self.kept_next),
             solver: self.solver.clone(),
             hulls: self.hulls.clone(),
             sleep: self.sleep.clone(),
@@ -527,6 +534,9 @@ pub struct RigidStepInfo {
     pub max_depth: f64,
     /// Contact points that matched last step's (warm-started).
     pub warm: usize,
+    /// Pairs whose manifold was kept from an earlier step and moved with the bodies
+    /// (their relative pose had barely changed) instead of found again.
+    pub reused: usize,
 }
 
 impl RigidDesc {
@@ -1059,7 +1069,7 @@ impl Rigid {
                     Obstacle::Capsule { a, b, radius: *r }
                 }
                 Collider::Box(h) => {
-                    let p = contact::box_pose(s, i, *h);
+                    let p = contact::box_pose(s, &quat::to_matrix(s.q[i]), i, *h);
                     Obstacle::Oriented {
                         center: p.center,
                         axes: p.axes,
