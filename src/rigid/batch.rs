@@ -4,7 +4,9 @@
 //! The lanes hold manifolds: a group of batches gives each lane the points of one body
 //! pair (up to [`MANIFOLD`] of them, in order, one a batch), so the passes gather the
 //! bodies' velocities once per group and keep them in registers from point to point, as
-//! rapier solves a manifold's points together.
+//! rapier solves a manifold's points together. A group also holds its lanes' manifold
+//! friction ([`Friction`]: two tangent rows at each manifold's centre and a twist row),
+//! solved before the points' normal rows.
 //!
 //! Batching keeps the sequential solver's answer. Each manifold goes to the first group
 //! with a free lane after every group that holds an earlier point on one of its movable
@@ -25,6 +27,7 @@
 //! (no direction, depth -1 m, no mass), which changes nothing.
 
 use super::solver::{ContactRow, Pass, SolverBody, SolverMotion, MAX_PUSH};
+use largestep_kernels::v3;
 use super::{ContactPoint, Correction};
 use wide::f64x4;
 
@@ -44,6 +47,8 @@ pub(crate) struct Batches {
     batches: Vec<Batch>,
     /// Each group's batches, `start..end` in `batches`.
     groups: Vec<(u32, u32)>,
+    /// Each group's friction rows, one set per lane's manifold (from [`fill`]).
+    friction: Vec<Friction>,
 }
 
 impl Clone for Batches {
@@ -52,6 +57,7 @@ impl Clone for Batches {
         Batches {
             batches: super::clone_keeping_capacity(&self.batches),
             groups: super::clone_keeping_capacity(&self.groups),
+            friction: super::clone_keeping_capacity(&self.friction),
         }
     }
 }
@@ -64,29 +70,60 @@ impl Batches {
     }
 }
 
-/// Four contact points in structure-of-arrays form (fields as in [`ContactRow`], less
-/// the lever arms `r x d`: a row's velocity is `d` dotted with the points' relative
-/// velocity, which takes two cross products a visit instead of 576 bytes a batch).
+/// Four contact points' normal rows in structure-of-arrays form (fields as in
+/// [`ContactRow`]'s first row, less the lever arm `r x n`: a row's velocity is `n`
+/// dotted with the points' relative velocity, which takes two cross products a visit
+/// instead of 192 bytes a batch). Their friction is their manifold's ([`Friction`]).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Batch {
     a: [u32; 4],
     b: [u32; 4],
     /// Each lane's point in `SolverWork::contacts`, or [`UNUSED`].
     index: [u32; 4],
-    dir: [V3; 3],
+    normal: V3,
     ra: V3,
     rb: V3,
-    turn: [[V3; 2]; 3],
-    mass: V3,
-    lambda: V3,
+    /// `[Ia^-1 (ra x n), Ib^-1 (rb x n)]`.
+    turn: [V3; 2],
+    mass: V,
+    lambda: V,
     plambda: V,
     error: V,
     depth: V,
     slop: V,
+    /// The point's distance from its manifold's centre across the normal (m): its
+    /// normal impulse's share of the twist friction's cap.
+    lever: V,
     max_normal: V,
-    total: V3,
+    /// The step's normal impulse (N s).
+    total: V,
     /// The approach speed at the step's start (m/s), for restitution.
     approach: V,
+}
+
+/// A group's friction, one manifold a lane (rapier's and bepu's manifold friction):
+/// two tangent rows at the manifold's centre, capped together by the friction
+/// coefficient times the manifold's normal impulse, and a twist row about the normal,
+/// capped by the coefficient times each point's normal impulse times its distance from
+/// the centre. Three rows a manifold instead of two a point; the torque the tangent rows
+/// would have given about the normal is the twist row's.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Friction {
+    /// The two tangents, then the normal (the twist's axis).
+    dir: [V3; 3],
+    /// The centre's lever arms (m).
+    ra: V3,
+    rb: V3,
+    /// `[Ia^-1 (ra x t), Ib^-1 (rb x t)]` for each tangent, `[Ia^-1 n, Ib^-1 n]`.
+    turn: [[V3; 2]; 3],
+    mass: V3,
+    lambda: V3,
+    /// The sums over the manifold's points of the normal impulses and of the normal
+    /// impulses times the points' levers, from the last pass over them: the caps.
+    load: V,
+    moment: V,
+    /// The step's tangent impulses and twist (N s, N m s).
+    total: V3,
 }
 
 /// What the batched passes need of the step.
@@ -204,7 +241,9 @@ fn each_group(
     skip: impl Fn(&Batch) -> bool,
     mut f: impl FnMut(&mut Batch, &mut Vel, &mut Vel),
 ) {
-    let Batches { batches, groups } = b;
+    let Batches {
+        batches, groups, ..
+    } = b;
     for &(start, end) in groups.iter() {
         let group = &mut batches[start as usize..end as usize];
         let (a, b) = (group[0].a, group[0].b);
@@ -229,18 +268,19 @@ impl Batch {
             a: [pad; 4],
             b: [pad; 4],
             index: [UNUSED; 4],
-            dir: [z3; 3],
+            normal: z3,
             ra: z3,
             rb: z3,
-            turn: [[z3; 2]; 3],
-            mass: z3,
-            lambda: z3,
+            turn: [z3; 2],
+            mass: z,
+            lambda: z,
             plambda: z,
             error: splat(-1.0),
             depth: splat(-1.0),
             slop: z,
+            lever: z,
             max_normal: z,
-            total: z3,
+            total: z,
             approach: z,
         }
     }
@@ -252,43 +292,115 @@ impl Batch {
         let (xa, ra, xb, rb) = (*xa, *ra, *xb, *rb);
         let da = add(xa, mat_vec(ra, self.ra));
         let db = add(xb, mat_vec(rb, self.rb));
-        self.error = self.depth - dot(self.dir[0], sub(db, da));
+        self.error = self.depth - dot(self.normal, sub(db, da));
     }
 
     /// After a sub-step's last pass: the largest normal impulse and the total impulse.
     #[inline(always)]
     fn accumulate(&mut self) {
-        self.max_normal = self.max_normal.max(self.lambda[0]);
-        for r in 0..3 {
-            self.total = add(self.total, scale(self.dir[r], self.lambda[r]));
+        self.max_normal = self.max_normal.max(self.lambda);
+        self.total += self.lambda;
+    }
+
+    /// The relative velocity along the normal, `n (vb - va) + (rb x n) wb - (ra x n) wa`
+    /// (`solver::row_velocity`) as `n` dotted with [`relative`].
+    #[inline(always)]
+    fn velocity(&self, ua: &Vel, ub: &Vel) -> V {
+        dot(self.normal, relative(ua, ub, self.ra, self.rb))
+    }
+
+    /// Applies the normal impulses `l` (as `solver::contact_push`).
+    #[inline(always)]
+    fn push(&self, ua: &mut Vel, ub: &mut Vel, l: V) {
+        push(ua, ub, self.normal, self.turn, l);
+    }
+}
+
+/// The velocity of b's point relative to a's, `vb + wb x rb - va - wa x ra` (the lever
+/// arms of the step's start, as the rows' Jacobians).
+#[inline(always)]
+fn relative(ua: &Vel, ub: &Vel, ra: V3, rb: V3) -> V3 {
+    sub(add(ub.v, cross(ub.w, rb)), add(ua.v, cross(ua.w, ra)))
+}
+
+/// Applies the impulses `l` along `d` (`-l` on a, `l` on b), whose angular velocities
+/// per unit impulse are `turn`.
+#[inline(always)]
+fn push(ua: &mut Vel, ub: &mut Vel, d: V3, turn: [V3; 2], l: V) {
+    ua.v = sub(ua.v, scale(d, ua.inv_mass * l));
+    ua.w = sub(ua.w, scale(turn[0], l));
+    ub.v = add(ub.v, scale(d, ub.inv_mass * l));
+    ub.w = add(ub.w, scale(turn[1], l));
+}
+
+impl Friction {
+    /// No manifold in any lane.
+    fn empty() -> Friction {
+        let z = V::ZERO;
+        let z3 = [z; 3];
+        Friction {
+            dir: [z3; 3],
+            ra: z3,
+            rb: z3,
+            turn: [[z3; 2]; 3],
+            mass: z3,
+            lambda: z3,
+            load: z,
+            moment: z,
+            total: z3,
         }
     }
 
-    /// The velocity of b's contact point relative to a's, `vb + wb x rb - va - wa x ra`
-    /// (the lever arms of the step's start, as the rows' Jacobians).
+    /// Applies the impulses `l` along the tangents and the twist `l[2]` about the normal.
     #[inline(always)]
-    fn relative(&self, ua: &Vel, ub: &Vel) -> V3 {
-        sub(
-            add(ub.v, cross(ub.w, self.rb)),
-            add(ua.v, cross(ua.w, self.ra)),
-        )
+    fn push(&self, ua: &mut Vel, ub: &mut Vel, l: V3) {
+        push(ua, ub, self.dir[0], self.turn[0], l[0]);
+        push(ua, ub, self.dir[1], self.turn[1], l[1]);
+        ua.w = sub(ua.w, scale(self.turn[2][0], l[2]));
+        ub.w = add(ub.w, scale(self.turn[2][1], l[2]));
     }
 
-    /// The relative velocity along row `r`: `d (vb - va) + (rb x d) wb - (ra x d) wa`
-    /// (`solver::row_velocity`) as `d` dotted with [`Batch::relative`].
+    /// Whether no lane holds or may take an impulse (no load, nothing held).
     #[inline(always)]
-    fn velocity(&self, ua: &Vel, ub: &Vel, r: usize) -> V {
-        dot(self.dir[r], self.relative(ua, ub))
+    fn idle(&self) -> bool {
+        let zero = V::ZERO;
+        (self.load.simd_eq(zero)
+            & self.lambda[0].simd_eq(zero)
+            & self.lambda[1].simd_eq(zero)
+            & self.lambda[2].simd_eq(zero))
+        .all()
     }
 
-    /// Applies the impulses `l` along row `r` (as `solver::contact_push`).
+    /// One pass over the rows, within the caps of the last normal pass's impulses;
+    /// false if every lane was idle.
     #[inline(always)]
-    fn push(&self, ua: &mut Vel, ub: &mut Vel, r: usize, l: V) {
-        let d = self.dir[r];
-        ua.v = sub(ua.v, scale(d, ua.inv_mass * l));
-        ua.w = sub(ua.w, scale(self.turn[r][0], l));
-        ub.v = add(ub.v, scale(d, ub.inv_mass * l));
-        ub.w = add(ub.w, scale(self.turn[r][1], l));
+    fn solve(&mut self, ua: &mut Vel, ub: &mut Vel, friction: V) -> bool {
+        if self.idle() {
+            return false;
+        }
+        let (zero, one) = (V::ZERO, splat(1.0));
+        let dv = relative(ua, ub, self.ra, self.rb);
+        let cap = friction * self.load;
+        let d1 = self.mass[0] * -dot(self.dir[0], dv);
+        let d2 = self.mass[1] * -dot(self.dir[1], dv);
+        let old = self.lambda;
+        let (l1, l2) = (old[0] + d1, old[1] + d2);
+        let lt = (l1 * l1 + l2 * l2).sqrt();
+        let f = lt
+            .simd_gt(cap)
+            .bitselect(lt.simd_gt(zero).bitselect(cap / lt, zero), one);
+        let (l1, l2) = (l1 * f, l2 * f);
+        push(ua, ub, self.dir[0], self.turn[0], l1 - old[0]);
+        push(ua, ub, self.dir[1], self.turn[1], l2 - old[1]);
+        // The twist after the tangents, from the spin they left.
+        let spin = dot(self.dir[2], sub(ub.w, ua.w));
+        let cap = friction * self.moment;
+        let l3 = (old[2] + self.mass[2] * -spin).max(-cap).min(cap);
+        let d3 = l3 - old[2];
+        ua.w = sub(ua.w, scale(self.turn[2][0], d3));
+        ub.w = add(ub.w, scale(self.turn[2][1], d3));
+        self.lambda = [l1, l2, l3];
+        true
     }
 }
 
@@ -390,55 +502,128 @@ pub(crate) struct RowInputs<'a> {
     pub accumulate: bool,
 }
 
-/// The batches' rows, fixed over the step: tangent frame, the angular velocity
-/// `I^-1 (r x d)` a unit impulse gives each body (from the lever arms `r x d`, not
-/// kept), effective masses, the approach speed, and the warm start's impulses per
-/// sub-step clamped to the cone. Formed four lanes at a time with the scalar formulas'
-/// operations in the same order (as `solver::step`'s rows for penalty springs). Lanes
+/// The batches' rows, fixed over the step: each point's normal row (the angular
+/// velocity `I^-1 (r x n)` a unit impulse gives each body, from the lever arm `r x n`,
+/// not kept; the effective mass; the approach speed; its distance from its manifold's
+/// centre) and each manifold's friction rows at its centre ([`Friction`]: tangent frame,
+/// effective masses, the twist's), with the warm start's impulses per sub-step: the
+/// normal ones from each point's last impulse, the friction ones from the points'
+/// impulses summed (force and torque about the normal), clamped to the caps. Formed four
+/// lanes at a time, every lane with the same operations in the same order. Lanes
 /// without a point keep the idle point of [`Batch::empty`] (no direction, depth -1 m)
 /// and get no mass, whether on the padding body or on their manifold's bodies.
 pub(crate) fn fill(batches: &mut Batches, inp: &RowInputs) {
     let (zero, one) = (V::ZERO, splat(1.0));
     let per = splat(1.0 / inp.substeps as f64);
     let friction = splat(inp.friction);
-    for t in batches.batches.iter_mut() {
-        // Per lane inputs, transposed by hand: unused lanes keep the idle values.
-        let mut p = [[0.0; 4]; 3];
+    let v3 = |x: [[f64; 4]; 3]| x.map(V::new);
+    let m3 = |x: [[[f64; 4]; 3]; 3]| [v3(x[0]), v3(x[1]), v3(x[2])];
+    let Batches {
+        batches,
+        groups,
+        friction: rows,
+    } = batches;
+    rows.clear();
+    for &(start, end) in groups.iter() {
+        let group = &mut batches[start as usize..end as usize];
+        let (a, b) = (group[0].a, group[0].b);
+        // Per lane: the bodies, the manifold's normal, the centre of its points and
+        // their impulses (sum, and moment about the centre after it is known).
         let mut n = [[0.0; 4]; 3];
-        let mut imp = [[0.0; 4]; 3];
         let mut xa = [[0.0; 4]; 3];
         let mut xb = [[0.0; 4]; 3];
         let mut ia = [[[0.0; 4]; 3]; 3];
         let mut ib = [[[0.0; 4]; 3]; 3];
-        let mut depth = [-1.0; 4];
-        let mut slop = [0.0; 4];
-        let mut used = [0.0; 4];
+        let mut centre = [[0.0; 4]; 3];
+        let mut imp = [[0.0; 4]; 3];
+        let mut count = [0.0; 4];
+        for t in group.iter() {
+            for l in 0..4 {
+                if t.index[l] == UNUSED {
+                    continue;
+                }
+                let c = &inp.points[t.index[l] as usize];
+                for k in 0..3 {
+                    centre[k][l] += c.point[k];
+                    imp[k][l] += c.impulse[k];
+                }
+                count[l] += 1.0;
+            }
+        }
         for l in 0..4 {
-            if t.index[l] == UNUSED {
+            if count[l] == 0.0 {
                 continue;
             }
-            used[l] = 1.0;
-            let c = &inp.points[t.index[l] as usize];
-            let (a, b) = (c.a as usize, c.b as usize);
+            let c = &inp.points[group[0].index[l] as usize];
+            let (ba, bb) = (c.a as usize, c.b as usize);
             for k in 0..3 {
-                p[k][l] = c.point[k];
+                centre[k][l] /= count[l];
                 n[k][l] = c.normal[k];
-                imp[k][l] = c.impulse[k];
-                xa[k][l] = inp.x[a][k];
-                xb[k][l] = inp.x[b][k];
+                xa[k][l] = inp.x[ba][k];
+                xb[k][l] = inp.x[bb][k];
                 for j in 0..3 {
-                    ia[k][j][l] = inp.inv_inertia[a][k][j];
-                    ib[k][j][l] = inp.inv_inertia[b][k][j];
+                    ia[k][j][l] = inp.inv_inertia[ba][k][j];
+                    ib[k][j][l] = inp.inv_inertia[bb][k][j];
                 }
             }
-            depth[l] = c.depth;
-            slop[l] = (inp.slop)(c);
         }
-        let v3 = |x: [[f64; 4]; 3]| x.map(V::new);
-        let m3 = |x: [[[f64; 4]; 3]; 3]| [v3(x[0]), v3(x[1]), v3(x[2])];
-        let (p, n, xa, xb) = (v3(p), v3(n), v3(xa), v3(xb));
+        let (n, xa, xb, centre) = (v3(n), v3(xa), v3(xb), v3(centre));
         let (ia, ib) = (m3(ia), m3(ib));
-        let (ra, rb) = (sub(p, xa), sub(p, xb));
+        let (ua, ub) = (gather(inp.bodies, a), gather(inp.bodies, b));
+        let mut twist = zero;
+        let mut load = zero;
+        let mut moment = zero;
+        for t in group.iter_mut() {
+            let mut p = [[0.0; 4]; 3];
+            let mut pimp = [[0.0; 4]; 3];
+            let mut depth = [-1.0; 4];
+            let mut slop = [0.0; 4];
+            let mut used = [0.0; 4];
+            for l in 0..4 {
+                if t.index[l] == UNUSED {
+                    continue;
+                }
+                used[l] = 1.0;
+                let c = &inp.points[t.index[l] as usize];
+                for k in 0..3 {
+                    p[k][l] = c.point[k];
+                    pimp[k][l] = c.impulse[k];
+                }
+                depth[l] = c.depth;
+                slop[l] = (inp.slop)(c);
+            }
+            let used = V::new(used).simd_gt(zero);
+            let p = v3(p);
+            let (ra, rb) = (sub(p, xa), sub(p, xb));
+            // The normal is zero in unused lanes, as the lever then is.
+            let normal = [0, 1, 2].map(|k| used.bitselect(n[k], zero));
+            let arm = [cross(ra, normal), cross(rb, normal)];
+            let turn = [mat_vec(ia, arm[0]), mat_vec(ib, arm[1])];
+            let k = ua.inv_mass + ub.inv_mass + dot(arm[0], turn[0]) + dot(arm[1], turn[1]);
+            // An idle lane of a group may sit on its manifold's bodies: no mass there.
+            t.mass = (k.simd_gt(zero) & used).bitselect(one / k, zero);
+            let off = sub(p, centre);
+            let across = sub(off, scale(normal, dot(off, normal)));
+            t.lever = used.bitselect(dot(across, across).sqrt(), zero);
+            t.normal = normal;
+            t.ra = ra;
+            t.rb = rb;
+            t.turn = turn;
+            let depth = V::new(depth);
+            t.depth = depth;
+            t.error = depth;
+            t.slop = V::new(slop);
+            t.approach = -t.velocity(&ua, &ub);
+            t.lambda = if inp.accumulate {
+                let pimp = v3(pimp);
+                twist += used.bitselect(dot(cross(off, pimp), normal), zero);
+                (dot(pimp, normal) * per).max(zero)
+            } else {
+                zero
+            };
+            load += t.lambda;
+            moment += t.lambda * t.lever;
+        }
         // `v3::tangent_frame` lane by lane: t1 from the world axis least aligned with n.
         let near_x = n[0].abs().simd_lt(splat(0.57));
         let axis = [
@@ -455,43 +640,41 @@ pub(crate) fn fill(batches: &mut Batches, inp: &RowInputs) {
             ok.bitselect(c[2] / len, one),
         ];
         let t2 = cross(n, t1);
-        let dir = [n, t1, t2];
-        let arm: [[V3; 2]; 3] = std::array::from_fn(|r| [cross(ra, dir[r]), cross(rb, dir[r])]);
-        let turn: [[V3; 2]; 3] =
-            std::array::from_fn(|r| [mat_vec(ia, arm[r][0]), mat_vec(ib, arm[r][1])]);
-        let (ua, ub) = (gather(inp.bodies, t.a), gather(inp.bodies, t.b));
-        // An idle lane of a group may sit on its manifold's bodies: no mass there.
-        let used = V::new(used).simd_gt(zero);
-        let mass: V3 = std::array::from_fn(|r| {
-            let k =
-                ua.inv_mass + ub.inv_mass + dot(arm[r][0], turn[r][0]) + dot(arm[r][1], turn[r][1]);
-            (k.simd_gt(zero) & used).bitselect(one / k, zero)
-        });
-        t.dir = dir;
-        t.ra = ra;
-        t.rb = rb;
-        t.turn = turn;
-        t.mass = mass;
-        let depth = V::new(depth);
-        t.depth = depth;
-        t.error = depth;
-        t.slop = V::new(slop);
-        t.approach = -t.velocity(&ua, &ub, 0);
-        t.lambda = if inp.accumulate {
-            // Warm start from last step's impulse per sub-step, inside the cone.
-            let per = scale(v3(imp), per);
-            let ln = dot(per, n).max(zero);
-            let (l1, l2) = (dot(per, t1), dot(per, t2));
-            let cap = friction * ln;
+        let used = V::new(count).simd_gt(zero);
+        let (ra, rb) = (sub(centre, xa), sub(centre, xb));
+        let mut f = Friction::empty();
+        f.dir = [t1, t2, n];
+        f.ra = ra;
+        f.rb = rb;
+        for r in 0..2 {
+            let arm = [cross(ra, f.dir[r]), cross(rb, f.dir[r])];
+            f.turn[r] = [mat_vec(ia, arm[0]), mat_vec(ib, arm[1])];
+            let k = ua.inv_mass + ub.inv_mass + dot(arm[0], f.turn[r][0]) + dot(arm[1], f.turn[r][1]);
+            f.mass[r] = (k.simd_gt(zero) & used).bitselect(one / k, zero);
+        }
+        f.turn[2] = [mat_vec(ia, n), mat_vec(ib, n)];
+        let k = dot(n, f.turn[2][0]) + dot(n, f.turn[2][1]);
+        f.mass[2] = (k.simd_gt(zero) & used).bitselect(one / k, zero);
+        f.load = load;
+        f.moment = moment;
+        if inp.accumulate {
+            // Warm start: the points' tangent impulses and twist, inside the caps.
+            let imp = scale(v3(imp), per);
+            let (l1, l2) = (dot(imp, t1), dot(imp, t2));
+            let cap = friction * load;
             let lt = (l1 * l1 + l2 * l2).sqrt();
-            let f = lt
+            let s = lt
                 .simd_gt(cap)
                 .bitselect(lt.simd_gt(zero).bitselect(cap / lt, zero), one);
-            let over = lt.simd_gt(cap);
-            [ln, over.bitselect(l1 * f, l1), over.bitselect(l2 * f, l2)]
-        } else {
-            [zero; 3]
-        };
+            let cap = friction * moment;
+            let l3 = (twist * per).max(-cap).min(cap);
+            f.lambda = [
+                used.bitselect(l1 * s, zero),
+                used.bitselect(l2 * s, zero),
+                used.bitselect(l3, zero),
+            ];
+        }
+        rows.push(f);
     }
 }
 
@@ -504,13 +687,49 @@ fn cross(a: V3, b: V3) -> V3 {
     ]
 }
 
-/// Each point's impulse over the step into its contact.
+/// Each point's impulse over the step into its contact: its normal impulse, an equal
+/// share of its manifold's tangent impulse, and forces across the normal that give the
+/// manifold's twist about its centre, `twist (n x d) / sum |d|²` at distance `d` from it
+/// (they sum to no force, and the points' impulses add up to the manifold's force and
+/// torque about the normal, from which [`fill`] warm-starts).
 pub(crate) fn impulses(batches: &Batches, points: &mut [ContactPoint]) {
-    for t in &batches.batches {
-        let total = t.total.map(|x| x.to_array());
+    for (&(start, end), f) in batches.groups.iter().zip(&batches.friction) {
+        let group = &batches.batches[start as usize..end as usize];
+        let dir = f.dir.map(|d| d.map(|x| x.to_array()));
+        let total = f.total.map(|x| x.to_array());
         for l in 0..4 {
-            if t.index[l] != UNUSED {
-                points[t.index[l] as usize].impulse = [total[0][l], total[1][l], total[2][l]];
+            let lane = || {
+                group
+                    .iter()
+                    .filter(move |t| t.index[l] != UNUSED)
+                    .map(move |t| (t.index[l] as usize, t.total.to_array()[l]))
+            };
+            let count = lane().count();
+            if count == 0 {
+                continue;
+            }
+            let n = [dir[2][0][l], dir[2][1][l], dir[2][2][l]];
+            let tangent: [f64; 3] = std::array::from_fn(|k| {
+                (total[0][l] * dir[0][k][l] + total[1][l] * dir[1][k][l]) / count as f64
+            });
+            let centre = lane()
+                .fold([0.0; 3], |c, (i, _)| v3::add(c, points[i].point))
+                .map(|c| c / count as f64);
+            // Each point's offset from the centre across the normal.
+            let mut across = [(0, 0.0, [0.0; 3]); MANIFOLD];
+            for (k, (i, normal)) in lane().enumerate() {
+                let off = v3::sub(points[i].point, centre);
+                across[k] = (i, normal, v3::sub(off, v3::scale(n, v3::dot(off, n))));
+            }
+            let across = &across[..count];
+            let spread: f64 = across.iter().map(|a| v3::dot(a.2, a.2)).sum();
+            for &(i, normal, d) in across {
+                let twist = if spread > 0.0 {
+                    v3::scale(v3::cross(n, d), total[2][l] / spread)
+                } else {
+                    [0.0; 3]
+                };
+                points[i].impulse = v3::add(v3::add(v3::scale(n, normal), tangent), twist);
             }
         }
     }
@@ -537,35 +756,51 @@ pub(crate) fn restitute(batches: &mut Batches, bodies: &mut [SolverBody], p: &La
         bodies,
         |t| !on(t).any(),
         |t, ua, ub| {
-            let vn = t.velocity(ua, ub, 0);
-            let dl = t.mass[0] * (e * t.approach - vn);
-            let new = on(t).bitselect((t.lambda[0] + dl).max(zero), t.lambda[0]);
-            let delta = new - t.lambda[0];
-            t.push(ua, ub, 0, delta);
-            t.total = add(t.total, scale(t.dir[0], delta));
-            t.lambda[0] = new;
+            let vn = t.velocity(ua, ub);
+            let dl = t.mass * (e * t.approach - vn);
+            let new = on(t).bitselect((t.lambda + dl).max(zero), t.lambda);
+            let delta = new - t.lambda;
+            t.push(ua, ub, delta);
+            t.total += delta;
+            t.lambda = new;
         },
     );
 }
 
-/// Warm start: each point's impulses so far applied again (one-shot impulses start
-/// from zero instead).
+/// Warm start: each point's and each manifold's impulses so far applied again (one-shot
+/// impulses start from zero instead).
 pub(crate) fn warm_start(batches: &mut Batches, bodies: &mut [SolverBody], accumulate: bool) {
+    let Batches {
+        batches,
+        groups,
+        friction,
+    } = batches;
     if !accumulate {
-        for t in batches.batches.iter_mut() {
-            t.lambda = [V::ZERO; 3];
+        for t in batches.iter_mut() {
+            t.lambda = V::ZERO;
+        }
+        for f in friction.iter_mut() {
+            f.lambda = [V::ZERO; 3];
+            f.load = V::ZERO;
+            f.moment = V::ZERO;
         }
         return;
     }
-    let none = |t: &Batch| {
-        (t.lambda[0].simd_eq(V::ZERO) & t.lambda[1].simd_eq(V::ZERO) & t.lambda[2].simd_eq(V::ZERO))
-            .all()
-    };
-    each_group(batches, bodies, none, |t, ua, ub| {
-        for r in 0..3 {
-            t.push(ua, ub, r, t.lambda[r]);
+    for (&(start, end), f) in groups.iter().zip(friction.iter()) {
+        let group = &batches[start as usize..end as usize];
+        if f.idle() {
+            // No load: no point holds a normal impulse either.
+            continue;
         }
-    });
+        let (a, b) = (group[0].a, group[0].b);
+        let (mut ua, mut ub) = (gather(bodies, a), gather(bodies, b));
+        f.push(&mut ua, &mut ub, f.lambda);
+        for t in group {
+            t.push(&mut ua, &mut ub, t.lambda);
+        }
+        scatter(bodies, a, &ua);
+        scatter(bodies, b, &ub);
+    }
 }
 
 /// The bodies' motion since the step's start, in the lanes of `idx`: displacement
@@ -607,7 +842,9 @@ pub(crate) fn clear_split(batches: &mut Batches) {
 /// One pass over the batches (see `solver::Pass`); `pseudo` holds the split impulses'
 /// pseudo-velocities, used by [`Pass::Pseudo`] instead of `bodies`. With `motion`, each
 /// batch's penetrations are brought up to date first; with `last` (the sub-step's last
-/// pass over the velocities), its impulses are added to the step's totals after.
+/// pass over the velocities), its impulses are added to the step's totals after. A
+/// group's friction goes first, capped by the normal impulses of the pass before (as
+/// Box2D and rapier: the normal rows, solved last, are the ones kept best).
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn solve(
     batches: &mut Batches,
@@ -628,26 +865,39 @@ pub(crate) fn solve(
             |t, ua, ub| {
                 let target = target(t);
                 let on = target.simd_ne(zero);
-                let dl = t.mass[0] * (target - t.velocity(ua, ub, 0));
+                let dl = t.mass * (target - t.velocity(ua, ub));
                 let new = on.bitselect((t.plambda + dl).max(zero), t.plambda);
-                t.push(ua, ub, 0, new - t.plambda);
+                t.push(ua, ub, new - t.plambda);
                 t.plambda = new;
             },
         );
         return;
     }
-    let Batches { batches, groups } = batches;
-    for &(start, end) in groups.iter() {
+    let friction = splat(p.friction);
+    let Batches {
+        batches,
+        groups,
+        friction: rows,
+    } = batches;
+    for (&(start, end), f) in groups.iter().zip(rows.iter_mut()) {
         let group = &mut batches[start as usize..end as usize];
         let (a, b) = (group[0].a, group[0].b);
         let moved = motion.map(|m| (gather_motion(m, a), gather_motion(m, b)));
         let (mut ua, mut ub) = (gather(bodies, a), gather(bodies, b));
-        let mut touched = false;
+        let mut touched = f.solve(&mut ua, &mut ub, friction);
+        let (mut load, mut moment) = (V::ZERO, V::ZERO);
         for t in group.iter_mut() {
             if let Some((ma, mb)) = &moved {
                 t.update_error(ma, mb);
             }
             touched |= solve_point(t, &mut ua, &mut ub, pass, last, p);
+            load += t.lambda;
+            moment += t.lambda * t.lever;
+        }
+        f.load = load;
+        f.moment = moment;
+        if last {
+            f.total = add(f.total, f.lambda);
         }
         if touched {
             scatter(bodies, a, &ua);
@@ -656,8 +906,9 @@ pub(crate) fn solve(
     }
 }
 
-/// One point of each lane in the velocity passes (`Pass::Solve`, `Pass::Relax`), on the
-/// lanes' bodies `ua`, `ub`; false if all four were idle and nothing changed.
+/// The normal row of one point of each lane in the velocity passes (`Pass::Solve`,
+/// `Pass::Relax`), on the lanes' bodies `ua`, `ub`; false if all four were idle and
+/// nothing changed.
 #[inline(always)]
 fn solve_point(
     t: &mut Batch,
@@ -669,8 +920,7 @@ fn solve_point(
 ) -> bool {
     let (h, zero, one) = (splat(p.h), V::ZERO, splat(1.0));
     let beta = splat(p.beta);
-    let (friction, restitution, bounce) =
-        (splat(p.friction), splat(p.restitution), splat(p.bounce));
+    let (restitution, bounce) = (splat(p.restitution), splat(p.bounce));
     let soft = |s: [f64; 3]| s.map(splat);
     let (cs, ss) = (soft(p.contact_soft), soft(p.static_soft));
     let max_push = splat(MAX_PUSH);
@@ -678,33 +928,17 @@ fn solve_point(
     let apart = e.simd_lt(zero);
     // Idle speculative points (see `solver::solve_pass`): a batch of them is skipped;
     // in a busy batch they change nothing.
-    let held = t.lambda[0].simd_ne(zero) | t.lambda[1].simd_ne(zero) | t.lambda[2].simd_ne(zero);
-    let dv = t.relative(ua, ub);
-    let vn0 = dot(t.dir[0], dv);
-    let mut idle = apart & !held & vn0.simd_ge(e / h);
+    let held = t.lambda.simd_ne(zero);
+    let vn = t.velocity(ua, ub);
+    let mut idle = apart & !held & vn.simd_ge(e / h);
     if !p.accumulate {
-        idle &= (-vn0).simd_le(bounce);
+        idle &= (-vn).simd_le(bounce);
     }
     if idle.all() {
         // Idle points hold no impulse: there is nothing to add to the totals.
         return false;
     }
-    // Friction within the cone of the normal impulse so far.
-    let cap = friction * t.lambda[0];
-    let d1 = t.mass[1] * -dot(t.dir[1], dv);
-    let d2 = t.mass[2] * -dot(t.dir[2], dv);
-    let (old1, old2) = (t.lambda[1], t.lambda[2]);
-    let (l1, l2) = (old1 + d1, old2 + d2);
-    let lt = (l1 * l1 + l2 * l2).sqrt();
-    let f = lt
-        .simd_gt(cap)
-        .bitselect(lt.simd_gt(zero).bitselect(cap / lt, zero), one);
-    let (l1, l2) = (l1 * f, l2 * f);
-    t.lambda[1] = l1;
-    t.lambda[2] = l2;
-    t.push(ua, ub, 1, l1 - old1);
-    t.push(ua, ub, 2, l2 - old2);
-    // Normal: the target and softness of `solver::solve_pass`, lane by lane.
+    // The target and softness of `solver::solve_pass`, lane by lane.
     let (mut target, mut scale_m, mut scale_i) = match (pass, p.correction) {
         (Pass::Solve, Correction::Soft) => {
             let fixed = ua.inv_mass.simd_eq(zero) | ub.inv_mass.simd_eq(zero);
@@ -717,22 +951,21 @@ fn solve_point(
     target = apart.bitselect(e / h, target);
     scale_m = apart.bitselect(one, scale_m);
     scale_i = apart.bitselect(zero, scale_i);
-    let vn = t.velocity(ua, ub, 0);
     if !p.accumulate {
         let bouncing = (-vn).simd_gt(bounce);
         target = bouncing.bitselect(target.max(restitution * -vn), target);
         scale_m = bouncing.bitselect(one, scale_m);
         scale_i = bouncing.bitselect(zero, scale_i);
     }
-    let dl = t.mass[0] * scale_m * (target - vn) - scale_i * t.lambda[0];
-    let old = t.lambda[0];
+    let dl = t.mass * scale_m * (target - vn) - scale_i * t.lambda;
+    let old = t.lambda;
     let new = if p.accumulate {
         (old + dl).max(zero)
     } else {
         old + dl.max(zero)
     };
-    t.lambda[0] = new;
-    t.push(ua, ub, 0, new - old);
+    t.lambda = new;
+    t.push(ua, ub, new - old);
     if last {
         t.accumulate();
     }

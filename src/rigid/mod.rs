@@ -14,11 +14,15 @@
 //!    prune for the pairs, and contact manifolds from the narrow phase
 //!    (`kernels::collide::manifold`): boxes clipped face against face, spheres and
 //!    capsules in closed form, hulls by GJK and EPA. Points within the margin but still
-//!    apart are *speculative*: they let the bodies close the gap and no more.
+//!    apart are *speculative*: they let the bodies close the gap and no more. A pair of
+//!    polyhedra whose relative pose has barely moved since its manifold was found keeps
+//!    it, moved with the bodies (`contact`).
 //! 2. **Velocities**: gravity, and the gyroscopic term as the integrator treats it.
 //! 3. **Constraints** ([`RigidSolver`]): sequential impulses (projected Gauss-Seidel on
-//!    the accumulated impulses, Catto 2005) over contact points (a normal row with
-//!    restitution, two friction rows clamped to Coulomb's cone `|λt| <= mu λn`) and joint
+//!    the accumulated impulses, Catto 2005) over contact manifolds (a normal row with
+//!    restitution per point; per manifold two friction rows at its centre clamped to
+//!    Coulomb's cone `|λt| <= mu sum λn`, and a twist row about the normal clamped by
+//!    `mu sum λn |d|` for points at `d` from the centre, as rapier and bepu) and joint
 //!    rows (ball, hinge, fixed, distance), warm-started from the last step's impulses;
 //!    position errors removed by split impulses (pseudo-velocities that move the bodies
 //!    but add no momentum) or by Baumgarte's velocity bias. The alternatives: one-shot
