@@ -697,35 +697,42 @@ pub(crate) fn impulses(batches: &Batches, points: &mut [ContactPoint]) {
         let group = &batches.batches[start as usize..end as usize];
         let dir = f.dir.map(|d| d.map(|x| x.to_array()));
         let total = f.total.map(|x| x.to_array());
+        // Per lane: the points (index, normal impulse) and their centre.
+        let mut lanes = [[(0usize, 0.0); MANIFOLD]; 4];
+        let mut count = [0usize; 4];
+        let mut centre = [[0.0; 3]; 4];
+        for t in group {
+            let normal = t.total.to_array();
+            for l in 0..4 {
+                if t.index[l] != UNUSED && count[l] < MANIFOLD {
+                    let i = t.index[l] as usize;
+                    lanes[l][count[l]] = (i, normal[l]);
+                    count[l] += 1;
+                    centre[l] = v3::add(centre[l], points[i].point);
+                }
+            }
+        }
         for l in 0..4 {
-            let lane = || {
-                group
-                    .iter()
-                    .filter(move |t| t.index[l] != UNUSED)
-                    .map(move |t| (t.index[l] as usize, t.total.to_array()[l]))
-            };
-            let count = lane().count();
-            if count == 0 {
+            if count[l] == 0 {
                 continue;
             }
+            let k = count[l] as f64;
             let n = [dir[2][0][l], dir[2][1][l], dir[2][2][l]];
-            let tangent: [f64; 3] = std::array::from_fn(|k| {
-                (total[0][l] * dir[0][k][l] + total[1][l] * dir[1][k][l]) / count as f64
+            let tangent: [f64; 3] = std::array::from_fn(|c| {
+                (total[0][l] * dir[0][c][l] + total[1][l] * dir[1][c][l]) / k
             });
-            let centre = lane()
-                .fold([0.0; 3], |c, (i, _)| v3::add(c, points[i].point))
-                .map(|c| c / count as f64);
+            let centre = centre[l].map(|c| c / k);
             // Each point's offset from the centre across the normal.
-            let mut across = [(0, 0.0, [0.0; 3]); MANIFOLD];
-            for (k, (i, normal)) in lane().enumerate() {
+            let mut across = [[0.0; 3]; MANIFOLD];
+            let mut spread = 0.0;
+            for (a, &(i, _)) in across.iter_mut().zip(&lanes[l][..count[l]]) {
                 let off = v3::sub(points[i].point, centre);
-                across[k] = (i, normal, v3::sub(off, v3::scale(n, v3::dot(off, n))));
+                *a = v3::sub(off, v3::scale(n, v3::dot(off, n)));
+                spread += v3::dot(*a, *a);
             }
-            let across = &across[..count];
-            let spread: f64 = across.iter().map(|a| v3::dot(a.2, a.2)).sum();
-            for &(i, normal, d) in across {
+            for (d, &(i, normal)) in across.iter().zip(&lanes[l][..count[l]]) {
                 let twist = if spread > 0.0 {
-                    v3::scale(v3::cross(n, d), total[2][l] / spread)
+                    v3::scale(v3::cross(n, *d), total[2][l] / spread)
                 } else {
                     [0.0; 3]
                 };

@@ -272,7 +272,9 @@ pub(crate) fn collide(
     }
     // Pairs in order, so the contacts come out sorted by pair (warm starting looks last
     // step's up by pair) without sorting the contacts themselves.
-    w.pairs.sort_unstable();
+    // As one 64-bit key each: compared faster than the two halves in turn.
+    w.pairs
+        .sort_unstable_by_key(|&[a, b]| (u64::from(a) << 32) | u64::from(b));
     w.kept_next.clear();
     let mut kept = 0;
     for &[a, b] in &w.pairs {

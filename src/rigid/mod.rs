@@ -1188,10 +1188,10 @@ impl Rigid {
             (true, RigidIntegrator::SymplecticEuler) => {
                 // L = I(q0) w is what the solver left; q advances by I(q0)^-1 L = w,
                 // and w is re-read from L at the new orientation.
-                let l = mat_vec(rotate_diag(s.q[i], self.inertia[i]), s.w[i]);
+                let l = inertia_times(s.q[i], self.inertia[i], s.w[i]);
                 s.x[i] = add(s.x[i], scale(add(s.v[i], pv), h));
                 s.q[i] = quat::integrate(s.q[i], add(s.w[i], pw), h);
-                s.w[i] = mat_vec(rotate_diag(s.q[i], self.inv_inertia[i]), l);
+                s.w[i] = inertia_times(s.q[i], self.inv_inertia[i], l);
             }
             (true, RigidIntegrator::ExplicitEuler | RigidIntegrator::Rk4) => {
                 // Back to the velocities at the sub-step's start (plus the impulses).
@@ -1218,6 +1218,15 @@ impl Rigid {
             }
         }
     }
+}
+
+/// `R diag(d) Rᵀ v` for the rotation `R` of `q`, as `R (d ⊙ (Rᵀ v))`: two products with
+/// `R` instead of forming the matrix.
+fn inertia_times(q: Quat, d: [f64; 3], v: [f64; 3]) -> [f64; 3] {
+    let r = quat::to_matrix(q);
+    let body: [f64; 3] =
+        std::array::from_fn(|k| d[k] * (r[0][k] * v[0] + r[1][k] * v[1] + r[2][k] * v[2]));
+    mat_vec(r, body)
 }
 
 /// `R diag(d) Rᵀ` for the rotation of `q`.
