@@ -9,9 +9,10 @@
 //!   solver settings of each.
 //! - The whole run again with sleeping on (`RigidDesc::sleep`, Box2D's thresholds),
 //!   beside the peer's run with sleeping on.
-//! - Machine fraction: the solver's floating-point work counted from the contacts (each
-//!   contact point's three rows cost 24 multiply-adds a visit, two visits a sub-step, four
-//!   sub-steps) over one thread's share of the peak FMA rate measured in the same run.
+//! - Machine fraction: the solver's floating-point work counted from the contacts (a
+//!   point's normal row and a manifold's two tangent rows cost 24 multiply-adds a visit,
+//!   its twist row 12; two visits a sub-step, four sub-steps) over one thread's share of
+//!   the peak FMA rate measured in the same run.
 //!
 //! Run with `cargo bench --bench rigid`; the summary is printed and written to
 //! `target/criterion/rigid-summary.md`.
@@ -86,6 +87,7 @@ fn main() {
     let (mut s, mut w) = (s0.clone(), w0.clone());
     let mut times = Vec::new();
     let mut contacts = 0usize;
+    let mut manifolds = 0usize;
     let mut deepest = 0.0f64;
     let mut at_2s = None;
     for k in 0..360 {
@@ -96,6 +98,9 @@ fn main() {
         let info = m.step(&mut s, &mut w, dt).expect("step");
         times.push(t.elapsed().as_secs_f64() * 1e3);
         contacts += info.contacts;
+        let c = w.contacts();
+        manifolds += c.windows(2).filter(|p| (p[0].a, p[0].b) != (p[1].a, p[1].b)).count()
+            + usize::from(!c.is_empty());
         deepest = deepest.max(info.max_depth);
     }
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
@@ -132,9 +137,10 @@ fn main() {
     let limits = largestep::machine::measure(64);
     let per_thread = limits.peak_gflops() / limits.threads as f64;
     let d = m.desc();
-    // Multiply-adds per contact point and step: three rows, 24 each a visit, a solve and a
-    // relax visit per sub-step.
-    let flops = contacts as f64 / 360.0 * 3.0 * 24.0 * 2.0 * 2.0 * d.iterations as f64;
+    // Multiply-adds per step: 24 a visit for each point's normal row and each manifold's
+    // two tangent rows, 12 for its twist row; a solve and a relax visit per sub-step.
+    let rows = contacts as f64 * 24.0 + manifolds as f64 * (2.0 * 24.0 + 12.0);
+    let flops = rows / 360.0 * 2.0 * 2.0 * d.iterations as f64;
     let ms = mean(&times);
     let fraction = flops / (ms * 1e-3) / (per_thread * 1e9);
     let peer = run_peer();
@@ -160,8 +166,8 @@ fn main() {
 | | largestep | peer: rapier3d 0.36.1 (sleeping off) |\n|---|---|---|\n\
 | mean step over the 360 steps | {ms:.3} ms (first 120: {:.3}, last 120: {:.3}) | {ratio} |\n\
 | the same with sleeping on (peer: sleeping on) | {:.3} ms, {} of 1,000 boxes asleep at the end | {ratio_sleeping} |\n\
-| solver | {} sub-steps of sequential impulses, soft contacts (30 Hz, damping ratio 20), relax, friction 0.5 | 4 iterations, soft contacts (rapier's defaults), friction 0.5 |\n\n\
-{:.0} contact points a step on average, deepest {deepest:.4} m; at the end the lowest centre is at {lowest:.3} m and the fastest box moves {fastest:.3} m/s.\n\n\
+| solver | {} sub-steps of sequential impulses, soft contacts (30 Hz, damping ratio 20), relax, manifold friction 0.5 (two tangent rows and a twist row), persistent manifolds | 4 iterations, soft contacts (rapier's defaults), friction 0.5 (two tangent rows and a twist row) |\n\n\
+{:.0} contact points in {:.0} manifolds a step on average, deepest {deepest:.4} m; at the end the lowest centre is at {lowest:.3} m and the fastest box moves {fastest:.3} m/s.\n\n\
 Machine: {:.1} GFLOP/s of solver work, {:.1}% of one thread's peak FMA rate ({per_thread:.1} GFLOP/s).\n\n\
 Peer output:\n\n```\n{}\n```\n",
         mean(&times[..120]),
@@ -170,6 +176,7 @@ Peer output:\n\n```\n{}\n```\n",
         sleeping.1,
         d.iterations,
         contacts as f64 / 360.0,
+        manifolds as f64 / 360.0,
         flops / (ms * 1e-3) / 1e9,
         100.0 * fraction,
         peer.map_or("not built (see benches/peers/rapier-pile)".into(), |l| l.join("\n")),
