@@ -473,10 +473,20 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
                 let r = quat::to_matrix(s.q[i]);
                 let dr = mat_mul_t(r, sw.r0[i]);
                 let dx = sub(s.x[i], sw.x0[i]);
-                sw.motion[i] = SolverMotion(std::array::from_fn(|k| match k {
-                    0..=2 => dx[k],
-                    _ => dr[(k - 3) / 3][(k - 3) % 3] - if (k - 3) % 4 == 0 { 1.0 } else { 0.0 },
-                }));
+                sw.motion[i] = SolverMotion([
+                    dx[0],
+                    dx[1],
+                    dx[2],
+                    dr[0][0] - 1.0,
+                    dr[0][1],
+                    dr[0][2],
+                    dr[1][0],
+                    dr[1][1] - 1.0,
+                    dr[1][2],
+                    dr[2][0],
+                    dr[2][1],
+                    dr[2][2] - 1.0,
+                ]);
             }
         }
         if penalty {
