@@ -99,7 +99,10 @@ fn main() {
         times.push(t.elapsed().as_secs_f64() * 1e3);
         contacts += info.contacts;
         let c = w.contacts();
-        manifolds += c.windows(2).filter(|p| (p[0].a, p[0].b) != (p[1].a, p[1].b)).count()
+        manifolds += c
+            .windows(2)
+            .filter(|p| (p[0].a, p[0].b) != (p[1].a, p[1].b))
+            .count()
             + usize::from(!c.is_empty());
         deepest = deepest.max(info.max_depth);
     }

@@ -1512,7 +1512,9 @@ fn a_spinning_box_stops_at_the_rate_of_friction_at_its_corners() {
     }
     let stopped = stopped.expect("the spin stopped");
     let expect = w0 / rate;
-    eprintln!("twist friction: stopped after {stopped:.4} s (Coulomb at the corners: {expect:.4} s)");
+    eprintln!(
+        "twist friction: stopped after {stopped:.4} s (Coulomb at the corners: {expect:.4} s)"
+    );
     assert!(rel(stopped, expect) < 0.05, "{stopped} against {expect}");
     assert!(s.w[1][1].abs() < 1e-3, "{:?}", s.w[1]);
 }

@@ -27,8 +27,8 @@
 //! (no direction, depth -1 m, no mass), which changes nothing.
 
 use super::solver::{ContactRow, Pass, SolverBody, SolverMotion, MAX_PUSH};
-use largestep_kernels::v3;
 use super::{ContactPoint, Correction};
+use largestep_kernels::v3;
 use wide::f64x4;
 
 type V = f64x4;
@@ -649,7 +649,8 @@ pub(crate) fn fill(batches: &mut Batches, inp: &RowInputs) {
         for r in 0..2 {
             let arm = [cross(ra, f.dir[r]), cross(rb, f.dir[r])];
             f.turn[r] = [mat_vec(ia, arm[0]), mat_vec(ib, arm[1])];
-            let k = ua.inv_mass + ub.inv_mass + dot(arm[0], f.turn[r][0]) + dot(arm[1], f.turn[r][1]);
+            let k =
+                ua.inv_mass + ub.inv_mass + dot(arm[0], f.turn[r][0]) + dot(arm[1], f.turn[r][1]);
             f.mass[r] = (k.simd_gt(zero) & used).bitselect(one / k, zero);
         }
         f.turn[2] = [mat_vec(ia, n), mat_vec(ib, n)];

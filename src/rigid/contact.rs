@@ -210,9 +210,14 @@ fn manifold(
             capsule_box(segment(s, i, *hh), *r, &box_pose(s, &rot[j], j, *h), margin)
         }
         (Box(h), Capsule(hh, r)) => {
-            capsule_box(segment(s, j, *hh), *r, &box_pose(s, &rot[i], i, *h), margin).map(Manifold::flipped)
+            capsule_box(segment(s, j, *hh), *r, &box_pose(s, &rot[i], i, *h), margin)
+                .map(Manifold::flipped)
         }
-        (Box(ha), Box(hb)) => box_box(&box_pose(s, &rot[i], i, *ha), &box_pose(s, &rot[j], j, *hb), margin),
+        (Box(ha), Box(hb)) => box_box(
+            &box_pose(s, &rot[i], i, *ha),
+            &box_pose(s, &rot[j], j, *hb),
+            margin,
+        ),
         _ => {
             let convex = |k: usize| match &m.colliders[k] {
                 Sphere(r) => Convex::Sphere {
@@ -260,7 +265,8 @@ pub(crate) fn collide(
     w.boxes.clear();
     for i in 0..n {
         let sweep = (dot(s.v[i], s.v[i]).sqrt() + dot(s.w[i], s.w[i]).sqrt() * m.bound[i]) * dt;
-        w.boxes.push(body_box(m, s, &w.rot[i], i, MARGIN * m.size[i] + sweep));
+        w.boxes
+            .push(body_box(m, s, &w.rot[i], i, MARGIN * m.size[i] + sweep));
     }
     // The sweep stops past the limit, before the list outgrows memory.
     let max = m.desc().max_pairs;
