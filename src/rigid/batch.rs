@@ -333,24 +333,19 @@ fn push(ua: &mut Vel, ub: &mut Vel, d: V3, turn: [V3; 2], l: V) {
     ub.w = add(ub.w, scale(turn[1], l));
 }
 
-impl Friction {
-    /// No manifold in any lane.
-    fn empty() -> Friction {
-        let z = V::ZERO;
-        let z3 = [z; 3];
-        Friction {
-            dir: [z3; 3],
-            ra: z3,
-            rb: z3,
-            turn: [[z3; 2]; 3],
-            mass: z3,
-            lambda: z3,
-            load: z,
-            moment: z,
-            total: z3,
-        }
-    }
+/// The tangent impulses `(l1, l2)` scaled back onto Coulomb's cone of radius `cap`
+/// where they leave it.
+#[inline(always)]
+fn on_cone(l1: V, l2: V, cap: V) -> (V, V) {
+    let (zero, one) = (V::ZERO, splat(1.0));
+    let lt = (l1 * l1 + l2 * l2).sqrt();
+    let f = lt
+        .simd_gt(cap)
+        .bitselect(lt.simd_gt(zero).bitselect(cap / lt, zero), one);
+    (l1 * f, l2 * f)
+}
 
+impl Friction {
     /// Applies the impulses `l` along the tangents and the twist `l[2]` about the normal.
     #[inline(always)]
     fn push(&self, ua: &mut Vel, ub: &mut Vel, l: V3) {
@@ -378,18 +373,11 @@ impl Friction {
         if self.idle() {
             return false;
         }
-        let (zero, one) = (V::ZERO, splat(1.0));
         let dv = relative(ua, ub, self.ra, self.rb);
-        let cap = friction * self.load;
         let d1 = self.mass[0] * -dot(self.dir[0], dv);
         let d2 = self.mass[1] * -dot(self.dir[1], dv);
         let old = self.lambda;
-        let (l1, l2) = (old[0] + d1, old[1] + d2);
-        let lt = (l1 * l1 + l2 * l2).sqrt();
-        let f = lt
-            .simd_gt(cap)
-            .bitselect(lt.simd_gt(zero).bitselect(cap / lt, zero), one);
-        let (l1, l2) = (l1 * f, l2 * f);
+        let (l1, l2) = on_cone(old[0] + d1, old[1] + d2, friction * self.load);
         push(ua, ub, self.dir[0], self.turn[0], l1 - old[0]);
         push(ua, ub, self.dir[1], self.turn[1], l2 - old[1]);
         // The twist after the tangents, from the spin they left.
@@ -642,39 +630,38 @@ pub(crate) fn fill(batches: &mut Batches, inp: &RowInputs) {
         let t2 = cross(n, t1);
         let used = V::new(count).simd_gt(zero);
         let (ra, rb) = (sub(centre, xa), sub(centre, xb));
-        let mut f = Friction::empty();
-        f.dir = [t1, t2, n];
-        f.ra = ra;
-        f.rb = rb;
+        let dir = [t1, t2, n];
+        // The tangents' rows at the centre, then the twist's (angular only).
+        let mut turn = [[[zero; 3]; 2]; 3];
+        let mut k = [zero; 3];
         for r in 0..2 {
-            let arm = [cross(ra, f.dir[r]), cross(rb, f.dir[r])];
-            f.turn[r] = [mat_vec(ia, arm[0]), mat_vec(ib, arm[1])];
-            let k =
-                ua.inv_mass + ub.inv_mass + dot(arm[0], f.turn[r][0]) + dot(arm[1], f.turn[r][1]);
-            f.mass[r] = (k.simd_gt(zero) & used).bitselect(one / k, zero);
+            let arm = [cross(ra, dir[r]), cross(rb, dir[r])];
+            turn[r] = [mat_vec(ia, arm[0]), mat_vec(ib, arm[1])];
+            k[r] = ua.inv_mass + ub.inv_mass + dot(arm[0], turn[r][0]) + dot(arm[1], turn[r][1]);
         }
-        f.turn[2] = [mat_vec(ia, n), mat_vec(ib, n)];
-        let k = dot(n, f.turn[2][0]) + dot(n, f.turn[2][1]);
-        f.mass[2] = (k.simd_gt(zero) & used).bitselect(one / k, zero);
-        f.load = load;
-        f.moment = moment;
-        if inp.accumulate {
+        turn[2] = [mat_vec(ia, n), mat_vec(ib, n)];
+        k[2] = dot(n, turn[2][0]) + dot(n, turn[2][1]);
+        let lambda = if inp.accumulate {
             // Warm start: the points' tangent impulses and twist, inside the caps.
             let imp = scale(v3(imp), per);
-            let (l1, l2) = (dot(imp, t1), dot(imp, t2));
-            let cap = friction * load;
-            let lt = (l1 * l1 + l2 * l2).sqrt();
-            let s = lt
-                .simd_gt(cap)
-                .bitselect(lt.simd_gt(zero).bitselect(cap / lt, zero), one);
+            let (l1, l2) = on_cone(dot(imp, t1), dot(imp, t2), friction * load);
             let cap = friction * moment;
             let l3 = (twist * per).max(-cap).min(cap);
-            f.lambda = [
-                used.bitselect(l1 * s, zero),
-                used.bitselect(l2 * s, zero),
-                used.bitselect(l3, zero),
-            ];
-        }
+            [l1, l2, l3].map(|l| used.bitselect(l, zero))
+        } else {
+            [zero; 3]
+        };
+        let f = Friction {
+            dir,
+            ra,
+            rb,
+            turn,
+            mass: k.map(|k| (k.simd_gt(zero) & used).bitselect(one / k, zero)),
+            lambda,
+            load,
+            moment,
+            total: [zero; 3],
+        };
         rows.push(f);
     }
 }

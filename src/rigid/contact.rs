@@ -8,7 +8,9 @@
 //! Bullet's `refreshContactPoints`). The pose is measured against the one the manifold
 //! was found at, not last step's, so slow creep cannot carry a manifold further than that.
 
-use super::{mat_vec, Collider, Rigid, RigidError, RigidState, RigidStepInfo, RigidWork};
+use super::{
+    mat_t_vec, mat_vec, Collider, Rigid, RigidError, RigidState, RigidStepInfo, RigidWork,
+};
 use largestep_kernels::collide::bv::Aabb;
 use largestep_kernels::collide::manifold::{
     box_box, capsule_box, capsule_capsule_manifold, convex_convex, sphere_box,
@@ -65,11 +67,6 @@ pub(crate) struct Kept {
     on_a: [[f64; 3]; MAX_POINTS],
     on_b: [[f64; 3]; MAX_POINTS],
     count: usize,
-}
-
-/// `rᵀ v`.
-fn mat_t_vec(r: &[[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
-    std::array::from_fn(|k| r[0][k] * v[0] + r[1][k] * v[1] + r[2][k] * v[2])
 }
 
 /// b's centre in a's frame and b's orientation relative to a's (`rot`: the bodies'
@@ -248,19 +245,20 @@ pub(crate) fn collide(
     std::mem::swap(&mut w.contacts, &mut w.previous);
     w.contacts.clear();
     let mut info = RigidStepInfo::default();
+    // The rotations of the step's start, for this stage and the solver's.
+    w.rot.clear();
+    w.rot.extend(s.q.iter().map(|q| quat::to_matrix(*q)));
     if !m.collides() {
         return Ok(info);
     }
     // Hull points in world coordinates, for the bodies that have them.
     for i in 0..n {
         if let Collider::Hull(h) = &m.colliders[i] {
-            let out = &mut w.hulls[i];
+            let (out, r) = (&mut w.hulls[i], w.rot[i]);
             out.clear();
-            out.extend(h.iter().map(|p| add(s.x[i], quat::rotate(s.q[i], *p))));
+            out.extend(h.iter().map(|p| add(s.x[i], mat_vec(r, *p))));
         }
     }
-    w.rot.clear();
-    w.rot.extend(s.q.iter().map(|q| quat::to_matrix(*q)));
     // Boxes grown by the margin and the distance the body may move this step.
     w.boxes.clear();
     for i in 0..n {

@@ -485,7 +485,8 @@ pub struct RigidWork {
     pub(crate) pairs: Vec<[u32; 2]>,
     pub(crate) contacts: Vec<ContactPoint>,
     pub(crate) previous: Vec<ContactPoint>,
-    /// The bodies' rotation matrices at the collision stage.
+    /// The bodies' rotation matrices at the step's start: formed by the collision stage
+    /// (which every step runs first), read by it and by the solver.
     pub(crate) rot: Vec<[[f64; 3]; 3]>,
     pub(crate) kept: Vec<contact::Kept>,
     pub(crate) kept_next: Vec<contact::Kept>,
@@ -961,9 +962,9 @@ impl Rigid {
         self.inv_mass[i] > 0.0
     }
 
-    /// The world inverse inertia `R diag(1/I) Rᵀ` of body `i` at orientation `q`.
-    pub(crate) fn inv_inertia_world(&self, i: usize, q: Quat) -> [[f64; 3]; 3] {
-        rotate_diag(q, self.inv_inertia[i])
+    /// The world inverse inertia `R diag(1/I) Rᵀ` of body `i` at the rotation `r`.
+    pub(crate) fn inv_inertia_world(&self, i: usize, r: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
+        rotate_diag(r, self.inv_inertia[i])
     }
 
     /// Angular momentum of body `i` (kg m²/s, world).
@@ -971,7 +972,7 @@ impl Rigid {
         if !self.is_dynamic(i) {
             return [0.0; 3];
         }
-        mat_vec(rotate_diag(s.q[i], self.inertia[i]), s.w[i])
+        inertia_times(s.q[i], self.inertia[i], s.w[i])
     }
 
     /// Kinetic energy (J) of the dynamic bodies.
@@ -1196,7 +1197,7 @@ impl Rigid {
             (true, RigidIntegrator::ExplicitEuler | RigidIntegrator::Rk4) => {
                 // Back to the velocities at the sub-step's start (plus the impulses).
                 let v_start = sub(s.v[i], scale(d.gravity, h));
-                let l = mat_vec(rotate_diag(s.q[i], self.inertia[i]), s.w[i]);
+                let l = inertia_times(s.q[i], self.inertia[i], s.w[i]);
                 let (x, q, v) = if d.integrator == RigidIntegrator::Rk4 {
                     rk4(self, i, s.x[i], s.q[i], v_start, l, h)
                 } else {
@@ -1209,7 +1210,7 @@ impl Rigid {
                 s.x[i] = add(x, scale(pv, h));
                 s.q[i] = quat::integrate(q, pw, h);
                 s.v[i] = v;
-                s.w[i] = mat_vec(rotate_diag(s.q[i], self.inv_inertia[i]), l);
+                s.w[i] = inertia_times(s.q[i], self.inv_inertia[i], l);
             }
             // Implicit gyroscopic (w already advanced) and kinematic bodies.
             _ => {
@@ -1224,14 +1225,12 @@ impl Rigid {
 /// `R` instead of forming the matrix.
 fn inertia_times(q: Quat, d: [f64; 3], v: [f64; 3]) -> [f64; 3] {
     let r = quat::to_matrix(q);
-    let body: [f64; 3] =
-        std::array::from_fn(|k| d[k] * (r[0][k] * v[0] + r[1][k] * v[1] + r[2][k] * v[2]));
-    mat_vec(r, body)
+    let body = mat_t_vec(&r, v);
+    mat_vec(r, [0, 1, 2].map(|k| d[k] * body[k]))
 }
 
-/// `R diag(d) Rᵀ` for the rotation of `q`.
-pub(crate) fn rotate_diag(q: Quat, d: [f64; 3]) -> [[f64; 3]; 3] {
-    let r = quat::to_matrix(q);
+/// `R diag(d) Rᵀ` for the rotation `r`.
+fn rotate_diag(r: &[[f64; 3]; 3], d: [f64; 3]) -> [[f64; 3]; 3] {
     let mut out = [[0.0; 3]; 3];
     for i in 0..3 {
         for j in i..3 {
@@ -1246,6 +1245,11 @@ pub(crate) fn rotate_diag(q: Quat, d: [f64; 3]) -> [[f64; 3]; 3] {
 #[inline]
 pub(crate) fn mat_vec(m: [[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
     [dot(m[0], v), dot(m[1], v), dot(m[2], v)]
+}
+
+/// `mᵀ v`: a vector into the frame whose axes are the columns of the rotation `m`.
+pub(crate) fn mat_t_vec(m: &[[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
+    std::array::from_fn(|k| m[0][k] * v[0] + m[1][k] * v[1] + m[2][k] * v[2])
 }
 
 /// One Newton step of backward Euler on `I w' + w x I w = 0` in the body frame (Catto
@@ -1283,7 +1287,7 @@ fn rk4(
     let g = m.desc.gravity;
     let qdot = |q: Quat| {
         let qn = quat::normalize(q).unwrap_or(quat::IDENTITY);
-        quat::derivative(q, mat_vec(rotate_diag(qn, m.inv_inertia[i]), l))
+        quat::derivative(q, inertia_times(qn, m.inv_inertia[i], l))
     };
     let qadd = |q: Quat, d: Quat, h: f64| {
         [

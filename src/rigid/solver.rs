@@ -143,9 +143,9 @@ pub(crate) struct SolverWork {
     inv_inertia: Vec<[[f64; 3]; 3]>,
     /// Split-impulse pseudo-velocities of each body in the present sub-step.
     pseudo: Vec<SolverBody>,
-    /// Each body's pose at the step's start, and its motion since.
+    /// Each body's position at the step's start (its rotation is `RigidWork::rot`), and
+    /// its motion since.
     x0: Vec<[f64; 3]>,
-    r0: Vec<[[f64; 3]; 3]>,
     motion: Vec<SolverMotion>,
     contacts: Vec<ContactRow>,
     /// The contacts in SIMD batches (all solvers but penalty springs).
@@ -176,7 +176,6 @@ impl Clone for SolverWork {
             inv_inertia: self.inv_inertia.clone(),
             pseudo: self.pseudo.clone(),
             x0: self.x0.clone(),
-            r0: self.r0.clone(),
             motion: self.motion.clone(),
             contacts: clone_keeping_capacity(&self.contacts),
             batches: self.batches.clone(),
@@ -340,12 +339,10 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
         if s.asleep[i] {
             [[0.0; 3]; 3]
         } else {
-            m.inv_inertia_world(i, s.q[i])
+            m.inv_inertia_world(i, &w.rot[i])
         }
     }));
     sw.x0.clone_from(&s.x);
-    sw.r0.clear();
-    sw.r0.extend(s.q.iter().map(|q| quat::to_matrix(*q)));
     sw.motion.clear();
     sw.motion.resize(n + 1, SolverMotion::default());
     // Pseudo-velocities start at rest (the split passes reset them each sub-step).
@@ -471,7 +468,7 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
         if sub_step > 0 {
             for i in 0..n {
                 let r = quat::to_matrix(s.q[i]);
-                let dr = mat_mul_t(r, sw.r0[i]);
+                let dr = mat_mul_t(r, w.rot[i]);
                 let dx = sub(s.x[i], sw.x0[i]);
                 sw.motion[i] = SolverMotion([
                     dx[0],
