@@ -51,7 +51,13 @@ pub struct ContactPoint {
 /// feature size, the relative rotation by this angle (rad). Below it the kept points are
 /// moved with their bodies (a persistent manifold: PhysX's contact reuse, Bullet's
 /// `refreshContactPoints`).
-pub(crate) const REUSE: f64 = 0.01;
+pub(crate) const REUSE: f64 = 0.005;
+
+/// The most steps a manifold is kept before the narrow phase runs again whatever the
+/// pose. Within [`REUSE`] the separating axis of a pair that is apart can change (a box
+/// hovering by a corner of another's face: which face's axis separates most turns on
+/// millimetres), and a resting pile would keep such a manifold for good.
+pub(crate) const KEEP_STEPS: u8 = 8;
 
 /// A pair's manifold in its bodies' frames, kept while their relative pose stays within
 /// [`REUSE`] of the pose it was found at.
@@ -67,6 +73,8 @@ pub(crate) struct Kept {
     on_a: [[f64; 3]; MAX_POINTS],
     on_b: [[f64; 3]; MAX_POINTS],
     count: usize,
+    /// Steps it has been kept since it was found.
+    steps: u8,
 }
 
 /// b's centre in a's frame and b's orientation relative to a's (`rot`: the bodies'
@@ -103,12 +111,15 @@ impl Kept {
         k
     }
 
-    /// Whether the pair's present pose is close enough to the kept one.
+    /// Whether the pair's present pose is close enough to the kept one, and it has not
+    /// been kept for [`KEEP_STEPS`] already.
     fn holds(&self, pose: ([f64; 3], Quat), size: f64) -> bool {
         let d = sub(pose.0, self.offset);
         let c = dot4(pose.1, self.rel).abs();
         // cos(angle / 2) > 1 - angle^2 / 8 for the angle between the orientations.
-        dot(d, d) < (REUSE * size) * (REUSE * size) && c > 1.0 - REUSE * REUSE / 8.0
+        self.steps < KEEP_STEPS
+            && dot(d, d) < (REUSE * size) * (REUSE * size)
+            && c > 1.0 - REUSE * REUSE / 8.0
     }
 
     /// The kept points at the bodies' present poses, less those now more than `margin`
@@ -312,7 +323,10 @@ pub(crate) fn collide(
         }
         let man = match (w.kept.get(kept), pose) {
             (Some(k), Some(pose)) if k.pair == [a, b] && k.holds(pose, size) => {
-                w.kept_next.push(*k);
+                w.kept_next.push(Kept {
+                    steps: k.steps + 1,
+                    ..*k
+                });
                 let Some(man) = k.manifold(s, &w.rot, [i, j], margin) else {
                     continue;
                 };
