@@ -34,6 +34,40 @@ use wide::f64x4;
 type V = f64x4;
 type V3 = [V; 3];
 
+/// Four lanes of a row's fixed values (direction, lever arms, angular responses, mass)
+/// stored in single precision and widened where they are read: the rows of a settling
+/// pile outgrow the core's cache, and the passes over them are bound by the bytes they
+/// read, not by arithmetic (eight lanes instead of four gained nothing). Sums and
+/// impulses stay in double precision. Rapier's rows are single precision throughout.
+#[derive(Clone, Copy, Debug, Default)]
+#[repr(C, align(16))]
+pub(crate) struct F([f32; 4]);
+type F3 = [F; 3];
+
+impl F {
+    #[inline(always)]
+    fn get(self) -> V {
+        let a = self.0;
+        V::new([a[0] as f64, a[1] as f64, a[2] as f64, a[3] as f64])
+    }
+
+    #[inline(always)]
+    fn put(v: V) -> F {
+        let a = v.to_array();
+        F([a[0] as f32, a[1] as f32, a[2] as f32, a[3] as f32])
+    }
+}
+
+#[inline(always)]
+fn get3(x: F3) -> V3 {
+    [x[0].get(), x[1].get(), x[2].get()]
+}
+
+#[inline(always)]
+fn put3(v: V3) -> F3 {
+    [F::put(v[0]), F::put(v[1]), F::put(v[2])]
+}
+
 /// A lane not in use.
 pub(crate) const UNUSED: u32 = u32::MAX;
 
@@ -80,25 +114,25 @@ pub(crate) struct Batch {
     b: [u32; 4],
     /// Each lane's point in `SolverWork::contacts`, or [`UNUSED`].
     index: [u32; 4],
-    normal: V3,
-    ra: V3,
-    rb: V3,
+    normal: F3,
+    ra: F3,
+    rb: F3,
     /// `[Ia^-1 (ra x n), Ib^-1 (rb x n)]`.
-    turn: [V3; 2],
-    mass: V,
+    turn: [F3; 2],
+    mass: F,
     lambda: V,
     plambda: V,
     error: V,
-    depth: V,
-    slop: V,
+    depth: F,
+    slop: F,
     /// The point's distance from its manifold's centre across the normal (m): its
     /// normal impulse's share of the twist friction's cap.
-    lever: V,
+    lever: F,
     max_normal: V,
     /// The step's normal impulse (N s).
     total: V,
     /// The approach speed at the step's start (m/s), for restitution.
-    approach: V,
+    approach: F,
 }
 
 /// A group's friction, one manifold a lane (rapier's and bepu's manifold friction):
@@ -110,13 +144,13 @@ pub(crate) struct Batch {
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Friction {
     /// The two tangents, then the normal (the twist's axis).
-    dir: [V3; 3],
+    dir: [F3; 3],
     /// The centre's lever arms (m).
-    ra: V3,
-    rb: V3,
+    ra: F3,
+    rb: F3,
     /// `[Ia^-1 (ra x t), Ib^-1 (rb x t)]` for each tangent, `[Ia^-1 n, Ib^-1 n]`.
-    turn: [[V3; 2]; 3],
-    mass: V3,
+    turn: [[F3; 2]; 3],
+    mass: F3,
     lambda: V3,
     /// The sums over the manifold's points of the normal impulses and of the normal
     /// impulses times the points' levers, from the last pass over them: the caps.
@@ -262,26 +296,26 @@ fn each_group(
 impl Batch {
     /// A batch of unused lanes (`pad`: the padding body's index).
     fn empty(pad: u32) -> Batch {
-        let z = V::ZERO;
-        let z3 = [z; 3];
+        let (z, f) = (V::ZERO, F::default());
+        let f3 = [f; 3];
         Batch {
             a: [pad; 4],
             b: [pad; 4],
             index: [UNUSED; 4],
-            normal: z3,
-            ra: z3,
-            rb: z3,
-            turn: [z3; 2],
-            mass: z,
+            normal: f3,
+            ra: f3,
+            rb: f3,
+            turn: [f3; 2],
+            mass: f,
             lambda: z,
             plambda: z,
             error: splat(-1.0),
-            depth: splat(-1.0),
-            slop: z,
-            lever: z,
+            depth: F([-1.0; 4]),
+            slop: f,
+            lever: f,
             max_normal: z,
             total: z,
-            approach: z,
+            approach: f,
         }
     }
 
@@ -290,9 +324,9 @@ impl Batch {
     #[inline(always)]
     fn update_error(&mut self, (xa, ra): &(V3, [V3; 3]), (xb, rb): &(V3, [V3; 3])) {
         let (xa, ra, xb, rb) = (*xa, *ra, *xb, *rb);
-        let da = add(xa, mat_vec(ra, self.ra));
-        let db = add(xb, mat_vec(rb, self.rb));
-        self.error = self.depth - dot(self.normal, sub(db, da));
+        let da = add(xa, mat_vec(ra, get3(self.ra)));
+        let db = add(xb, mat_vec(rb, get3(self.rb)));
+        self.error = self.depth.get() - dot(get3(self.normal), sub(db, da));
     }
 
     /// After a sub-step's last pass: the largest normal impulse and the total impulse.
@@ -306,13 +340,16 @@ impl Batch {
     /// (`solver::row_velocity`) as `n` dotted with [`relative`].
     #[inline(always)]
     fn velocity(&self, ua: &Vel, ub: &Vel) -> V {
-        dot(self.normal, relative(ua, ub, self.ra, self.rb))
+        dot(
+            get3(self.normal),
+            relative(ua, ub, get3(self.ra), get3(self.rb)),
+        )
     }
 
     /// Applies the normal impulses `l` (as `solver::contact_push`).
     #[inline(always)]
     fn push(&self, ua: &mut Vel, ub: &mut Vel, l: V) {
-        push(ua, ub, self.normal, self.turn, l);
+        push(ua, ub, get3(self.normal), self.turn.map(get3), l);
     }
 }
 
@@ -349,10 +386,10 @@ impl Friction {
     /// Applies the impulses `l` along the tangents and the twist `l[2]` about the normal.
     #[inline(always)]
     fn push(&self, ua: &mut Vel, ub: &mut Vel, l: V3) {
-        push(ua, ub, self.dir[0], self.turn[0], l[0]);
-        push(ua, ub, self.dir[1], self.turn[1], l[1]);
-        ua.w = sub(ua.w, scale(self.turn[2][0], l[2]));
-        ub.w = add(ub.w, scale(self.turn[2][1], l[2]));
+        push(ua, ub, get3(self.dir[0]), self.turn[0].map(get3), l[0]);
+        push(ua, ub, get3(self.dir[1]), self.turn[1].map(get3), l[1]);
+        ua.w = sub(ua.w, scale(get3(self.turn[2][0]), l[2]));
+        ub.w = add(ub.w, scale(get3(self.turn[2][1]), l[2]));
     }
 
     /// Whether no lane holds or may take an impulse (no load, nothing held).
@@ -373,20 +410,22 @@ impl Friction {
         if self.idle() {
             return false;
         }
-        let dv = relative(ua, ub, self.ra, self.rb);
-        let d1 = self.mass[0] * -dot(self.dir[0], dv);
-        let d2 = self.mass[1] * -dot(self.dir[1], dv);
+        let dir = [get3(self.dir[0]), get3(self.dir[1]), get3(self.dir[2])];
+        let mass = get3(self.mass);
+        let dv = relative(ua, ub, get3(self.ra), get3(self.rb));
+        let d1 = mass[0] * -dot(dir[0], dv);
+        let d2 = mass[1] * -dot(dir[1], dv);
         let old = self.lambda;
         let (l1, l2) = on_cone(old[0] + d1, old[1] + d2, friction * self.load);
-        push(ua, ub, self.dir[0], self.turn[0], l1 - old[0]);
-        push(ua, ub, self.dir[1], self.turn[1], l2 - old[1]);
+        push(ua, ub, dir[0], self.turn[0].map(get3), l1 - old[0]);
+        push(ua, ub, dir[1], self.turn[1].map(get3), l2 - old[1]);
         // The twist after the tangents, from the spin they left.
-        let spin = dot(self.dir[2], sub(ub.w, ua.w));
+        let spin = dot(dir[2], sub(ub.w, ua.w));
         let cap = friction * self.moment;
-        let l3 = (old[2] + self.mass[2] * -spin).max(-cap).min(cap);
+        let l3 = (old[2] + mass[2] * -spin).max(-cap).min(cap);
         let d3 = l3 - old[2];
-        ua.w = sub(ua.w, scale(self.turn[2][0], d3));
-        ub.w = add(ub.w, scale(self.turn[2][1], d3));
+        ua.w = sub(ua.w, scale(get3(self.turn[2][0]), d3));
+        ub.w = add(ub.w, scale(get3(self.turn[2][1]), d3));
         self.lambda = [l1, l2, l3];
         true
     }
@@ -589,19 +628,18 @@ pub(crate) fn fill(batches: &mut Batches, inp: &RowInputs) {
             let turn = [mat_vec(ia, arm[0]), mat_vec(ib, arm[1])];
             let k = ua.inv_mass + ub.inv_mass + dot(arm[0], turn[0]) + dot(arm[1], turn[1]);
             // An idle lane of a group may sit on its manifold's bodies: no mass there.
-            t.mass = (k.simd_gt(zero) & used).bitselect(one / k, zero);
+            t.mass = F::put((k.simd_gt(zero) & used).bitselect(one / k, zero));
             let off = sub(p, centre);
             let across = sub(off, scale(normal, dot(off, normal)));
-            t.lever = used.bitselect(dot(across, across).sqrt(), zero);
-            t.normal = normal;
-            t.ra = ra;
-            t.rb = rb;
-            t.turn = turn;
-            let depth = V::new(depth);
-            t.depth = depth;
-            t.error = depth;
-            t.slop = V::new(slop);
-            t.approach = -t.velocity(&ua, &ub);
+            t.lever = F::put(used.bitselect(dot(across, across).sqrt(), zero));
+            t.normal = put3(normal);
+            t.ra = put3(ra);
+            t.rb = put3(rb);
+            t.turn = turn.map(put3);
+            t.depth = F::put(V::new(depth));
+            t.error = t.depth.get();
+            t.slop = F::put(V::new(slop));
+            t.approach = F::put(-t.velocity(&ua, &ub));
             t.lambda = if inp.accumulate {
                 let pimp = v3(pimp);
                 twist += used.bitselect(dot(cross(off, pimp), normal), zero);
@@ -610,7 +648,7 @@ pub(crate) fn fill(batches: &mut Batches, inp: &RowInputs) {
                 zero
             };
             load += t.lambda;
-            moment += t.lambda * t.lever;
+            moment += t.lambda * t.lever.get();
         }
         // `v3::tangent_frame` lane by lane: t1 from the world axis least aligned with n.
         let near_x = n[0].abs().simd_lt(splat(0.57));
@@ -652,11 +690,11 @@ pub(crate) fn fill(batches: &mut Batches, inp: &RowInputs) {
             [zero; 3]
         };
         let f = Friction {
-            dir,
-            ra,
-            rb,
-            turn,
-            mass: k.map(|k| (k.simd_gt(zero) & used).bitselect(one / k, zero)),
+            dir: dir.map(put3),
+            ra: put3(ra),
+            rb: put3(rb),
+            turn: turn.map(|t| t.map(put3)),
+            mass: put3(k.map(|k| (k.simd_gt(zero) & used).bitselect(one / k, zero))),
             lambda,
             load,
             moment,
@@ -683,7 +721,7 @@ fn cross(a: V3, b: V3) -> V3 {
 pub(crate) fn impulses(batches: &Batches, points: &mut [ContactPoint]) {
     for (&(start, end), f) in batches.groups.iter().zip(&batches.friction) {
         let group = &batches.batches[start as usize..end as usize];
-        let dir = f.dir.map(|d| d.map(|x| x.to_array()));
+        let dir = f.dir.map(|d| d.map(|x| x.get().to_array()));
         let total = f.total.map(|x| x.to_array());
         // Per lane: the points (index, normal impulse) and their centre.
         let mut lanes = [[(0usize, 0.0); MANIFOLD]; 4];
@@ -745,14 +783,14 @@ pub(crate) fn unpack_errors(batches: &Batches, rows: &mut [ContactRow]) {
 /// the bounce threshold leave at `restitution` times their approach speed.
 pub(crate) fn restitute(batches: &mut Batches, bodies: &mut [SolverBody], p: &Lanes) {
     let (zero, threshold, e) = (V::ZERO, V::splat(p.bounce), V::splat(p.restitution));
-    let on = |t: &Batch| !t.approach.simd_lt(threshold) & t.max_normal.simd_ne(zero);
+    let on = |t: &Batch| !t.approach.get().simd_lt(threshold) & t.max_normal.simd_ne(zero);
     each_group(
         batches,
         bodies,
         |t| !on(t).any(),
         |t, ua, ub| {
             let vn = t.velocity(ua, ub);
-            let dl = t.mass * (e * t.approach - vn);
+            let dl = t.mass.get() * (e * t.approach.get() - vn);
             let new = on(t).bitselect((t.lambda + dl).max(zero), t.lambda);
             let delta = new - t.lambda;
             t.push(ua, ub, delta);
@@ -852,7 +890,7 @@ pub(crate) fn solve(
 ) {
     if pass == Pass::Pseudo {
         let (h, zero, beta) = (splat(p.h), V::ZERO, splat(p.beta));
-        let target = |t: &Batch| beta * (t.error - t.slop).max(zero) / h;
+        let target = |t: &Batch| beta * (t.error - t.slop.get()).max(zero) / h;
         each_group(
             batches,
             pseudo,
@@ -860,7 +898,7 @@ pub(crate) fn solve(
             |t, ua, ub| {
                 let target = target(t);
                 let on = target.simd_ne(zero);
-                let dl = t.mass * (target - t.velocity(ua, ub));
+                let dl = t.mass.get() * (target - t.velocity(ua, ub));
                 let new = on.bitselect((t.plambda + dl).max(zero), t.plambda);
                 t.push(ua, ub, new - t.plambda);
                 t.plambda = new;
@@ -887,7 +925,7 @@ pub(crate) fn solve(
             }
             touched |= solve_point(t, &mut ua, &mut ub, pass, last, p);
             load += t.lambda;
-            moment += t.lambda * t.lever;
+            moment += t.lambda * t.lever.get();
         }
         f.load = load;
         f.moment = moment;
@@ -940,7 +978,9 @@ fn solve_point(
             let s: [V; 3] = std::array::from_fn(|k| fixed.bitselect(ss[k], cs[k]));
             ((s[0] * e).min(max_push), s[1], s[2])
         }
-        (Pass::Solve, Correction::Baumgarte) => (beta * (e - t.slop).max(zero) / h, one, zero),
+        (Pass::Solve, Correction::Baumgarte) => {
+            (beta * (e - t.slop.get()).max(zero) / h, one, zero)
+        }
         _ => (zero, one, zero),
     };
     target = apart.bitselect(e / h, target);
@@ -952,7 +992,7 @@ fn solve_point(
         scale_m = bouncing.bitselect(one, scale_m);
         scale_i = bouncing.bitselect(zero, scale_i);
     }
-    let dl = t.mass * scale_m * (target - vn) - scale_i * t.lambda;
+    let dl = t.mass.get() * scale_m * (target - vn) - scale_i * t.lambda;
     let old = t.lambda;
     let new = if p.accumulate {
         (old + dl).max(zero)
