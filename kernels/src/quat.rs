@@ -64,6 +64,7 @@ pub fn rotate_inv(q: Quat, v: [f64; 3]) -> [f64; 3] {
 }
 
 /// `q / |q|`, or `None` for a zero or non-finite `q`.
+#[inline]
 pub fn normalize(q: Quat) -> Option<Quat> {
     let n = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
     // One division and four products: the rigid bodies normalise every body at every
@@ -75,6 +76,7 @@ pub fn normalize(q: Quat) -> Option<Quat> {
 }
 
 /// The rotation matrix of a unit `q`, rows.
+#[inline]
 pub fn to_matrix(q: Quat) -> [[f64; 3]; 3] {
     let [w, x, y, z] = q;
     [

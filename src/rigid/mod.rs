@@ -972,7 +972,7 @@ impl Rigid {
         if !self.is_dynamic(i) {
             return [0.0; 3];
         }
-        inertia_times(s.q[i], self.inertia[i], s.w[i])
+        inertia_times(&quat::to_matrix(s.q[i]), self.inertia[i], s.w[i])
     }
 
     /// Kinetic energy (J) of the dynamic bodies.
@@ -1172,14 +1172,16 @@ impl Rigid {
     }
 
     /// Body `i`'s position over a sub-step `h` by the integrator, from the velocities the
-    /// constraints left, plus the split impulses' pseudo-velocities `pv`, `pw`.
+    /// constraints left, plus the split impulses' pseudo-velocities `pv`, `pw`. `rot` is
+    /// the rotation matrix of the body's orientation, before and after (the solver keeps
+    /// it from sub-step to sub-step rather than form it from the quaternion again).
     pub(crate) fn advance_position(
         &self,
         s: &mut RigidState,
         i: usize,
         h: f64,
-        pv: [f64; 3],
-        pw: [f64; 3],
+        (pv, pw): ([f64; 3], [f64; 3]),
+        rot: &mut [[f64; 3]; 3],
     ) {
         let d = &self.desc;
         if d.bodies[i].motion == Motion::Static {
@@ -1189,15 +1191,16 @@ impl Rigid {
             (true, RigidIntegrator::SymplecticEuler) => {
                 // L = I(q0) w is what the solver left; q advances by I(q0)^-1 L = w,
                 // and w is re-read from L at the new orientation.
-                let l = inertia_times(s.q[i], self.inertia[i], s.w[i]);
+                let l = inertia_times(rot, self.inertia[i], s.w[i]);
                 s.x[i] = add(s.x[i], scale(add(s.v[i], pv), h));
                 s.q[i] = quat::integrate(s.q[i], add(s.w[i], pw), h);
-                s.w[i] = inertia_times(s.q[i], self.inv_inertia[i], l);
+                *rot = quat::to_matrix(s.q[i]);
+                s.w[i] = inertia_times(rot, self.inv_inertia[i], l);
             }
             (true, RigidIntegrator::ExplicitEuler | RigidIntegrator::Rk4) => {
                 // Back to the velocities at the sub-step's start (plus the impulses).
                 let v_start = sub(s.v[i], scale(d.gravity, h));
-                let l = inertia_times(s.q[i], self.inertia[i], s.w[i]);
+                let l = inertia_times(rot, self.inertia[i], s.w[i]);
                 let (x, q, v) = if d.integrator == RigidIntegrator::Rk4 {
                     rk4(self, i, s.x[i], s.q[i], v_start, l, h)
                 } else {
@@ -1210,23 +1213,24 @@ impl Rigid {
                 s.x[i] = add(x, scale(pv, h));
                 s.q[i] = quat::integrate(q, pw, h);
                 s.v[i] = v;
-                s.w[i] = inertia_times(s.q[i], self.inv_inertia[i], l);
+                *rot = quat::to_matrix(s.q[i]);
+                s.w[i] = inertia_times(rot, self.inv_inertia[i], l);
             }
             // Implicit gyroscopic (w already advanced) and kinematic bodies.
             _ => {
                 s.x[i] = add(s.x[i], scale(add(s.v[i], pv), h));
                 s.q[i] = quat::integrate(s.q[i], add(s.w[i], pw), h);
+                *rot = quat::to_matrix(s.q[i]);
             }
         }
     }
 }
 
-/// `R diag(d) Rᵀ v` for the rotation `R` of `q`, as `R (d ⊙ (Rᵀ v))`: two products with
-/// `R` instead of forming the matrix.
-fn inertia_times(q: Quat, d: [f64; 3], v: [f64; 3]) -> [f64; 3] {
-    let r = quat::to_matrix(q);
-    let body = mat_t_vec(&r, v);
-    mat_vec(r, [0, 1, 2].map(|k| d[k] * body[k]))
+/// `R diag(d) Rᵀ v` for the rotation `r`, as `R (d ⊙ (Rᵀ v))`: two products with `R`
+/// instead of forming the matrix.
+fn inertia_times(r: &[[f64; 3]; 3], d: [f64; 3], v: [f64; 3]) -> [f64; 3] {
+    let body = mat_t_vec(r, v);
+    mat_vec(*r, [0, 1, 2].map(|k| d[k] * body[k]))
 }
 
 /// `R diag(d) Rᵀ` for the rotation `r`.
@@ -1287,7 +1291,7 @@ fn rk4(
     let g = m.desc.gravity;
     let qdot = |q: Quat| {
         let qn = quat::normalize(q).unwrap_or(quat::IDENTITY);
-        quat::derivative(q, inertia_times(qn, m.inv_inertia[i], l))
+        quat::derivative(q, inertia_times(&quat::to_matrix(qn), m.inv_inertia[i], l))
     };
     let qadd = |q: Quat, d: Quat, h: f64| {
         [

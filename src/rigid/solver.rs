@@ -147,6 +147,8 @@ pub(crate) struct SolverWork {
     /// its motion since.
     x0: Vec<[f64; 3]>,
     motion: Vec<SolverMotion>,
+    /// Each body's rotation matrix now (the position update keeps it).
+    rot: Vec<[[f64; 3]; 3]>,
     contacts: Vec<ContactRow>,
     /// The contacts in SIMD batches (all solvers but penalty springs).
     batches: Batches,
@@ -177,6 +179,7 @@ impl Clone for SolverWork {
             pseudo: self.pseudo.clone(),
             x0: self.x0.clone(),
             motion: self.motion.clone(),
+            rot: self.rot.clone(),
             contacts: clone_keeping_capacity(&self.contacts),
             batches: self.batches.clone(),
             batcher: self.batcher.clone(),
@@ -343,6 +346,7 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
         }
     }));
     sw.x0.clone_from(&s.x);
+    sw.rot.clone_from(&w.rot);
     sw.motion.clear();
     sw.motion.resize(n + 1, SolverMotion::default());
     // Pseudo-velocities start at rest (the split passes reset them each sub-step).
@@ -467,8 +471,7 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
         // Present penetrations from the motion since the step's start.
         if sub_step > 0 {
             for i in 0..n {
-                let r = quat::to_matrix(s.q[i]);
-                let dr = mat_mul_t(r, w.rot[i]);
+                let dr = mat_mul_t(sw.rot[i], w.rot[i]);
                 let dx = sub(s.x[i], sw.x0[i]);
                 sw.motion[i] = SolverMotion([
                     dx[0],
@@ -516,7 +519,7 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
             s.v[i] = b.v;
             s.w[i] = b.w;
             let p = sw.pseudo[i];
-            m.advance_position(s, i, h, p.v, p.w);
+            m.advance_position(s, i, h, (p.v, p.w), &mut sw.rot[i]);
             b.v = s.v[i];
             b.w = s.w[i];
         }
