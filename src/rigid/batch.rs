@@ -11,9 +11,9 @@
 //! Batching keeps the sequential solver's answer. The manifolds are placed longest first
 //! (so that groups hold manifolds of equal length and few point slots idle), each in the
 //! first group with a free lane after every group that holds an earlier-placed point on
-//! one of its movable bodies (Tonge, Benevolenskiy and Voronov 2012, "Mass splitting for jitter-free
-//! parallel rigid body simulation", describe the colouring; rapier and Box2D v3 colour
-//! their constraint graphs the same way). Two points that share no movable body commute
+//! one of its movable bodies (Tonge, Benevolenskiy and Voronov 2012, "Mass splitting for
+//! jitter-free parallel rigid body simulation", describe the colouring; rapier and Box2D
+//! v3 colour their constraint graphs the same way). Two points that share no movable body commute
 //! in Gauss-Seidel, and the points on any one body keep their order, so the batched
 //! passes are a reordering of the sequential ones that gives the same impulses. Every
 //! lane does the same operations in the same order whatever the batch (no fused
@@ -62,6 +62,13 @@ impl F {
 #[inline(always)]
 fn get3(x: F3) -> V3 {
     [x[0].get(), x[1].get(), x[2].get()]
+}
+
+/// A pair of rows' angular responses, widened (spelt out: an array's `map` here can stay
+/// an out-of-line call, `try_map`).
+#[inline(always)]
+fn get6(x: [F3; 2]) -> [V3; 2] {
+    [get3(x[0]), get3(x[1])]
 }
 
 #[inline(always)]
@@ -352,7 +359,7 @@ impl Batch {
     /// Applies the normal impulses `l` (as `solver::contact_push`).
     #[inline(always)]
     fn push(&self, ua: &mut Vel, ub: &mut Vel, l: V) {
-        push(ua, ub, get3(self.normal), self.turn.map(get3), l);
+        push(ua, ub, get3(self.normal), get6(self.turn), l);
     }
 }
 
@@ -389,8 +396,8 @@ impl Friction {
     /// Applies the impulses `l` along the tangents and the twist `l[2]` about the normal.
     #[inline(always)]
     fn push(&self, ua: &mut Vel, ub: &mut Vel, l: V3) {
-        push(ua, ub, get3(self.dir[0]), self.turn[0].map(get3), l[0]);
-        push(ua, ub, get3(self.dir[1]), self.turn[1].map(get3), l[1]);
+        push(ua, ub, get3(self.dir[0]), get6(self.turn[0]), l[0]);
+        push(ua, ub, get3(self.dir[1]), get6(self.turn[1]), l[1]);
         ua.w = sub(ua.w, scale(get3(self.turn[2][0]), l[2]));
         ub.w = add(ub.w, scale(get3(self.turn[2][1]), l[2]));
     }
@@ -420,8 +427,8 @@ impl Friction {
         let d2 = mass[1] * -dot(dir[1], dv);
         let old = self.lambda;
         let (l1, l2) = on_cone(old[0] + d1, old[1] + d2, friction * self.load);
-        push(ua, ub, dir[0], self.turn[0].map(get3), l1 - old[0]);
-        push(ua, ub, dir[1], self.turn[1].map(get3), l2 - old[1]);
+        push(ua, ub, dir[0], get6(self.turn[0]), l1 - old[0]);
+        push(ua, ub, dir[1], get6(self.turn[1]), l2 - old[1]);
         // The twist after the tangents, from the spin they left.
         let spin = dot(dir[2], sub(ub.w, ua.w));
         let cap = friction * self.moment;
@@ -650,7 +657,7 @@ pub(crate) fn fill(batches: &mut Batches, inp: &RowInputs) {
             t.normal = put3(normal);
             t.ra = put3(ra);
             t.rb = put3(rb);
-            t.turn = turn.map(put3);
+            t.turn = [put3(turn[0]), put3(turn[1])];
             t.depth = F::put(V::new(depth));
             t.error = t.depth.get();
             t.slop = F::put(V::new(slop));
