@@ -9,6 +9,8 @@
 //!   solver settings of each.
 //! - The whole run again with sleeping on (`RigidDesc::sleep`, Box2D's thresholds),
 //!   beside the peer's run with sleeping on.
+//! - The whole runs of both (sleeping off) alternated five times: the ratio a round and
+//!   fastest against fastest (on a shared machine single runs move by up to 30%).
 //! - Machine fraction: the solver's floating-point work counted from the contacts (a
 //!   point's normal row and a manifold's two tangent rows cost 24 multiply-adds a visit,
 //!   its twist row 12; two visits a sub-step, four sub-steps) over one thread's share of
@@ -61,6 +63,17 @@ fn run_peer() -> Option<Vec<String>> {
         .ok()?;
     let text = String::from_utf8(out.stdout).ok()?;
     Some(text.lines().map(str::to_string).collect())
+}
+
+/// Our whole run (360 steps, sleeping off) from a copy of the start state: the mean step
+/// (ms).
+fn whole_run(m: &Rigid, s0: &RigidState, w0: &RigidWork) -> f64 {
+    let (mut s, mut w) = (s0.clone(), w0.clone());
+    let t = Instant::now();
+    for _ in 0..360 {
+        m.step(&mut s, &mut w, 1.0 / 60.0).expect("step");
+    }
+    t.elapsed().as_secs_f64() * 1e3 / 360.0
 }
 
 /// The mean per step (ms) in a peer line "...: 2.950 ms per step ...".
@@ -156,6 +169,38 @@ fn main() {
         .map_or("not built".to_string(), |p| {
             format!("{p:.3} ms ({:.2}x ours)", p / ms)
         });
+    // Ours and the peer's whole runs alternated: on a shared machine single runs moved by
+    // up to 30% within minutes, so the ratio is read round by round, and fastest against
+    // fastest.
+    let rounds: Vec<(f64, f64)> = if peer_off.is_some() {
+        (0..5)
+            .filter_map(|_| {
+                let ours = whole_run(&m, &s0, &w0);
+                let line = run_peer()?
+                    .into_iter()
+                    .find(|l| l.contains("sleeping off"))?;
+                Some((ours, peer_ms(&line)?))
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let alternated = if rounds.is_empty() {
+        "not run (the peer is not built)".to_string()
+    } else {
+        let range = |v: &mut Vec<f64>| {
+            v.sort_by(f64::total_cmp);
+            (v[0], v[v.len() - 1], v[v.len() / 2])
+        };
+        let (o_min, o_max, _) = range(&mut rounds.iter().map(|r| r.0).collect());
+        let (p_min, p_max, _) = range(&mut rounds.iter().map(|r| r.1).collect());
+        let (r_min, r_max, r_med) = range(&mut rounds.iter().map(|r| r.0 / r.1).collect());
+        format!(
+            "{} rounds, ours {o_min:.3}-{o_max:.3} ms, rapier {p_min:.3}-{p_max:.3} ms; ours over rapier's {r_min:.2}-{r_max:.2}x a round (median {r_med:.2}x), fastest against fastest {:.2}x",
+            rounds.len(),
+            o_min / p_min
+        )
+    };
     let ratio_sleeping = peer
         .as_ref()
         .and_then(|l| l.iter().find(|l| l.contains("sleeping on")).cloned())
@@ -169,6 +214,7 @@ fn main() {
 | | largestep | peer: rapier3d 0.36.1 (sleeping off) |\n|---|---|---|\n\
 | mean step over the 360 steps | {ms:.3} ms (first 120: {:.3}, last 120: {:.3}) | {ratio} |\n\
 | the same with sleeping on (peer: sleeping on) | {:.3} ms, {} of 1,000 boxes asleep at the end | {ratio_sleeping} |\n\
+| whole runs alternated with the peer's (sleeping off) | {alternated} | |\n\
 | solver | {} sub-steps of sequential impulses, soft contacts (30 Hz, damping ratio 20), relax, manifold friction 0.5 (two tangent rows and a twist row), persistent manifolds, rows stored in f32 and solved in f64, contact margin 2% of the size plus the closing distance | 4 iterations, soft contacts (rapier's defaults), friction 0.5 (two tangent rows and a twist row), f32, prediction distance 0.02 m |\n\n\
 {:.0} contact points in {:.0} manifolds a step on average, deepest {deepest:.4} m; at the end the lowest centre is at {lowest:.3} m and the fastest box moves {fastest:.3} m/s.\n\n\
 Machine: {:.1} GFLOP/s of solver work, {:.1}% of one thread's peak FMA rate ({per_thread:.1} GFLOP/s).\n\n\
