@@ -65,15 +65,20 @@ fn run_peer() -> Option<Vec<String>> {
     Some(text.lines().map(str::to_string).collect())
 }
 
-/// Our whole run (360 steps, sleeping off) from a copy of the start state: the mean step
-/// (ms).
-fn whole_run(m: &Rigid, s0: &RigidState, w0: &RigidWork) -> f64 {
+/// A whole run (360 steps) of `m` from a copy of the start state: the mean step (ms) and
+/// the state at the end.
+fn whole_run(m: &Rigid, s0: &RigidState, w0: &RigidWork) -> (f64, RigidState) {
     let (mut s, mut w) = (s0.clone(), w0.clone());
     let t = Instant::now();
     for _ in 0..360 {
         m.step(&mut s, &mut w, 1.0 / 60.0).expect("step");
     }
-    t.elapsed().as_secs_f64() * 1e3 / 360.0
+    (t.elapsed().as_secs_f64() * 1e3 / 360.0, s)
+}
+
+/// The peer's mean step (ms) on its line for `sleeping` ("sleeping off" or "sleeping on").
+fn peer_line_ms(lines: &[String], sleeping: &str) -> Option<f64> {
+    peer_ms(lines.iter().find(|l| l.contains(sleeping))?)
 }
 
 /// The mean per step (ms) in a peer line "...: 2.950 ms per step ...".
@@ -140,14 +145,9 @@ fn main() {
     let sleeping = {
         let mut d = m.desc().clone();
         d.sleep = Some(largestep::rigid::sleep::Sleep::default());
-        let (m, mut s, mut w) = d.build().expect("builds");
-        let mut times = Vec::new();
-        for _ in 0..360 {
-            let t = Instant::now();
-            m.step(&mut s, &mut w, dt).expect("step");
-            times.push(t.elapsed().as_secs_f64() * 1e3);
-        }
-        (mean(&times), s.asleep.iter().filter(|&&a| a).count())
+        let (m, s, w) = d.build().expect("builds");
+        let (ms, s) = whole_run(&m, &s, &w);
+        (ms, s.asleep.iter().filter(|&&a| a).count())
     };
 
     let limits = largestep::machine::measure(64);
@@ -161,25 +161,19 @@ fn main() {
     let fraction = flops / (ms * 1e-3) / (per_thread * 1e9);
     let peer = run_peer();
     let peer_off = peer
-        .as_ref()
-        .and_then(|l| l.iter().find(|l| l.contains("sleeping off")).cloned());
-    let ratio = peer_off
         .as_deref()
-        .and_then(peer_ms)
-        .map_or("not built".to_string(), |p| {
-            format!("{p:.3} ms ({:.2}x ours)", p / ms)
-        });
+        .and_then(|l| peer_line_ms(l, "sleeping off"));
+    let ratio = peer_off.map_or("not built".to_string(), |p| {
+        format!("{p:.3} ms ({:.2}x ours)", p / ms)
+    });
     // Ours and the peer's whole runs alternated: on a shared machine single runs moved by
     // up to 30% within minutes, so the ratio is read round by round, and fastest against
     // fastest.
     let rounds: Vec<(f64, f64)> = if peer_off.is_some() {
         (0..5)
             .filter_map(|_| {
-                let ours = whole_run(&m, &s0, &w0);
-                let line = run_peer()?
-                    .into_iter()
-                    .find(|l| l.contains("sleeping off"))?;
-                Some((ours, peer_ms(&line)?))
+                let (ours, _) = whole_run(&m, &s0, &w0);
+                Some((ours, peer_line_ms(&run_peer()?, "sleeping off")?))
             })
             .collect()
     } else {
@@ -202,10 +196,8 @@ fn main() {
         )
     };
     let ratio_sleeping = peer
-        .as_ref()
-        .and_then(|l| l.iter().find(|l| l.contains("sleeping on")).cloned())
         .as_deref()
-        .and_then(peer_ms)
+        .and_then(|l| peer_line_ms(l, "sleeping on"))
         .map_or("not built".to_string(), |p| {
             format!("{p:.3} ms ({:.2}x ours)", p / sleeping.0)
         });

@@ -13,9 +13,9 @@
 //! first group with a free lane after every group that holds an earlier-placed point on
 //! one of its movable bodies (Tonge, Benevolenskiy and Voronov 2012, "Mass splitting for
 //! jitter-free parallel rigid body simulation", describe the colouring; rapier and Box2D
-//! v3 colour their constraint graphs the same way). Two points that share no movable body commute
-//! in Gauss-Seidel, and the points on any one body keep their order, so the batched
-//! passes are a reordering of the sequential ones that gives the same impulses. Every
+//! v3 colour their constraint graphs the same way). Two points that share no movable
+//! body commute in Gauss-Seidel, and the points on any one body keep their order, so the
+//! batched passes are a reordering of the sequential ones that gives the same impulses. Every
 //! lane does the same operations in the same order whatever the batch (no fused
 //! multiply-adds), so the bits agree too (the test below checks four-lane batches
 //! against one-lane ones, the sequential order).

@@ -18,6 +18,7 @@ use largestep_kernels::collide::manifold::{
 };
 use largestep_kernels::collide::narrow::Convex;
 use largestep_kernels::quat::{self, Quat};
+use largestep_kernels::rotation;
 use largestep_kernels::v3::{add, dot, scale, sub};
 
 /// Contact margin as a fraction of the smaller body's feature size: points this far apart
@@ -122,7 +123,7 @@ impl Kept {
     /// Whether the pair's present pose is close enough to the kept one.
     fn holds(&self, pose: ([f64; 3], Quat), size: f64) -> bool {
         let d = sub(pose.0, self.offset);
-        let c = dot4(pose.1, self.rel).abs();
+        let c = rotation::dot4(pose.1, self.rel).abs();
         // cos(angle / 2) > 1 - angle^2 / 8 for the angle between the orientations.
         dot(d, d) < (REUSE * size) * (REUSE * size) && c > 1.0 - REUSE * REUSE / 8.0
     }
@@ -155,10 +156,6 @@ impl Kept {
     }
 }
 
-fn dot4(a: Quat, b: Quat) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3]
-}
-
 /// The box of body `i` at its pose, grown by `grow` (m).
 fn body_box(m: &Rigid, s: &RigidState, r: &[[f64; 3]; 3], i: usize, grow: f64) -> Aabb {
     let x = s.x[i];
@@ -181,7 +178,7 @@ fn body_box(m: &Rigid, s: &RigidState, r: &[[f64; 3]; 3], i: usize, grow: f64) -
 pub(crate) fn box_pose(s: &RigidState, r: &[[f64; 3]; 3], i: usize, half: [f64; 3]) -> BoxPose {
     BoxPose {
         center: s.x[i],
-        axes: std::array::from_fn(|k| [r[0][k], r[1][k], r[2][k]]),
+        axes: super::columns(r),
         half,
     }
 }

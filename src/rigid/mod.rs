@@ -1087,7 +1087,7 @@ impl Rigid {
                     Obstacle::Hull {
                         points: points.clone(),
                         center: s.x[i],
-                        axes: [0, 1, 2].map(|k| [r[0][k], r[1][k], r[2][k]]),
+                        axes: columns(&r),
                     }
                 }
             };
@@ -1249,6 +1249,11 @@ fn rotate_diag(r: &[[f64; 3]; 3], d: [f64; 3]) -> [[f64; 3]; 3] {
 #[inline]
 pub(crate) fn mat_vec(m: [[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
     [dot(m[0], v), dot(m[1], v), dot(m[2], v)]
+}
+
+/// The columns of the rotation `r`: the body's axes in the world.
+pub(crate) fn columns(r: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
+    std::array::from_fn(|k| [r[0][k], r[1][k], r[2][k]])
 }
 
 /// `mᵀ v`: a vector into the frame whose axes are the columns of the rotation `m`.
