@@ -60,6 +60,7 @@ use super::{
 use crate::sparse::{csr, Bsr3, Bsr3Pattern};
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMat};
 use largestep_kernels::par::{chunk_count, chunk_range};
+use largestep_kernels::sparse::Bsr3Ref;
 use largestep_kernels::vec as kv;
 use rayon::prelude::*;
 use std::sync::Arc;
@@ -95,6 +96,9 @@ struct Blocks {
     /// Slot of each row's diagonal block.
     diag: Vec<u32>,
     val: Vec<f64>,
+    /// `val` rounded to `f32` for the V-cycle's smoothing (empty where a value does not
+    /// fit in `f32`: the cycle then reads `val`).
+    val32: Vec<f32>,
 }
 
 impl Blocks {
@@ -119,6 +123,9 @@ struct Level {
     p_ptr: Vec<u32>,
     p_col: Vec<u32>,
     p: Vec<f64>,
+    /// `p` rounded to `f32` for the V-cycle's transfers (empty where a value does not
+    /// fit in `f32`: the cycle then reads `p`).
+    p32: Vec<f32>,
     /// Row (node above) of each slot of P.
     p_row: Vec<u32>,
     /// For each block slot `(i, k)` of the matrix above, P's slot `(i, agg[k])`.
@@ -255,6 +262,12 @@ impl SmoothedAggregation {
     /// The vertex positions (component-major, `3n`) that the rotations of the near null
     /// space are taken about; used by the next [`SmoothedAggregation::setup`]. Copied,
     /// into a buffer reused across calls.
+    /// `a` with the values of the `f32` copy the last setup made of it (`None` when a
+    /// value did not fit in `f32`, or before a setup).
+    pub(super) fn fine32<'a>(&'a self, a: &'a Bsr3) -> Option<Bsr3Ref<'a, f32>> {
+        rounded(&self.fine32, a)
+    }
+
     pub fn set_coordinates(&mut self, x: &[f64]) {
         self.coords.clear();
         self.coords.extend_from_slice(x);
@@ -280,16 +293,21 @@ impl SmoothedAggregation {
     /// (the Chebyshev sweeps and residuals; the fine one's `f32` copy when there is
     /// one), the prolongators twice (restriction and prolongation).
     pub fn cycle_bytes(&self, a: &Bsr3) -> usize {
-        let matrix = |values: usize, blocks: usize| 8 * values + 4 * blocks;
+        // Values as the cycle reads them (f32 where rounded), and a column index a block.
+        let matrix = |values: usize, rounded: bool, blocks: usize| {
+            (if rounded { 4 } else { 8 }) * values + 4 * blocks
+        };
         let fine =
             rounded(&self.fine32, a).map_or(a.as_kernel().spmv_bytes(), |a32| a32.spmv_bytes());
         let mut bytes = 2 * DEGREE * fine;
         let smoothed = self.levels.len().saturating_sub(1);
         for (l, level) in self.levels.iter().enumerate() {
             if l < smoothed {
-                bytes += 2 * DEGREE * matrix(level.a.val.len(), level.a.col.len());
+                let a = &level.a;
+                bytes += 2 * DEGREE * matrix(a.val.len(), !a.val32.is_empty(), a.col.len());
             }
-            bytes += 2 * matrix(level.p.len(), level.p_col.len());
+            let (p, rounded) = (level.p.len(), !level.p32.is_empty());
+            bytes += 2 * matrix(p, rounded, level.p_col.len());
         }
         bytes
     }
@@ -342,6 +360,8 @@ impl SmoothedAggregation {
                     coarsen::<M>(level, view, &up.dinv, up.lambda);
                 }
             }
+            round_to_f32(&level.p, &mut level.p32);
+            round_to_f32(&level.a.val, &mut level.a.val32);
             if l + 1 < count {
                 coarse_dinv(&level.a, &mut level.dinv)?;
                 level.lambda = largest_eigenvalue(
@@ -589,6 +609,7 @@ impl Level {
             t: vec![0.0; bf * M * n],
             nullspace: vec![0.0; MM * nc],
             p: vec![0.0; bf * M * p_col.len()],
+            p32: vec![0.0; bf * M * p_col.len()],
             q: vec![0.0; bf * M * q_col.len()],
             agg,
             member_ptr,
@@ -611,6 +632,7 @@ impl Level {
                 col: c_col,
                 diag,
                 val: vec![0.0; MM * nnz_c],
+                val32: vec![0.0; MM * nnz_c],
             },
             dinv: vec![0.0; MM * nc],
             lambda: 0.0,
@@ -1111,7 +1133,7 @@ impl Op for CoarseOp<'_> {
     }
 
     fn apply(&self, y: &mut [f64], x: &[f64]) {
-        coarse_times(self.a, y, x, None);
+        coarse_times(self.a, &self.a.val, y, x, None);
     }
 
     fn precondition(&self, d: &mut [f64], alpha: f64, beta: f64, r: &[f64]) {
@@ -1138,19 +1160,26 @@ impl Op for CoarseOp<'_> {
     }
 }
 
-/// `y = A x`, or `y = b - A x` with `b`, on a coarse level (parallel over rows).
-fn coarse_times(a: &Blocks, y: &mut [f64], x: &[f64], b: Option<&[f64]>) {
+/// `y = A x`, or `y = b - A x` with `b`, on a coarse level (parallel over rows), with
+/// the values `val` (`a.val` or its `f32` copy).
+fn coarse_times<V: Copy + Into<f64> + Sync>(
+    a: &Blocks,
+    val: &[V],
+    y: &mut [f64],
+    x: &[f64],
+    b: Option<&[f64]>,
+) {
     y.par_chunks_mut(M * ROWS).enumerate().for_each(|(c, out)| {
         for (l, o) in out.chunks_exact_mut(M).enumerate() {
             let i = c * ROWS + l;
             let mut acc = [0.0; M];
             for s in a.row_ptr[i] as usize..a.row_ptr[i + 1] as usize {
                 let j = a.col[s] as usize;
-                let blk = &a.val[MM * s..MM * (s + 1)];
+                let blk = &val[MM * s..MM * (s + 1)];
                 let xj = &x[M * j..M * (j + 1)];
                 for (r, ar) in acc.iter_mut().enumerate() {
                     for (cc, xc) in xj.iter().enumerate() {
-                        *ar += blk[M * r + cc] * xc;
+                        *ar += blk[M * r + cc].into() * xc;
                     }
                 }
             }
@@ -1166,8 +1195,13 @@ fn coarse_times(a: &Blocks, y: &mut [f64], x: &[f64], b: Option<&[f64]>) {
     });
 }
 
+/// `r = b - A x` on a coarse level, through the `f32` values when there are.
 fn coarse_residual(a: &Blocks, r: &mut [f64], x: &[f64], b: &[f64]) {
-    coarse_times(a, r, x, Some(b));
+    if a.val32.is_empty() {
+        coarse_times(a, &a.val, r, x, Some(b));
+    } else {
+        coarse_times(a, &a.val32, r, x, Some(b));
+    }
 }
 
 /// Chebyshev smoothing of `A x = b` in `D^-1 A` with eigenvalues up to about `lambda`
@@ -1245,15 +1279,33 @@ const RESTRICT_ROWS: usize = 2048;
 /// column-wise gather this replaced visited P's blocks through `pt_slot`, out of order:
 /// a quarter of a V-cycle on the 36,663-unknown FEM beam, against 6% now (perf).
 fn restrict<const BF: usize>(level: &mut Level, r: &[f64], layout: Layout) {
-    let w = BF * M;
     let Level {
         b,
         partial,
         p_ptr,
         p_col,
         p,
+        p32,
         ..
     } = level;
+    if p32.is_empty() {
+        restrict_with::<BF, _>(b, partial, p_ptr, p_col, p, r, layout);
+    } else {
+        restrict_with::<BF, _>(b, partial, p_ptr, p_col, p32, r, layout);
+    }
+}
+
+/// [`restrict`] with P's values `p` (`f64` or the `f32` copy).
+fn restrict_with<const BF: usize, V: Copy + Into<f64> + Sync>(
+    b: &mut [f64],
+    partial: &mut [f64],
+    p_ptr: &[u32],
+    p_col: &[u32],
+    p: &[V],
+    r: &[f64],
+    layout: Layout,
+) {
+    let w = BF * M;
     let len = b.len();
     let rows = p_ptr.len() - 1;
     partial
@@ -1269,7 +1321,7 @@ fn restrict<const BF: usize>(level: &mut Level, r: &[f64], layout: Layout) {
                     let o = &mut out[M * j..M * (j + 1)];
                     for (k, rk) in ri.iter().enumerate() {
                         for (oc, bc) in o.iter_mut().zip(&blk[M * k..M * (k + 1)]) {
-                            *oc += bc * rk;
+                            *oc += (*bc).into() * rk;
                         }
                     }
                 }
@@ -1289,16 +1341,30 @@ fn restrict<const BF: usize>(level: &mut Level, r: &[f64], layout: Layout) {
 
 /// `x += P level.x` on the level above (laid out as `layout`).
 fn prolong<const BF: usize>(level: &Level, x: &mut [f64], layout: Layout) {
+    if level.p32.is_empty() {
+        prolong_with::<BF, _>(level, &level.p, x, layout);
+    } else {
+        prolong_with::<BF, _>(level, &level.p32, x, layout);
+    }
+}
+
+/// [`prolong`] with P's values `p` (`level.p` or its `f32` copy).
+fn prolong_with<const BF: usize, V: Copy + Into<f64> + Sync>(
+    level: &Level,
+    p: &[V],
+    x: &mut [f64],
+    layout: Layout,
+) {
     let w = BF * M;
     let row = |i: usize| -> [f64; BF] {
         let mut y = [0.0; BF];
         for s in level.p_ptr[i] as usize..level.p_ptr[i + 1] as usize {
             let j = level.p_col[s] as usize;
-            let blk = &level.p[w * s..w * (s + 1)];
+            let blk = &p[w * s..w * (s + 1)];
             let xj = &level.x[M * j..M * (j + 1)];
             for (k, yk) in y.iter_mut().enumerate() {
                 for (cc, xc) in xj.iter().enumerate() {
-                    *yk += blk[M * k + cc] * xc;
+                    *yk += blk[M * k + cc].into() * xc;
                 }
             }
         }
