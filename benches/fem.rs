@@ -42,8 +42,11 @@
 //!   Eisenstat-Walker forcing term asks, 1e-6 at the tightest; `-forcing-1e-3`: the same
 //!   with Newton to 1e-3 (on 30 steps from rest it moved the tip by at most 2.4e-5 m
 //!   from steps solved to 1e-9, of a 0.24 m swing); `-keep`: PCG's hierarchy kept for
-//!   up to ten steps (`MechSettings::reuse_preconditioner` = 10). The summary gives the Newton
-//!   iterations and the last linear solve's residual of the timed steps.
+//!   up to ten steps (`MechSettings::reuse_preconditioner` = 10). Every row but the last
+//!   has the defaults' predictor (Newton's first guess from the last step's velocity
+//!   change) and PCG's products with the multigrid's `f32` copy of the matrix; `-plain`
+//!   has neither (as before 2026-12-02). The summary gives the Newton iterations and the
+//!   last linear solve's residual of the timed steps.
 //!
 //! The peer (`benches/peers/rapier-fem`) steps the same mesh in rapier3d's FEM soft body.
 //! Run with `cargo bench --bench fem`; the summary is printed at the end and written to
@@ -82,7 +85,9 @@ fn beam() -> FemDesc {
 
 /// How a timed step solves: the linear solver (sparse Cholesky for `None`, or PCG with a
 /// preconditioner), the steps one Jacobian and one PCG hierarchy may serve, the inexact
-/// Newton forcing (`None`: each PCG solve to 1e-6) and Newton's tolerance.
+/// Newton forcing (`None`: each PCG solve to 1e-6) and Newton's tolerance; `plain`: the
+/// predictor and the rounded products off (`MechSettings::predictor`,
+/// `MechSettings::rounded_products`; on by default).
 #[derive(Clone, Copy)]
 struct Solver {
     pcg: Option<Preconditioner>,
@@ -90,6 +95,7 @@ struct Solver {
     keep: usize,
     forcing: Option<f64>,
     newton: f64,
+    plain: bool,
 }
 
 fn solver(
@@ -105,6 +111,7 @@ fn solver(
         keep,
         forcing,
         newton,
+        plain: false,
     }
 }
 
@@ -115,6 +122,7 @@ fn settings(solver: Solver) -> MechSettings {
         keep,
         forcing,
         newton,
+        plain,
     } = solver;
     let mut s = MechSettings::new(Method::BackwardEuler);
     s.reuse_jacobian = reuse;
@@ -122,6 +130,8 @@ fn settings(solver: Solver) -> MechSettings {
     s.newton.tolerance = newton;
     s.newton.step_tolerance = newton;
     s.newton.forcing = forcing;
+    s.predictor = !plain;
+    s.rounded_products = !plain;
     s.linear = match pcg {
         None => LinearSolverKind::Cholesky,
         Some(preconditioner) => LinearSolverKind::Pcg(PcgParams {
@@ -321,6 +331,15 @@ fn main() {
         (
             "pcg-sa-reuse-forcing-keep-1e-3",
             solver(sa, 1, 10, Some(0.5), 1e-3),
+        ),
+        // The same without the predictor and with PCG's products in f64, as before
+        // 2026-12-02.
+        (
+            "pcg-sa-reuse-forcing-keep-1e-3-plain",
+            Solver {
+                plain: true,
+                ..solver(sa, 1, 10, Some(0.5), 1e-3)
+            },
         ),
     ] {
         let id = format!("fem/step/{name}");

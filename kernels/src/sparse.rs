@@ -180,7 +180,7 @@ pub fn bsr3_spmv_scalar(y: &mut [f64], a: Bsr3Ref<'_>, x: &[f64]) {
 
 /// `y = A x`, returning `x . y`; parallel over fixed chunks of block rows, so the result
 /// is bitwise the same for any number of threads.
-pub fn bsr3_spmv_dot_par(y: &mut [f64], a: Bsr3Ref<'_>, x: &[f64]) -> f64 {
+pub fn bsr3_spmv_dot_par<T: BlockValue>(y: &mut [f64], a: Bsr3Ref<'_, T>, x: &[f64]) -> f64 {
     check(y, &a, x);
     let n = a.n;
     let yd = Disjoint::new(y);

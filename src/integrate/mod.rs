@@ -111,6 +111,15 @@ impl Method {
         )
     }
 
+    /// Whether the method iterates Newton to a tolerance (backward Euler, implicit
+    /// midpoint, Newmark; the linearised backward Euler takes one step).
+    pub fn is_newton(self) -> bool {
+        matches!(
+            self,
+            Method::BackwardEuler | Method::ImplicitMidpoint | Method::Newmark
+        )
+    }
+
     /// Nominal order of accuracy.
     pub fn order(self) -> u32 {
         match self {

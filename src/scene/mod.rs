@@ -660,6 +660,12 @@ fn solver_settings(
             "a new hierarchy for each Jacobian",
         )?;
     }
+    if let Some(p) = t.predictor {
+        settings.predictor = p;
+    }
+    if let Some(r) = t.rounded_products {
+        settings.rounded_products = r;
+    }
     Ok(settings)
 }
 

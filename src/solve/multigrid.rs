@@ -388,6 +388,14 @@ impl Multigrid {
     }
 }
 
+impl Multigrid {
+    /// `a` with the values of the `f32` copy the last setup made of it (`None` when a
+    /// value did not fit in `f32`, or before a setup).
+    pub(super) fn fine32<'a>(&'a self, a: &'a Bsr3) -> Option<Bsr3Ref<'a, f32>> {
+        rounded(&self.fine32, a)
+    }
+}
+
 /// The matrix `a` with the values `val32` ([`round_to_f32`] of its values), if they fit.
 pub(super) fn rounded<'a>(val32: &'a [f32], a: &'a Bsr3) -> Option<Bsr3Ref<'a, f32>> {
     let k = a.as_kernel();
