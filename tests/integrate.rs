@@ -478,3 +478,74 @@ fn an_implicit_step_builds_its_jacobian_with_its_first_residual() {
         }
     }
 }
+
+/// A particle kicked by a force for its first step only (backward Euler evaluates it at
+/// the step's end, t = 0.1 s), whose forces are not finite beyond x = 0.25 m (as an
+/// element model's past inversion): Newton's first guess from the last step's velocity
+/// change (`MechSettings::predictor`) lands there in the second step, and the step is
+/// then solved again from v0 instead of failing.
+#[test]
+fn a_first_guess_with_no_finite_forces_falls_back_to_the_start_velocity() {
+    use largestep::sparse::{Bsr3, Bsr3Pattern, SparseError};
+    use std::sync::Arc;
+    struct Kicked {
+        mass: [f64; 1],
+        pattern: Arc<Bsr3Pattern>,
+        forces: usize,
+    }
+    impl Mechanical for Kicked {
+        fn vertex_count(&self) -> usize {
+            1
+        }
+        fn mass(&self) -> &[f64] {
+            &self.mass
+        }
+        fn force(&mut self, t: f64, x: &[f64], _v: &[f64], f: &mut [f64]) {
+            self.forces += 1;
+            f.fill(0.0);
+            f[0] = if x[0] > 0.25 {
+                f64::NAN
+            } else if t < 0.15 {
+                10.0
+            } else {
+                0.0
+            };
+        }
+        fn prepare_jacobians(&mut self) -> Result<Option<Arc<Bsr3Pattern>>, SparseError> {
+            Ok(Some(self.pattern.clone()))
+        }
+        fn force_jacobians(
+            &mut self,
+            t: f64,
+            x: &[f64],
+            v: &[f64],
+            f: &mut [f64],
+            dfdx: &mut Bsr3,
+            _dfdv: Option<&mut Bsr3>,
+        ) -> Result<(), IntegrateError> {
+            self.force(t, x, v, f);
+            dfdx.values_mut().fill(0.0);
+            Ok(())
+        }
+    }
+    for predictor in [true, false] {
+        let mut sys = Kicked {
+            mass: [1.0],
+            pattern: Arc::new(Bsr3Pattern::diagonal(1)),
+            forces: 0,
+        };
+        let mut s = settings(Method::BackwardEuler, LinearSolverKind::Cholesky);
+        s.predictor = predictor;
+        let mut st = MechStepper::new(s, &mut sys).unwrap();
+        let (mut x, mut v) = ([0.0; 3], [0.0; 3]);
+        let h = 0.1;
+        st.step(&mut sys, 0.0, &mut x, &mut v, h).unwrap();
+        assert!((v[0] - 1.0).abs() < 1e-12 && (x[0] - 0.1).abs() < 1e-12);
+        let before = sys.forces;
+        st.step(&mut sys, h, &mut x, &mut v, h).unwrap();
+        assert!((v[0] - 1.0).abs() < 1e-12, "{predictor}: v {}", v[0]);
+        assert!((x[0] - 0.2).abs() < 1e-12, "{predictor}: x {}", x[0]);
+        // With the predictor: the guess (not finite), then the step from v0.
+        assert_eq!(sys.forces - before, if predictor { 2 } else { 1 });
+    }
+}

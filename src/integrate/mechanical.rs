@@ -210,7 +210,8 @@ pub struct MechSettings {
     /// motion is smooth this guess is a step's change closer, and Newton converges to
     /// the same tolerance from it in fewer iterations: the swinging beam of issue 15
     /// (`benches/fem.rs`, Newton to 1e-3) took 2.3 Newton and 6.6 PCG iterations a step
-    /// instead of 3.1 and 10.2. The default, `true`; ignored by the other methods.
+    /// instead of 3.1 and 10.2. A step that fails from the guess is solved again from
+    /// `v0`. The default, `true`; ignored by the other methods.
     pub predictor: bool,
 }
 
@@ -640,7 +641,7 @@ impl MechStepper {
                     dv_h,
                     continued,
                 } = w;
-                let predict = *continued;
+                let mut predict = *continued;
                 loop {
                     // Newton's first guess (see `MechSettings::predictor`).
                     if predict {
@@ -690,7 +691,14 @@ impl MechStepper {
                         params.max_iterations = params.max_iterations.min(LAGGED_ITERATIONS);
                     }
                     let res = newton.solve(&mut prob, v1, &params);
-                    if let Some(e) = prob.err.take() {
+                    let err = prob.err.take();
+                    if predict && (err.is_some() || res.is_err()) {
+                        // The guess did not serve (forces not finite there, or Newton did
+                        // not get there from it): once more from v0.
+                        predict = false;
+                        continue;
+                    }
+                    if let Some(e) = err {
                         return Err(e);
                     }
                     if prob.refactored && reuse > 1 {
