@@ -202,7 +202,8 @@ pub struct MechSettings {
     /// by a relative 6e-8 costs no accuracy, and an iteration moves half the matrix's
     /// bytes. The default, `true`; ignored by the other methods and preconditioners.
     /// On the 60,000-tetrahedron beam of issue 15 (`benches/fem.rs`) with smoothed
-    /// aggregation: PCG and Newton iteration counts unchanged.
+    /// aggregation: the same Newton iterations, PCG iterations within 0.3% (10.22 against
+    /// 10.25 a step).
     pub rounded_products: bool,
     /// Whether the Newton-solved methods start Newton from the last step's velocity
     /// change carried on (`v1 = v0 + (v0 - v_prev)`, the constrained directions left
