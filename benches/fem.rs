@@ -42,11 +42,12 @@
 //!   Eisenstat-Walker forcing term asks, 1e-6 at the tightest; `-forcing-1e-3`: the same
 //!   with Newton to 1e-3 (on 30 steps from rest it moved the tip by at most 2.4e-5 m
 //!   from steps solved to 1e-9, of a 0.24 m swing); `-keep`: PCG's hierarchy kept for
-//!   up to ten steps (`MechSettings::reuse_preconditioner` = 10). Every row but the last
-//!   has the defaults' predictor (Newton's first guess from the last step's velocity
-//!   change) and PCG's products with the multigrid's `f32` copy of the matrix; `-plain`
-//!   has neither (as before 2026-12-02). The summary gives the Newton iterations and the
-//!   last linear solve's residual of the timed steps.
+//!   up to ten steps (`MechSettings::reuse_preconditioner` = 10). The rows have the
+//!   defaults' predictor (Newton's first guess from the last step's velocity change);
+//!   `-f32` adds PCG's products with the multigrid's `f32` copy of the matrix
+//!   (`MechSettings::rounded_products`, off by default), `-plain` has the predictor off
+//!   (as before 2026-12-02). The summary gives the Newton iterations and the last linear
+//!   solve's residual of the timed steps.
 //!
 //! The peer (`benches/peers/rapier-fem`) steps the same mesh in rapier3d's FEM soft body.
 //! Run with `cargo bench --bench fem`; the summary is printed at the end and written to
@@ -85,9 +86,9 @@ fn beam() -> FemDesc {
 
 /// How a timed step solves: the linear solver (sparse Cholesky for `None`, or PCG with a
 /// preconditioner), the steps one Jacobian and one PCG hierarchy may serve, the inexact
-/// Newton forcing (`None`: each PCG solve to 1e-6) and Newton's tolerance; `plain`: the
-/// predictor and the rounded products off (`MechSettings::predictor`,
-/// `MechSettings::rounded_products`; on by default).
+/// Newton forcing (`None`: each PCG solve to 1e-6) and Newton's tolerance; Newton's first
+/// guess from the last step (`MechSettings::predictor`, on by default) and PCG's products
+/// in `f32` (`MechSettings::rounded_products`, off by default).
 #[derive(Clone, Copy)]
 struct Solver {
     pcg: Option<Preconditioner>,
@@ -95,7 +96,8 @@ struct Solver {
     keep: usize,
     forcing: Option<f64>,
     newton: f64,
-    plain: bool,
+    predictor: bool,
+    rounded: bool,
 }
 
 fn solver(
@@ -111,7 +113,8 @@ fn solver(
         keep,
         forcing,
         newton,
-        plain: false,
+        predictor: true,
+        rounded: false,
     }
 }
 
@@ -122,7 +125,8 @@ fn settings(solver: Solver) -> MechSettings {
         keep,
         forcing,
         newton,
-        plain,
+        predictor,
+        rounded,
     } = solver;
     let mut s = MechSettings::new(Method::BackwardEuler);
     s.reuse_jacobian = reuse;
@@ -130,8 +134,8 @@ fn settings(solver: Solver) -> MechSettings {
     s.newton.tolerance = newton;
     s.newton.step_tolerance = newton;
     s.newton.forcing = forcing;
-    s.predictor = !plain;
-    s.rounded_products = !plain;
+    s.predictor = predictor;
+    s.rounded_products = rounded;
     s.linear = match pcg {
         None => LinearSolverKind::Cholesky,
         Some(preconditioner) => LinearSolverKind::Pcg(PcgParams {
@@ -332,12 +336,19 @@ fn main() {
             "pcg-sa-reuse-forcing-keep-1e-3",
             solver(sa, 1, 10, Some(0.5), 1e-3),
         ),
-        // The same without the predictor and with PCG's products in f64, as before
-        // 2026-12-02.
+        // The same with PCG's products in f32, and without the predictor (as before
+        // 2026-12-02).
+        (
+            "pcg-sa-reuse-forcing-keep-1e-3-f32",
+            Solver {
+                rounded: true,
+                ..solver(sa, 1, 10, Some(0.5), 1e-3)
+            },
+        ),
         (
             "pcg-sa-reuse-forcing-keep-1e-3-plain",
             Solver {
-                plain: true,
+                predictor: false,
                 ..solver(sa, 1, 10, Some(0.5), 1e-3)
             },
         ),

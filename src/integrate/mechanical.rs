@@ -199,11 +199,14 @@ pub struct MechSettings {
     /// ([`crate::solve::Pcg::set_rounded_products`]) in the Newton-solved methods
     /// (backward Euler, implicit midpoint, Newmark): their solves give only Newton's
     /// step directions, each checked against the residual in `f64`, so a matrix rounded
-    /// by a relative 6e-8 costs no accuracy, and an iteration moves half the matrix's
-    /// bytes. The default, `true`; ignored by the other methods and preconditioners.
-    /// On the 60,000-tetrahedron beam of issue 15 (`benches/fem.rs`) with smoothed
-    /// aggregation: the same Newton iterations, PCG iterations within 0.3% (10.22 against
-    /// 10.25 a step).
+    /// by a relative 6e-8 costs little accuracy where A is well conditioned, and an
+    /// iteration moves half the matrix's bytes. On the 60,000-tetrahedron beam of issue 15
+    /// (`benches/fem.rs`, E = 10 MPa, nu = 0.3) with smoothed aggregation: the same Newton
+    /// iterations, PCG iterations within 0.3% (10.22 against 10.25 a step), 15-25% off a
+    /// step. Off by default: on the same beam of steel with nu = 0.49 the rounded Jacobian
+    /// steered Newton worse (3.0 Newton and 75 PCG iterations a step against 1.3 and 28),
+    /// and once lost its definiteness (PCG then solves again with A's values).
+    /// Ignored by the other methods and preconditioners.
     pub rounded_products: bool,
     /// Whether the Newton-solved methods start Newton from the last step's velocity
     /// change carried on (`v1 = v0 + (v0 - v_prev)`, the constrained directions left
@@ -211,8 +214,10 @@ pub struct MechSettings {
     /// motion is smooth this guess is a step's change closer, and Newton converges to
     /// the same tolerance from it in fewer iterations: the swinging beam of issue 15
     /// (`benches/fem.rs`, Newton to 1e-3) took 2.3 Newton and 6.6 PCG iterations a step
-    /// instead of 3.1 and 10.2. A step that fails from the guess is solved again from
-    /// `v0`. The default, `true`; ignored by the other methods.
+    /// instead of 3.1 and 10.2. Where the motion is not smooth it can cost: the same
+    /// beam of steel with nu = 0.49 took 1.7 Newton and 38 PCG iterations a step instead
+    /// of 1.3 and 28. A step that fails from the guess is solved again from `v0`. The
+    /// default, `true`; ignored by the other methods.
     pub predictor: bool,
 }
 
@@ -233,7 +238,7 @@ impl MechSettings {
             },
             reuse_jacobian: 0,
             reuse_preconditioner: 0,
-            rounded_products: true,
+            rounded_products: false,
             predictor: true,
         }
     }

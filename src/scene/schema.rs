@@ -22,7 +22,7 @@
 //! forcing = 0.5               # inexact Newton: PCG tolerance up to this (Eisenstat-Walker)
 //! reuse_preconditioner = 0    # steps one PCG multigrid hierarchy may serve (0: new each time)
 //! predictor = true            # Newton starts from the last step's velocity change carried on
-//! rounded_products = true     # PCG's products with the multigrid's f32 copy (Newton steps)
+//! rounded_products = false    # PCG's products with the multigrid's f32 copy (Newton steps)
 //!
 //! [mass_spring.chain]         # one table per system: [mass_spring], [cloth], ...
 //! count = 20
@@ -91,7 +91,7 @@ pub struct SolverTable {
     pub reuse_preconditioner: Option<i64>,
     /// Newton's first guess from the last step's velocity change (default true).
     pub predictor: Option<bool>,
-    /// PCG's products through the multigrid's `f32` copy in Newton steps (default true).
+    /// PCG's products through the multigrid's `f32` copy in Newton steps (default false).
     pub rounded_products: Option<bool>,
 }
 

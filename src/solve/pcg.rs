@@ -142,8 +142,9 @@ impl Pcg {
     /// a relative 6e-8 at most, and moves half the matrix bytes an iteration. For
     /// systems whose solution is only a step direction checked against a residual in
     /// `f64` (Newton's, [`crate::integrate::MechSettings::rounded_products`]); not for a
-    /// solve that must reach A's own residual below about 1e-7. The other
-    /// preconditioners keep no copy and ignore it.
+    /// solve that must reach A's own residual below about 1e-7. Where the rounded system
+    /// is not positive definite (an ill-conditioned A) the solve is done again with A's
+    /// values. The other preconditioners keep no copy and ignore it.
     pub fn set_rounded_products(&mut self, rounded: bool) {
         self.rounded = rounded;
     }
@@ -270,6 +271,33 @@ impl Pcg {
         filter: Option<&Filter>,
         full: bool,
     ) -> Result<SolveInfo, SolveError> {
+        let rounded = self.rounded.then_some(self.params.preconditioner);
+        match self.iterate(a, b, x, filter, Some(full), rounded) {
+            // Rounding can cost an ill-conditioned matrix its definiteness (seen on a
+            // steel beam with Poisson's ratio 0.49): then A's own values, from zero, with
+            // the preconditioner just made.
+            Err(SolveError::NotPositiveDefinite { .. } | SolveError::NonFinite { .. })
+                if rounded.is_some() =>
+            {
+                x.fill(0.0);
+                self.iterate(a, b, x, filter, None, None)
+            }
+            result => result,
+        }
+    }
+
+    /// PCG proper: the preconditioner set up (`setup`: `Some(full)`, see
+    /// [`Pcg::resolve`]; `None` keeps the one in hand) and iterated, the products with
+    /// the `f32` copy of the multigrid `rounded` names, if any.
+    fn iterate(
+        &mut self,
+        a: &mut Bsr3,
+        b: &[f64],
+        x: &mut [f64],
+        filter: Option<&Filter>,
+        setup: Option<bool>,
+        rounded: Option<Preconditioner>,
+    ) -> Result<SolveInfo, SolveError> {
         let start = Instant::now();
         let n = self.n;
         assert_eq!(a.n(), n, "matrix and solver sizes differ");
@@ -278,7 +306,9 @@ impl Pcg {
             f.project_matrix(a);
         }
         let a = &*a;
-        self.setup(a, filter, full)?;
+        if let Some(full) = setup {
+            self.setup(a, filter, full)?;
+        }
 
         let filt = |v: &mut [f64]| {
             if let Some(f) = filter {
@@ -291,7 +321,6 @@ impl Pcg {
         // |S b| is measured in p, which is overwritten below.
         // Every product of one solve reads the same matrix (see `set_rounded_products`), as
         // CG's recurrences assume.
-        let rounded = self.rounded.then_some(pre);
         if x.iter().any(|&v| v != 0.0) {
             product(rounded, &self.mg, &self.sa, a, &mut self.q, x);
             kv::waxpy(&mut self.r, b, -1.0, &self.q);
