@@ -213,7 +213,7 @@ pub struct MechSettings {
     /// out) rather than from `v0`, when the last step had the same size. Where the
     /// motion is smooth this guess is a step's change closer, and Newton converges to
     /// the same tolerance from it in fewer iterations: the swinging beam of issue 15
-    /// (`benches/fem.rs`, Newton to 1e-3) took 2.3 Newton and 6.6 PCG iterations a step
+    /// (`benches/fem.rs`, Newton to 1e-3) took 2.3 Newton and 6.1-6.6 PCG iterations a step
     /// instead of 3.1 and 10.2. Where the motion is not smooth it can cost: the same
     /// beam of steel with nu = 0.49 took 1.7 Newton and 38 PCG iterations a step instead
     /// of 1.3 and 28. A step that fails from the guess is solved again from `v0`. The
