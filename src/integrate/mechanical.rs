@@ -349,9 +349,6 @@ struct Implicit {
     dv: Vec<f64>,
     v_end: Vec<f64>,
     dv_h: f64,
-    /// Whether this step continues from the last one (same step size, and the
-    /// velocities it ended with, before this step's constraints were imposed).
-    continued: bool,
 }
 
 /// Steps mechanical systems with one method. All buffers are allocated in
@@ -454,7 +451,6 @@ impl MechStepper {
                 dv: v3(),
                 v_end: v3(),
                 dv_h: 0.0,
-                continued: false,
             })
         } else {
             None
@@ -518,10 +514,15 @@ impl MechStepper {
         self.steps += 1;
         let step = self.steps;
         let method = self.settings.method;
-        if let Some(w) = self.implicit.as_mut().filter(|_| method.is_newton()) {
-            // The state may have been set between steps (then no prediction from the last).
-            w.continued = self.settings.predictor && w.dv_h == h && w.v_end.as_slice() == &*v;
-        }
+        // Whether this step continues the last Newton-solved one (same step size, and the
+        // velocities it ended with, before this step's constraints are imposed): the
+        // state may have been set between steps, and then nothing is predicted from it.
+        let continued = self.settings.predictor
+            && method.is_newton()
+            && self
+                .implicit
+                .as_ref()
+                .is_some_and(|w| w.dv_h == h && w.v_end.as_slice() == &*v);
         self.filter.clear();
         sys.constraints(&mut self.filter);
         if !self.filter.unilateral().is_empty() {
@@ -645,9 +646,8 @@ impl MechStepper {
                     dv,
                     v_end,
                     dv_h,
-                    continued,
                 } = w;
-                let mut predict = *continued;
+                let mut predict = continued;
                 loop {
                     // Newton's first guess (see `MechSettings::predictor`).
                     if predict {

@@ -60,7 +60,7 @@ use super::{
 use crate::sparse::{csr, Bsr3, Bsr3Pattern};
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMat};
 use largestep_kernels::par::{chunk_count, chunk_range};
-use largestep_kernels::sparse::Bsr3Ref;
+use largestep_kernels::sparse::{BlockValue, Bsr3Ref};
 use largestep_kernels::vec as kv;
 use rayon::prelude::*;
 use std::sync::Arc;
@@ -96,8 +96,9 @@ struct Blocks {
     /// Slot of each row's diagonal block.
     diag: Vec<u32>,
     val: Vec<f64>,
-    /// `val` rounded to `f32` for the V-cycle's smoothing (empty where a value does not
-    /// fit in `f32`: the cycle then reads `val`).
+    /// `val` rounded to `f32` for the V-cycle's smoothing, made by each setup (empty on
+    /// the coarsest level, solved directly, and where a value does not fit in `f32`:
+    /// the cycle then reads `val`).
     val32: Vec<f32>,
 }
 
@@ -123,8 +124,8 @@ struct Level {
     p_ptr: Vec<u32>,
     p_col: Vec<u32>,
     p: Vec<f64>,
-    /// `p` rounded to `f32` for the V-cycle's transfers (empty where a value does not
-    /// fit in `f32`: the cycle then reads `p`).
+    /// `p` rounded to `f32` for the V-cycle's transfers, made by each setup (empty where
+    /// a value does not fit in `f32`: the cycle then reads `p`).
     p32: Vec<f32>,
     /// Row (node above) of each slot of P.
     p_row: Vec<u32>,
@@ -259,15 +260,15 @@ impl SmoothedAggregation {
         Self::default()
     }
 
-    /// The vertex positions (component-major, `3n`) that the rotations of the near null
-    /// space are taken about; used by the next [`SmoothedAggregation::setup`]. Copied,
-    /// into a buffer reused across calls.
     /// `a` with the values of the `f32` copy the last setup made of it (`None` when a
     /// value did not fit in `f32`, or before a setup).
     pub(super) fn fine32<'a>(&'a self, a: &'a Bsr3) -> Option<Bsr3Ref<'a, f32>> {
         rounded(&self.fine32, a)
     }
 
+    /// The vertex positions (component-major, `3n`) that the rotations of the near null
+    /// space are taken about; used by the next [`SmoothedAggregation::setup`]. Copied,
+    /// into a buffer reused across calls.
     pub fn set_coordinates(&mut self, x: &[f64]) {
         self.coords.clear();
         self.coords.extend_from_slice(x);
@@ -361,8 +362,9 @@ impl SmoothedAggregation {
                 }
             }
             round_to_f32(&level.p, &mut level.p32);
-            round_to_f32(&level.a.val, &mut level.a.val32);
             if l + 1 < count {
+                // The coarsest level is solved directly, from `val`: no copy.
+                round_to_f32(&level.a.val, &mut level.a.val32);
                 coarse_dinv(&level.a, &mut level.dinv)?;
                 level.lambda = largest_eigenvalue(
                     &CoarseOp {
@@ -609,7 +611,7 @@ impl Level {
             t: vec![0.0; bf * M * n],
             nullspace: vec![0.0; MM * nc],
             p: vec![0.0; bf * M * p_col.len()],
-            p32: vec![0.0; bf * M * p_col.len()],
+            p32: Vec::new(),
             q: vec![0.0; bf * M * q_col.len()],
             agg,
             member_ptr,
@@ -632,7 +634,7 @@ impl Level {
                 col: c_col,
                 diag,
                 val: vec![0.0; MM * nnz_c],
-                val32: vec![0.0; MM * nnz_c],
+                val32: Vec::new(),
             },
             dinv: vec![0.0; MM * nc],
             lambda: 0.0,
@@ -1162,13 +1164,7 @@ impl Op for CoarseOp<'_> {
 
 /// `y = A x`, or `y = b - A x` with `b`, on a coarse level (parallel over rows), with
 /// the values `val` (`a.val` or its `f32` copy).
-fn coarse_times<V: Copy + Into<f64> + Sync>(
-    a: &Blocks,
-    val: &[V],
-    y: &mut [f64],
-    x: &[f64],
-    b: Option<&[f64]>,
-) {
+fn coarse_times<V: BlockValue>(a: &Blocks, val: &[V], y: &mut [f64], x: &[f64], b: Option<&[f64]>) {
     y.par_chunks_mut(M * ROWS).enumerate().for_each(|(c, out)| {
         for (l, o) in out.chunks_exact_mut(M).enumerate() {
             let i = c * ROWS + l;
@@ -1179,7 +1175,7 @@ fn coarse_times<V: Copy + Into<f64> + Sync>(
                 let xj = &x[M * j..M * (j + 1)];
                 for (r, ar) in acc.iter_mut().enumerate() {
                     for (cc, xc) in xj.iter().enumerate() {
-                        *ar += blk[M * r + cc].into() * xc;
+                        *ar += blk[M * r + cc].get() * xc;
                     }
                 }
             }
@@ -1296,7 +1292,7 @@ fn restrict<const BF: usize>(level: &mut Level, r: &[f64], layout: Layout) {
 }
 
 /// [`restrict`] with P's values `p` (`f64` or the `f32` copy).
-fn restrict_with<const BF: usize, V: Copy + Into<f64> + Sync>(
+fn restrict_with<const BF: usize, V: BlockValue>(
     b: &mut [f64],
     partial: &mut [f64],
     p_ptr: &[u32],
@@ -1321,7 +1317,7 @@ fn restrict_with<const BF: usize, V: Copy + Into<f64> + Sync>(
                     let o = &mut out[M * j..M * (j + 1)];
                     for (k, rk) in ri.iter().enumerate() {
                         for (oc, bc) in o.iter_mut().zip(&blk[M * k..M * (k + 1)]) {
-                            *oc += (*bc).into() * rk;
+                            *oc += bc.get() * rk;
                         }
                     }
                 }
@@ -1349,7 +1345,7 @@ fn prolong<const BF: usize>(level: &Level, x: &mut [f64], layout: Layout) {
 }
 
 /// [`prolong`] with P's values `p` (`level.p` or its `f32` copy).
-fn prolong_with<const BF: usize, V: Copy + Into<f64> + Sync>(
+fn prolong_with<const BF: usize, V: BlockValue>(
     level: &Level,
     p: &[V],
     x: &mut [f64],
@@ -1364,7 +1360,7 @@ fn prolong_with<const BF: usize, V: Copy + Into<f64> + Sync>(
             let xj = &level.x[M * j..M * (j + 1)];
             for (k, yk) in y.iter_mut().enumerate() {
                 for (cc, xc) in xj.iter().enumerate() {
-                    *yk += blk[M * k + cc].into() * xc;
+                    *yk += blk[M * k + cc].get() * xc;
                 }
             }
         }

@@ -386,9 +386,7 @@ impl Multigrid {
             f.apply(z);
         }
     }
-}
 
-impl Multigrid {
     /// `a` with the values of the `f32` copy the last setup made of it (`None` when a
     /// value did not fit in `f32`, or before a setup).
     pub(super) fn fine32<'a>(&'a self, a: &'a Bsr3) -> Option<Bsr3Ref<'a, f32>> {

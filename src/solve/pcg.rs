@@ -309,7 +309,6 @@ impl Pcg {
         if let Some(full) = setup {
             self.setup(a, filter, full)?;
         }
-
         let filt = |v: &mut [f64]| {
             if let Some(f) = filter {
                 f.apply(v)
