@@ -13,7 +13,9 @@ mod mm;
 pub mod order;
 
 pub(crate) use assembly::csr;
-pub use assembly::{ElementAssembly, LocalLayout, RankOneAssembly, Src, VectorGather};
+pub use assembly::{
+    ElementAssembly, LocalLayout, OrderedChunk, RankOneAssembly, Src, VectorGather, ORDERED_CHUNK,
+};
 pub use bridge::{to_csr, FaerCsc, Triangle};
 pub use mm::{read_matrix_market, write_matrix_market, MatrixMarket};
 
