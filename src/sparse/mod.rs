@@ -20,6 +20,7 @@ pub use bridge::{to_csr, FaerCsc, Triangle};
 pub use mm::{read_matrix_market, write_matrix_market, MatrixMarket};
 
 use largestep_kernels::sparse::{bsr3_residual_par, bsr3_spmv_dot_par, Bsr3Ref};
+use rayon::prelude::*;
 use std::sync::Arc;
 
 /// Errors of the sparse layer: malformed connectivity and malformed matrix files.
@@ -277,10 +278,21 @@ impl Bsr3 {
         match terms {
             [] => self.set_zero(),
             [(c0, a0), rest @ ..] => {
-                largestep_kernels::vec::scale_copy(&mut self.val, *c0, &a0.val);
-                for (c, a) in rest {
-                    largestep_kernels::vec::axpy(&mut self.val, *c, &a.val);
-                }
+                // In parallel over fixed chunks, each chunk through all terms while it is
+                // in cache (elementwise: the same bits on any thread count). Serial, the
+                // implicit step's system matrix of the FEM beam of issue 15 took 1.3% of
+                // its step on a thread the other waited for.
+                const CHUNK: usize = 1 << 14;
+                self.val
+                    .par_chunks_mut(CHUNK)
+                    .enumerate()
+                    .for_each(|(k, out)| {
+                        let r = k * CHUNK..k * CHUNK + out.len();
+                        largestep_kernels::vec::scale_copy(out, *c0, &a0.val[r.clone()]);
+                        for (c, a) in rest {
+                            largestep_kernels::vec::axpy(out, *c, &a.val[r.clone()]);
+                        }
+                    });
             }
         }
     }
