@@ -705,3 +705,60 @@ fn multigrid_falls_back_to_f64_when_values_overflow_f32() {
         );
     }
 }
+
+/// PCG with products through the multigrid's `f32` copy (`Pcg::set_rounded_products`) on
+/// a matrix that is positive definite but whose rounding is not: per component
+/// `[[1 + 0.49u, 1 + 0.51u], [1 + 0.51u, 1 + 0.9u]]` (u = 2^-23, f32's spacing above 1)
+/// rounds to `[[1, 1 + u], [1 + u, 1 + u]]`, determinant `-u (1 + u)`. The right-hand
+/// side lies along the rounded matrix's negative direction. With smoothed aggregation the
+/// rounded products meet negative curvature at the first iteration (with the fallback
+/// taken out this solve fails, `p.Ap = -1.4e-5`), and the solve must run again with the
+/// matrix's own values and converge; aggregation multigrid's directions happen to pass.
+#[test]
+fn rounded_products_that_lose_definiteness_fall_back_to_the_matrix() {
+    let u = f64::from(f32::EPSILON);
+    let (a11, a12, a22) = (1.0 + 0.49 * u, 1.0 + 0.51 * u, 1.0 + 0.9 * u);
+    assert!(a11 * a22 - a12 * a12 > 0.0, "definite in f64");
+    let r = |v: f64| f64::from(v as f32);
+    assert!(
+        r(a11) * r(a22) - r(a12) * r(a12) < 0.0,
+        "indefinite once rounded"
+    );
+    let pattern = std::sync::Arc::new(Bsr3Pattern::from_elements(2, &[[0u32, 1]]).unwrap());
+    let mut a = Bsr3::zeros(pattern.clone());
+    for (i, j, v) in [(0, 0, a11), (0, 1, a12), (1, 0, a12), (1, 1, a22)] {
+        let slot = pattern.slot(i, j).unwrap();
+        for c in 0..3 {
+            a.block_mut(slot)[4 * c] = v;
+        }
+    }
+    // Component-major: (x0, x1, y0, y1, z0, z1), each component (1, -1).
+    let b = [1.0, -1.0, 1.0, -1.0, 1.0, -1.0];
+    for preconditioner in [
+        Preconditioner::Multigrid,
+        Preconditioner::SmoothedAggregation,
+    ] {
+        let mut pcg = Pcg::new(
+            2,
+            PcgParams {
+                tolerance: 1e-6,
+                max_iterations: 100,
+                preconditioner,
+            },
+        );
+        pcg.set_rounded_products(true);
+        let mut x = [0.0; 6];
+        let mut m = a.clone();
+        let info = pcg.solve(&mut m, &b, &mut x, None);
+        assert!(info.is_ok(), "{preconditioner:?}: {info:?}");
+        let res = residual(&a, &x, &b);
+        assert!(res < 1e-5, "{preconditioner:?}: relative residual {res:e}");
+        // The exact answer is large (the matrix is nearly singular): x0 = (a22 + a12) / det.
+        let x0 = (a22 + a12) / (a11 * a22 - a12 * a12);
+        assert!(
+            (x[0] - x0).abs() < 1e-3 * x0,
+            "{preconditioner:?}: {} against {x0}",
+            x[0]
+        );
+    }
+}
