@@ -13,7 +13,8 @@ use largestep_kernels::fem::{
     pk1_derivative, pk1_differential, project_psd, Lame, M3,
 };
 use largestep_kernels::fem_diag::{
-    element, element_x16, element_x4, element_x8, evaluate, Elements, Iso,
+    corotational_forces, corotational_forces_x16, corotational_forces_x8, element, element_x16,
+    element_x4, element_x8, evaluate, Elements, Iso,
 };
 use proptest::prelude::*;
 use std::path::{Path, PathBuf};
@@ -1686,6 +1687,103 @@ proptest! {
             }
         }
     }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(100))]
+
+    /// The corotational forces through Newton's polar decomposition (the path of the
+    /// model's force-only evaluations) equal the SVD kernel's, on randomly strained and
+    /// turned elements: one at a time (the scalar twin), eight and sixteen at once (the
+    /// same bits as the twin). A group holding an inverted element is refused (left to
+    /// the SVD) and its outputs untouched.
+    #[test]
+    fn polar_forces_equal_the_svd_kernel(seed in any::<u64>()) {
+        let mut r = Rand(seed | 1);
+        let els: [_; 16] = std::array::from_fn(|_| {
+            let (mut x, dm, vol) = random_element(&mut r, 0.12);
+            // A turn of up to pi about a random axis (Rodrigues).
+            let axis = [r.next(-1.0, 1.0), r.next(-1.0, 1.0), r.next(-1.0, 1.0)];
+            let n = (axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2]).sqrt().max(1e-3);
+            let k = axis.map(|a| a / n);
+            let (sn, cs) = r.next(0.0, std::f64::consts::PI).sin_cos();
+            for p in x.iter_mut() {
+                let kp = k[0] * p[0] + k[1] * p[1] + k[2] * p[2];
+                let kxp = [k[1] * p[2] - k[2] * p[1], k[2] * p[0] - k[0] * p[2], k[0] * p[1] - k[1] * p[0]];
+                *p = std::array::from_fn(|c| p[c] * cs + kxp[c] * sn + k[c] * kp * (1.0 - cs));
+            }
+            (x, dm, vol)
+        });
+        let lames: [Lame; 16] = std::array::from_fn(|_| Lame::from_young_poisson(1e6 * r.next(0.5, 2.0), r.next(0.0, 0.45)));
+        let is = iso(Material::Corotational, None, false);
+        let soa_of = |els: &[([[f64; 3]; 4], M3, f64); 16]| {
+            let x: [Vec<f64>; 3] = std::array::from_fn(|c| els.iter().flat_map(|e| e.0.map(|p| p[c])).collect());
+            let dm: [Vec<f64>; 9] = std::array::from_fn(|k| els.iter().map(|e| e.1[k]).collect());
+            let vol: Vec<f64> = els.iter().map(|e| e.2).collect();
+            (x, dm, vol)
+        };
+        let tets: Vec<[u32; 4]> = (0..16u32).map(|l| [4 * l, 4 * l + 1, 4 * l + 2, 4 * l + 3]).collect();
+        let (mu, lambda): (Vec<f64>, Vec<f64>) = lames.iter().map(|l| (l.mu, l.lambda)).unzip();
+        let (x, dm, vol) = soa_of(&els);
+        let soa = Elements { x: [&x[0], &x[1], &x[2]], tets: &tets, dm_inv: std::array::from_fn(|k| &dm[k][..]), vol: &vol, mu: &mu, lambda: &lambda };
+        let mut f16 = [0.0; 192];
+        let e16 = corotational_forces_x16(&mut f16, &soa, 0);
+        let mut f8 = [0.0; 96];
+        let e8 = corotational_forces_x8(&mut f8, &soa, 0);
+        let all_fit = els.iter().all(|(x, dm, _)| {
+            let (_, sigma, _) = largestep_kernels::fem_diag::svd3(&gradient_of(x, dm));
+            sigma[2] > 0.6 && sigma[0] < 1.7
+        });
+        if all_fit {
+            prop_assert!(e16.is_some() && e8.is_some(), "sixteen {} eight {}", e16.is_some(), e8.is_some());
+        }
+        for (l, (x, dm_inv, vol)) in els.iter().enumerate() {
+            let lame = [lames[l].mu, lames[l].lambda];
+            let mut fs = [[0.0; 3]; 4];
+            let (es, ok) = corotational_forces(&mut fs, x, dm_inv, *vol, lame);
+            let mut fe = [[0.0; 3]; 4];
+            let e = element(&mut fe, None, x, dm_inv, *vol, lame, &is);
+            let scale = lames[l].mu * vol;
+            if ok > 0.0 {
+                prop_assert!((es - e).abs() <= 1e-10 * scale * (1.0 + e.abs() / scale), "energy {es} against {e}");
+                for (a, b) in fs.as_flattened().iter().zip(fe.as_flattened()) {
+                    prop_assert!((a - b).abs() <= 1e-10 * scale, "force {a} against the SVD's {b}");
+                }
+            }
+            let mut wide = vec![];
+            if let Some(e16) = e16 {
+                wide.push((e16[l], &f16[12 * l..12 * l + 12]));
+            }
+            if let (Some(e8), true) = (e8, l < 8) {
+                wide.push((e8[l], &f8[12 * l..12 * l + 12]));
+            }
+            for (ew, fw) in wide {
+                prop_assert!(ok > 0.0);
+                prop_assert_eq!(ew.to_bits(), es.to_bits());
+                for (a, b) in fs.as_flattened().iter().zip(fw) {
+                    prop_assert_eq!(a.to_bits(), b.to_bits());
+                }
+            }
+        }
+        // One element turned inside out: the whole group is refused, its forces untouched.
+        let mut bad = els;
+        bad[5].0.swap(1, 2);
+        let (x, dm, vol) = soa_of(&bad);
+        let soa = Elements { x: [&x[0], &x[1], &x[2]], tets: &tets, dm_inv: std::array::from_fn(|k| &dm[k][..]), vol: &vol, mu: &mu, lambda: &lambda };
+        let mut f16 = [7.0; 192];
+        prop_assert!(corotational_forces_x16(&mut f16, &soa, 0).is_none());
+        prop_assert!(f16.iter().all(|&v| v == 7.0));
+    }
+}
+
+/// `F = Ds Dm^-1` of an element.
+fn gradient_of(x: &[[f64; 3]; 4], dm_inv: &M3) -> M3 {
+    let ds: M3 = std::array::from_fn(|i| x[i % 3 + 1][i / 3] - x[0][i / 3]);
+    std::array::from_fn(|i| {
+        (0..3)
+            .map(|k| ds[3 * (i / 3) + k] * dm_inv[3 * k + i % 3])
+            .sum()
+    })
 }
 
 /// The kernel's element forces and stiffness are those of the F-form materials (minus

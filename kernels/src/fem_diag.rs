@@ -36,6 +36,11 @@
 //! decomposition of 3x3 matrices with minimal branching", in outline): a fixed number of
 //! cyclic Jacobi sweeps on `F^T F` gives V, a sort orders the singular values, and Givens
 //! QR of `F V` gives U (a rotation) and the signed singular values on R's diagonal.
+//!
+//! The corotational material's forces alone ([`corotational_forces`]) skip the SVD: R
+//! from Newton's iteration for the polar decomposition ([`polar`]), for elements neither
+//! flat, inverted nor strained past about a factor 1.8 (the caller sends the others
+//! through the SVD kernel).
 
 use crate::fem::{Lame, Material, M3};
 use std::ops::{Add, Div, Mul, Neg, Sub};
@@ -889,6 +894,141 @@ fn scatter_lanes<W: Wide>(values: &[W], out: &mut [f64]) {
             out[s * l + i] = *x;
         }
     }
+}
+
+/// Newton iterations of [`polar`]: from singular values within a factor of two of one
+/// the iteration's error falls below rounding in five (`s <- (s + 1/s) / 2`: 2, 1.25,
+/// 1.025, 1.0003, 1 + 5e-8, 1 + 1e-15).
+const POLAR_ITERATIONS: usize = 5;
+/// The largest change of an entry of R in the last iteration for which [`polar`]'s R is
+/// taken: Newton's error then squares, below 1e-16.
+const POLAR_TOLERANCE: f64 = 1e-8;
+/// The smallest `det F` [`corotational_forces`] takes: flatter and inverted elements go
+/// through the SVD, whose signed frame keeps R a rotation (Newton's iteration would
+/// converge to a reflection for `det F < 0`).
+const POLAR_MIN_DET: f64 = 0.2;
+
+/// The rotation of the polar decomposition `F = R S` by Newton's iteration
+/// `X <- (X + X^-T) / 2` from `X = F` (Higham 1986, "Computing the polar decomposition,
+/// with applications", SIAM J. Sci. Stat. Comput. 7), [`POLAR_ITERATIONS`] times, with
+/// `X^-T = cof(X) / det X`: one division an iteration, where the SVD's chain has
+/// twenty-four square roots and fifteen divisions. Returns R, `det F` and the largest
+/// change of an entry in the last iteration (how far from converged). For `det F > 0`
+/// R is the SVD's `U V^T`.
+#[inline(always)]
+pub fn polar<R: Lane>(f: &[R; 9]) -> ([R; 9], R, R) {
+    let half = R::splat(0.5);
+    let mut x = *f;
+    let mut det_f = R::splat(0.0);
+    let mut change = R::splat(0.0);
+    for it in 0..POLAR_ITERATIONS {
+        // Cofactors, row-major: c[3 i + j] = (-1)^(i + j) minor(i, j).
+        let m = |a: usize, b: usize, c: usize, d: usize| x[a].fma(x[d], -(x[b] * x[c]));
+        let c = [
+            m(4, 5, 7, 8),
+            m(5, 3, 8, 6),
+            m(3, 4, 6, 7),
+            m(2, 1, 8, 7),
+            m(0, 2, 6, 8),
+            m(1, 0, 7, 6),
+            m(1, 2, 4, 5),
+            m(2, 0, 5, 3),
+            m(0, 1, 3, 4),
+        ];
+        let det = x[0].fma(c[0], x[1].fma(c[1], x[2] * c[2]));
+        if it == 0 {
+            det_f = det;
+        }
+        let h = half / det;
+        let next: [R; 9] = std::array::from_fn(|i| half.fma(x[i], h * c[i]));
+        if it + 1 == POLAR_ITERATIONS {
+            change = (0..9).fold(R::splat(0.0), |a, i| a.max((next[i] - x[i]).abs()));
+        }
+        x = next;
+    }
+    (x, det_f, change)
+}
+
+/// The corotational material's element forces and energy without the tangent, through
+/// [`polar`] instead of the SVD: `P = 2 mu (F - R) + lambda (tr(R^T F) - 3) R`, the
+/// energy `vol (mu |F - R|^2 + lambda/2 (tr(R^T F) - 3)^2)`, forces `f_a = -vol P g_a`:
+/// the same material as [`element`] with `Material::Corotational` (not clamped), to
+/// rounding. Returns the energy and a value positive in each lane whose result stands
+/// (`det F` at least [`POLAR_MIN_DET`], Newton converged); where it is not, the caller
+/// evaluates the element through the SVD.
+#[inline(always)]
+pub fn corotational_forces<R: Lane>(
+    f: &mut [[R; 3]; 4],
+    x: &[[R; 3]; 4],
+    dm_inv: &[R; 9],
+    vol: R,
+    [mu, lambda]: [R; 2],
+) -> (R, R) {
+    let fg = gradient(x, dm_inv);
+    let (r, det, change) = polar(&fg);
+    // Positive where both hold: -max(change - tolerance, min det - det). A NaN F makes
+    // det NaN, and so both terms and the result.
+    let ok = -(change - R::splat(POLAR_TOLERANCE)).max(R::splat(POLAR_MIN_DET) - det);
+    let d: [R; 9] = std::array::from_fn(|i| fg[i] - r[i]);
+    // tr(R^T F) - 3 = tr(S) - 3.
+    let tr = (0..9).fold(R::splat(-3.0), |a, i| r[i].fma(fg[i], a));
+    let dd = (0..9).fold(R::splat(0.0), |a, i| d[i].fma(d[i], a));
+    let (two_mu, lt) = (mu + mu, lambda * tr);
+    let p: [R; 9] = std::array::from_fn(|i| two_mu.fma(d[i], lt * r[i]));
+    let psi = mu.fma(dd, R::splat(0.5) * lt * tr);
+    // f_a = -vol P g_a for the rows g_1..g_3 of Dm^-1, f_0 = -(f_1 + f_2 + f_3).
+    let nvol = -vol;
+    for a in 1..4 {
+        let g = [
+            dm_inv[3 * (a - 1)],
+            dm_inv[3 * (a - 1) + 1],
+            dm_inv[3 * (a - 1) + 2],
+        ];
+        for i in 0..3 {
+            f[a][i] = nvol * p[3 * i].fma(g[0], p[3 * i + 1].fma(g[1], p[3 * i + 2] * g[2]));
+        }
+    }
+    f[0] = std::array::from_fn(|i| -(f[1][i] + f[2][i] + f[3][i]));
+    (vol * psi, ok)
+}
+
+/// [`corotational_forces`] over elements `e0..e0 + 8` as two groups of four
+/// (`f64x4`) in flight, forces into f (12 per element, vertex-major) and the energies
+/// returned; `None` (f untouched) where some element needs the SVD.
+pub fn corotational_forces_x8(f: &mut [f64; 96], els: &Elements, e0: usize) -> Option<[f64; 8]> {
+    let mut energy = [0.0; 8];
+    polar_groups::<f64x4>(f, els, e0, &mut energy).then_some(energy)
+}
+
+/// [`corotational_forces_x8`] over elements `e0..e0 + 16`, two groups of eight (`f64x8`).
+pub fn corotational_forces_x16(f: &mut [f64; 192], els: &Elements, e0: usize) -> Option<[f64; 16]> {
+    let mut energy = [0.0; 16];
+    polar_groups::<f64x8>(f, els, e0, &mut energy).then_some(energy)
+}
+
+/// Two groups of `W::LANES` elements through [`corotational_forces`]; false, with nothing
+/// written, where a lane's result does not stand.
+#[inline(always)]
+fn polar_groups<W: Wide>(f: &mut [f64], els: &Elements, e0: usize, energy: &mut [f64]) -> bool {
+    let n = W::LANES;
+    let inputs = [els.group::<W>(e0), els.group::<W>(e0 + n)];
+    let two = |a: W, b: W| Groups([a, b]);
+    let x =
+        std::array::from_fn(|a| std::array::from_fn(|c| two(inputs[0].0[a][c], inputs[1].0[a][c])));
+    let dm = std::array::from_fn(|k| two(inputs[0].1[k], inputs[1].1[k]));
+    let vol = two(inputs[0].2, inputs[1].2);
+    let lame = [0, 1].map(|k| two(inputs[0].3[k], inputs[1].3[k]));
+    let mut fl = [[Groups::<2, W>::splat(0.0); 3]; 4];
+    let (e, ok) = corotational_forces(&mut fl, &x, &dm, vol, lame);
+    if ok.any_not_positive() {
+        return false;
+    }
+    for g in 0..2 {
+        let fg: [W; 12] = std::array::from_fn(|i| fl[i / 3][i % 3].0[g]);
+        scatter_lanes(&fg, &mut f[12 * n * g..12 * n * (g + 1)]);
+        e.0[g].store(&mut energy[n * g..n * (g + 1)]);
+    }
+    true
 }
 
 /// The material of `iso` at one deformation gradient F, through the singular-value frame

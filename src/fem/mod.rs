@@ -62,9 +62,13 @@ const GROUP: usize = 8;
 const GROUP: usize = 16;
 
 #[cfg(target_feature = "avx512f")]
-use largestep_kernels::fem_diag::element_x16 as element_group;
+use largestep_kernels::fem_diag::{
+    corotational_forces_x16 as polar_group, element_x16 as element_group,
+};
 #[cfg(not(target_feature = "avx512f"))]
-use largestep_kernels::fem_diag::element_x8 as element_group;
+use largestep_kernels::fem_diag::{
+    corotational_forces_x8 as polar_group, element_x8 as element_group,
+};
 const _: () = assert!(CHUNK % GROUP == 0, "chunks hold whole groups");
 
 /// A material: the model and its constants.
@@ -866,6 +870,14 @@ impl Fem {
         let mut energy = [0.0; GROUP];
         if let (Some(iso), GROUP) = (&self.iso, n) {
             let fg: &mut [f64; 12 * GROUP] = f.try_into().expect("12 forces per element");
+            // Forces alone of the corotational material: the polar decomposition by
+            // Newton instead of the SVD (`polar_group`), unless an element of the group
+            // is flat, inverted or strained past it.
+            if k.is_none() && iso.material == Material::Corotational && iso.clamp.is_none() {
+                if let Some(e) = polar_group(fg, &self.elements(x), e0) {
+                    return e;
+                }
+            }
             let kg: Option<&mut [f64; TET_K * GROUP]> =
                 k.map(|k| k.try_into().expect("90 stiffness values per element"));
             return element_group(fg, kg, &self.elements(x), e0, iso);
