@@ -910,7 +910,7 @@ const POLAR_MIN_DET: f64 = 0.2;
 
 /// The rotation of the polar decomposition `F = R S` by Newton's iteration
 /// `X <- (X + X^-T) / 2` from `X = F` (Higham 1986, "Computing the polar decomposition,
-/// with applications", SIAM J. Sci. Stat. Comput. 7), [`POLAR_ITERATIONS`] times, with
+/// with applications", SIAM J. Sci. Stat. Comput. 7), `POLAR_ITERATIONS` (5) times, with
 /// `X^-T = cof(X) / det X`: one division an iteration, where the SVD's chain has
 /// twenty-four square roots and fifteen divisions. Returns R, `det F` and the largest
 /// change of an entry in the last iteration (how far from converged). For `det F > 0`
@@ -954,7 +954,7 @@ pub fn polar<R: Lane>(f: &[R; 9]) -> ([R; 9], R, R) {
 /// energy `vol (mu |F - R|^2 + lambda/2 (tr(R^T F) - 3)^2)`, forces `f_a = -vol P g_a`:
 /// the same material as [`element`] with `Material::Corotational` (not clamped), to
 /// rounding. Returns the energy and a value positive in each lane whose result stands
-/// (`det F` at least [`POLAR_MIN_DET`], Newton converged); where it is not, the caller
+/// (`det F` at least `POLAR_MIN_DET` = 0.2, Newton converged); where it is not, the caller
 /// evaluates the element through the SVD.
 #[inline(always)]
 pub fn corotational_forces<R: Lane>(
