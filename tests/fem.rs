@@ -1731,7 +1731,7 @@ proptest! {
         let mut f8 = [0.0; 96];
         let e8 = corotational_forces_x8(&mut f8, &soa, 0);
         let all_fit = els.iter().all(|(x, dm, _)| {
-            let (_, sigma, _) = largestep_kernels::fem_diag::svd3(&gradient_of(x, dm));
+            let (_, sigma, _) = largestep_kernels::fem_diag::svd3(&largestep_kernels::fem::deformation_gradient(x, dm));
             sigma[2] > 0.6 && sigma[0] < 1.7
         });
         if all_fit {
@@ -1774,16 +1774,6 @@ proptest! {
         prop_assert!(corotational_forces_x16(&mut f16, &soa, 0).is_none());
         prop_assert!(f16.iter().all(|&v| v == 7.0));
     }
-}
-
-/// `F = Ds Dm^-1` of an element.
-fn gradient_of(x: &[[f64; 3]; 4], dm_inv: &M3) -> M3 {
-    let ds: M3 = std::array::from_fn(|i| x[i % 3 + 1][i / 3] - x[0][i / 3]);
-    std::array::from_fn(|i| {
-        (0..3)
-            .map(|k| ds[3 * (i / 3) + k] * dm_inv[3 * k + i % 3])
-            .sum()
-    })
 }
 
 /// The kernel's element forces and stiffness are those of the F-form materials (minus

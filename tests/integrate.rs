@@ -524,7 +524,7 @@ fn a_first_guess_with_no_finite_forces_falls_back_to_the_start_velocity() {
             _dfdv: Option<&mut Bsr3>,
         ) -> Result<(), IntegrateError> {
             self.force(t, x, v, f);
-            dfdx.values_mut().fill(0.0);
+            dfdx.set_zero();
             Ok(())
         }
     }

@@ -323,7 +323,9 @@ fn cholesky_solves_and_refactorizes() {
 #[test]
 fn the_ordered_gather_gives_the_same_bits_as_the_gather() {
     fn check<const K: usize>(n: usize, elements: &[[u32; K]], layout: LocalLayout) {
-        let asm = ElementAssembly::new(n, elements, layout).unwrap();
+        let asm = ElementAssembly::new(n, elements, layout)
+            .unwrap()
+            .with_ordered();
         let per = asm.block_buffer_len() / elements.len();
         let blocks: Vec<f64> = (0..asm.block_buffer_len())
             .map(|i| (i as f64 * 0.731).sin() * (1.0 + (i % 7) as f64))
@@ -382,7 +384,9 @@ fn the_ordered_gather_gives_the_same_bits_as_the_gather() {
 #[should_panic(expected = "outside the chunk")]
 fn an_ordered_chunk_stores_its_own_elements_only() {
     let pairs = grid_pairs(&[40, 40]);
-    let asm = ElementAssembly::new(1600, &pairs, LocalLayout::pair()).unwrap();
+    let asm = ElementAssembly::new(1600, &pairs, LocalLayout::pair())
+        .unwrap()
+        .with_ordered();
     let mut ordered = vec![0.0; asm.ordered_buffer_len()];
     let mut none = vec![(); pairs.len()];
     asm.par_write_ordered(&mut ordered, &mut none, 1, |range, _, sink| {

@@ -38,9 +38,9 @@
 //! QR of `F V` gives U (a rotation) and the signed singular values on R's diagonal.
 //!
 //! The corotational material's forces alone ([`corotational_forces`]) skip the SVD: R
-//! from Newton's iteration for the polar decomposition ([`polar`]), for elements neither
-//! flat, inverted nor strained past about a factor 1.8 (the caller sends the others
-//! through the SVD kernel).
+//! from Newton's iteration for the polar decomposition ([`polar_newton`]), for elements
+//! neither flat, inverted nor strained past about a factor 1.8 (the caller sends the
+//! others through the SVD kernel).
 
 use crate::fem::{Lame, Material, M3};
 use std::ops::{Add, Div, Mul, Neg, Sub};
@@ -896,11 +896,11 @@ fn scatter_lanes<W: Wide>(values: &[W], out: &mut [f64]) {
     }
 }
 
-/// Newton iterations of [`polar`]: from singular values within a factor of two of one
+/// Newton iterations of [`polar_newton`]: from singular values within a factor of two of one
 /// the iteration's error falls below rounding in five (`s <- (s + 1/s) / 2`: 2, 1.25,
 /// 1.025, 1.0003, 1 + 5e-8, 1 + 1e-15).
 const POLAR_ITERATIONS: usize = 5;
-/// The largest change of an entry of R in the last iteration for which [`polar`]'s R is
+/// The largest change of an entry of R in the last iteration for which [`polar_newton`]'s R is
 /// taken: Newton's error then squares, below 1e-16.
 const POLAR_TOLERANCE: f64 = 1e-8;
 /// The smallest `det F` [`corotational_forces`] takes: flatter and inverted elements go
@@ -914,27 +914,16 @@ const POLAR_MIN_DET: f64 = 0.2;
 /// `X^-T = cof(X) / det X`: one division an iteration, where the SVD's chain has
 /// twenty-four square roots and fifteen divisions. Returns R, `det F` and the largest
 /// change of an entry in the last iteration (how far from converged). For `det F > 0`
-/// R is the SVD's `U V^T`.
+/// R is the SVD's `U V^T` ([`crate::fem::polar`], which also gives S and keeps R a
+/// rotation for inverted F).
 #[inline(always)]
-pub fn polar<R: Lane>(f: &[R; 9]) -> ([R; 9], R, R) {
+pub fn polar_newton<R: Lane>(f: &[R; 9]) -> ([R; 9], R, R) {
     let half = R::splat(0.5);
     let mut x = *f;
     let mut det_f = R::splat(0.0);
     let mut change = R::splat(0.0);
     for it in 0..POLAR_ITERATIONS {
-        // Cofactors, row-major: c[3 i + j] = (-1)^(i + j) minor(i, j).
-        let m = |a: usize, b: usize, c: usize, d: usize| x[a].fma(x[d], -(x[b] * x[c]));
-        let c = [
-            m(4, 5, 7, 8),
-            m(5, 3, 8, 6),
-            m(3, 4, 6, 7),
-            m(2, 1, 8, 7),
-            m(0, 2, 6, 8),
-            m(1, 0, 7, 6),
-            m(1, 2, 4, 5),
-            m(2, 0, 5, 3),
-            m(0, 1, 3, 4),
-        ];
+        let c = crate::fem::cofactor(&x);
         let det = x[0].fma(c[0], x[1].fma(c[1], x[2] * c[2]));
         if it == 0 {
             det_f = det;
@@ -950,7 +939,7 @@ pub fn polar<R: Lane>(f: &[R; 9]) -> ([R; 9], R, R) {
 }
 
 /// The corotational material's element forces and energy without the tangent, through
-/// [`polar`] instead of the SVD: `P = 2 mu (F - R) + lambda (tr(R^T F) - 3) R`, the
+/// [`polar_newton`] instead of the SVD: `P = 2 mu (F - R) + lambda (tr(R^T F) - 3) R`, the
 /// energy `vol (mu |F - R|^2 + lambda/2 (tr(R^T F) - 3)^2)`, forces `f_a = -vol P g_a`:
 /// the same material as [`element`] with `Material::Corotational` (not clamped), to
 /// rounding. Returns the energy and a value positive in each lane whose result stands
@@ -965,7 +954,7 @@ pub fn corotational_forces<R: Lane>(
     [mu, lambda]: [R; 2],
 ) -> (R, R) {
     let fg = gradient(x, dm_inv);
-    let (r, det, change) = polar(&fg);
+    let (r, det, change) = polar_newton(&fg);
     // Positive where both hold: -max(change - tolerance, min det - det). A NaN F makes
     // det NaN, and so both terms and the result.
     let ok = -(change - R::splat(POLAR_TOLERANCE)).max(R::splat(POLAR_MIN_DET) - det);

@@ -1090,7 +1090,8 @@ impl MechModel for Fem {
         work: &mut FemWork,
     ) -> Result<Option<Arc<Bsr3Pattern>>, SparseError> {
         if work.asm.is_none() {
-            let asm = ElementAssembly::new(self.n, &self.tets, LocalLayout::symmetric(4))?;
+            let asm =
+                ElementAssembly::new(self.n, &self.tets, LocalLayout::symmetric(4))?.with_ordered();
             let len = asm.ordered_buffer_len();
             match &mut work.blocks {
                 ElementBlocks::Single(b) => b.resize(len, 0.0),

@@ -271,33 +271,6 @@ impl Pcg {
         filter: Option<&Filter>,
         full: bool,
     ) -> Result<SolveInfo, SolveError> {
-        let rounded = self.rounded.then_some(self.params.preconditioner);
-        match self.iterate(a, b, x, filter, Some(full), rounded) {
-            // Rounding can cost an ill-conditioned matrix its definiteness (seen on a
-            // steel beam with Poisson's ratio 0.49): then A's own values, from zero, with
-            // the preconditioner just made.
-            Err(SolveError::NotPositiveDefinite { .. } | SolveError::NonFinite { .. })
-                if rounded.is_some() =>
-            {
-                x.fill(0.0);
-                self.iterate(a, b, x, filter, None, None)
-            }
-            result => result,
-        }
-    }
-
-    /// PCG proper: the preconditioner set up (`setup`: `Some(full)`, see
-    /// [`Pcg::resolve`]; `None` keeps the one in hand) and iterated, the products with
-    /// the `f32` copy of the multigrid `rounded` names, if any.
-    fn iterate(
-        &mut self,
-        a: &mut Bsr3,
-        b: &[f64],
-        x: &mut [f64],
-        filter: Option<&Filter>,
-        setup: Option<bool>,
-        rounded: Option<Preconditioner>,
-    ) -> Result<SolveInfo, SolveError> {
         let start = Instant::now();
         let n = self.n;
         assert_eq!(a.n(), n, "matrix and solver sizes differ");
@@ -306,9 +279,43 @@ impl Pcg {
             f.project_matrix(a);
         }
         let a = &*a;
-        if let Some(full) = setup {
-            self.setup(a, filter, full)?;
-        }
+        self.setup(a, filter, full)?;
+        let rounded = self.rounded.then_some(self.params.preconditioner);
+        let result = match self.iterate(a, b, x, filter, rounded) {
+            // Rounding can cost an ill-conditioned matrix its definiteness (seen on a
+            // steel beam with Poisson's ratio 0.49): then A's own values, from zero, with
+            // the same preconditioner. The failed iterations count.
+            Err(
+                SolveError::NotPositiveDefinite { at: spent, .. }
+                | SolveError::NonFinite {
+                    iteration: spent, ..
+                },
+            ) if rounded.is_some() => {
+                x.fill(0.0);
+                self.iterate(a, b, x, filter, None).map(|info| SolveInfo {
+                    iterations: info.iterations + spent,
+                    ..info
+                })
+            }
+            result => result,
+        };
+        result.map(|info| SolveInfo {
+            seconds: start.elapsed().as_secs_f64(),
+            ..info
+        })
+    }
+
+    /// PCG proper, with the preconditioner set up for `a`: the products with the `f32`
+    /// copy of the multigrid `rounded` names, if any. The reported time is left to the
+    /// caller (zero here).
+    fn iterate(
+        &mut self,
+        a: &Bsr3,
+        b: &[f64],
+        x: &mut [f64],
+        filter: Option<&Filter>,
+        rounded: Option<Preconditioner>,
+    ) -> Result<SolveInfo, SolveError> {
         let filt = |v: &mut [f64]| {
             if let Some(f) = filter {
                 f.apply(v)
@@ -341,7 +348,7 @@ impl Pcg {
             return Ok(SolveInfo {
                 iterations: 0,
                 residual: 0.0,
-                seconds: start.elapsed().as_secs_f64(),
+                seconds: 0.0,
             });
         }
         // A guess worse than none (its residual larger than the zero guess's, as when
@@ -389,7 +396,7 @@ impl Pcg {
             return Ok(SolveInfo {
                 iterations: 0,
                 residual,
-                seconds: start.elapsed().as_secs_f64(),
+                seconds: 0.0,
             });
         }
         for it in 1..=self.params.max_iterations {
@@ -455,7 +462,7 @@ impl Pcg {
                 return Ok(SolveInfo {
                     iterations: it,
                     residual,
-                    seconds: start.elapsed().as_secs_f64(),
+                    seconds: 0.0,
                 });
             }
             let beta = rz_new / rz;

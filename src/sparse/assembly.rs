@@ -157,11 +157,19 @@ pub struct ElementAssembly {
     block_src: Vec<u32>,
     /// The layout's sources of the K x K local blocks (row-major).
     local_src: Vec<Src>,
-    /// Where local block (p, q) of element e goes in the ordered buffer
-    /// ([`ElementAssembly::par_write_ordered`]), at `e * K * K + p * K + q`: a permutation
-    /// of `0..elements * K * K` (see [`OrderedChunk`]). Each chunk of [`ORDERED_CHUNK`]
-    /// elements has its own part of the buffer, its blocks sorted by slot there (in element
-    /// order within a slot).
+    /// The ordered buffer's maps, for the kernels that store in gather order
+    /// ([`ElementAssembly::with_ordered`]); none for the others.
+    ordered: Option<Ordered>,
+}
+
+/// Where [`ElementAssembly::par_write_ordered`] stores each local block, and what each
+/// slot sums ([`ElementAssembly::gather_ordered`]).
+#[derive(Clone, Debug)]
+struct Ordered {
+    /// Where local block (p, q) of element e goes in the ordered buffer, at
+    /// `e * K * K + p * K + q`: a permutation of `0..elements * K * K` (see
+    /// [`OrderedChunk`]). Each chunk of [`ORDERED_CHUNK`] elements has its own part of the
+    /// buffer, its blocks sorted by slot there (in element order within a slot).
     order: Vec<u32>,
     /// The runs of the ordered buffer each slot sums, `runs[run_ptr[s]..run_ptr[s + 1]]`
     /// (first block, blocks), in chunk order: one per chunk with elements at the slot.
@@ -265,7 +273,6 @@ impl ElementAssembly {
             (slot as usize, encode(e * nb + s.index as usize, s))
         });
         let (block_ptr, block_src) = csr(pattern.nnz_blocks(), block_pairs);
-        let (order, run_ptr, runs) = ordered_runs(pattern.nnz_blocks(), &elem_slots, kk);
         Ok(Self {
             pattern,
             blocks_per_element: layout.blocks,
@@ -274,10 +281,31 @@ impl ElementAssembly {
             block_ptr,
             block_src,
             local_src: layout.block_src,
-            order,
-            run_ptr,
-            runs,
+            ordered: None,
         })
+    }
+
+    /// The same assembly with the maps of the ordered buffer made
+    /// ([`ElementAssembly::par_write_ordered`], [`ElementAssembly::gather_ordered`]): a
+    /// sort of each chunk's local blocks by slot, and a `u32` per local block.
+    pub fn with_ordered(mut self) -> Self {
+        let kk = self.local_src.len();
+        self.ordered = Some(ordered_runs(
+            self.pattern.nnz_blocks(),
+            &self.elem_slots,
+            kk,
+        ));
+        self
+    }
+
+    /// The ordered buffer's maps.
+    ///
+    /// # Panics
+    /// When the assembly was built without them ([`ElementAssembly::with_ordered`]).
+    fn ordered(&self) -> &Ordered {
+        self.ordered
+            .as_ref()
+            .expect("ElementAssembly::with_ordered makes the ordered buffer's maps")
     }
 
     /// The shared pattern (every matrix assembled here uses it).
@@ -299,7 +327,7 @@ impl ElementAssembly {
     /// Length of the buffer of [`ElementAssembly::par_write_ordered`]: every local block
     /// (`elements * K * K * 9`).
     pub fn ordered_buffer_len(&self) -> usize {
-        self.order.len() * 9
+        self.elem_slots.len() * 9
     }
 
     /// Runs `kernel` over the elements in chunks of [`ORDERED_CHUNK`] (in parallel), each call with
@@ -313,6 +341,10 @@ impl ElementAssembly {
     /// 36 bytes over 21.6 MB, 12% of a backward Euler step). Here each chunk's stores land
     /// in its own part of the buffer, sorted by slot, and the gather reads one or two runs
     /// a slot from a few sequential streams.
+    ///
+    /// # Panics
+    /// Without [`ElementAssembly::with_ordered`], or where the buffers' lengths are not
+    /// [`ElementAssembly::ordered_buffer_len`] and `per_element` per element.
     pub fn par_write_ordered<T, U, F>(
         &self,
         ordered: &mut [T],
@@ -326,6 +358,7 @@ impl ElementAssembly {
     {
         assert_eq!(ordered.len(), self.ordered_buffer_len());
         assert_eq!(companion.len(), per_element * self.elements);
+        let order = &self.ordered().order;
         let chunk = ORDERED_CHUNK;
         let out = Disjoint::new(ordered);
         companion
@@ -335,6 +368,7 @@ impl ElementAssembly {
                 let range = chunk_range(c, self.elements, chunk);
                 let mut sink = OrderedChunk {
                     asm: self,
+                    order,
                     out: &out,
                     range: range.clone(),
                 };
@@ -346,10 +380,15 @@ impl ElementAssembly {
     /// [`ElementAssembly::par_write_ordered`]: each slot sums its run of the buffer in
     /// order. The same sources in the same order as [`ElementAssembly::gather_blocks`]
     /// (the signs and transposes applied when stored), so the same bits.
+    ///
+    /// # Panics
+    /// Without [`ElementAssembly::with_ordered`].
     pub fn gather_ordered<T: BlockValue>(&self, ordered: &[T], out: &mut Bsr3) {
         assert_eq!(ordered.len(), self.ordered_buffer_len());
         assert!(Arc::ptr_eq(out.pattern(), &self.pattern) || **out.pattern() == *self.pattern);
-        let (ptr, runs) = (&self.run_ptr, &self.runs);
+        let Ordered {
+            run_ptr: ptr, runs, ..
+        } = self.ordered();
         for_each_block(out, |s, v| {
             let mut acc = [0.0f64; 9];
             for &(first, len) in &runs[ptr[s] as usize..ptr[s + 1] as usize] {
@@ -412,11 +451,7 @@ impl ElementAssembly {
 /// element): each local block's position (`order`), and each slot's runs (CSR). Within a
 /// chunk of [`ORDERED_CHUNK`] elements the blocks are sorted by slot, stably, so a slot's
 /// runs in chunk order hold its sources in element order, as `block_src` does.
-fn ordered_runs(
-    slots: usize,
-    elem_slots: &[u32],
-    kk: usize,
-) -> (Vec<u32>, Vec<u32>, Vec<(u32, u32)>) {
+fn ordered_runs(slots: usize, elem_slots: &[u32], kk: usize) -> Ordered {
     let mut order = vec![0u32; elem_slots.len()];
     let mut run_pairs: Vec<(usize, (u32, u32))> = Vec::new();
     let mut local: Vec<(u32, u32)> = Vec::with_capacity(ORDERED_CHUNK * kk);
@@ -445,7 +480,11 @@ fn ordered_runs(
             .map(|(i, &(s, _))| (s, i as u32)),
     );
     let runs = idx.iter().map(|&i| run_pairs[i as usize].1).collect();
-    (order, run_ptr, runs)
+    Ordered {
+        order,
+        run_ptr,
+        runs,
+    }
 }
 
 /// One chunk's view of [`ElementAssembly::par_write_ordered`]'s buffer: stores the blocks
@@ -453,6 +492,7 @@ fn ordered_runs(
 /// element's positions are its own: `order` is a permutation).
 pub struct OrderedChunk<'a, T> {
     asm: &'a ElementAssembly,
+    order: &'a [u32],
     out: &'a Disjoint<'a, T>,
     range: std::ops::Range<usize>,
 }
@@ -472,7 +512,7 @@ impl<T> OrderedChunk<'_, T> {
         );
         let kk = self.asm.local_src.len();
         assert!(unique.len() >= 9 * self.asm.blocks_per_element);
-        let order = &self.asm.order[e * kk..(e + 1) * kk];
+        let order = &self.order[e * kk..(e + 1) * kk];
         for (src, &at) in self.asm.local_src.iter().zip(order) {
             let at = 9 * at as usize;
             // SAFETY: `at` belongs to element e alone (order is a permutation, built with
