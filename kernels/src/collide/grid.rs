@@ -356,11 +356,24 @@ pub struct SweepAndPrune {
     lower: Vec<f64>,
     /// The sweep axis of the last call.
     axis: usize,
-    /// Per box in sweep order, its bounds on the two other axes `u`, `v` as
+    /// Per box in sweep order, its bounds on the two other axes `u`, `v` as four columns
     /// `[min u, -max u, min v, -max v]` (an empty box, or one with a NaN bound: all NaN,
-    /// so it overlaps nothing):
-    /// two boxes overlap on both axes when one's row is <= the other's [`Self::against`].
-    cross: Vec<f64x4>,
+    /// so it overlaps nothing): two boxes overlap on both axes when one's row is <= the
+    /// other's [`against`]. `lower` and the columns run [`PAD`] NaN past the last box, so
+    /// the sweep reads four candidates at a time without a bounds check at the end.
+    cross: [Vec<f64>; 4],
+}
+
+/// Candidates the sweep tests at once: one `f64x4` comparison per bound for four boxes
+/// instead of four for one (the scan was 9% of the 1,000-box pile's step at about 60
+/// candidates a box).
+const PAD: usize = 3;
+
+/// Four values from `v[k..k + 4]`.
+#[inline(always)]
+fn four(v: &[f64], k: usize) -> f64x4 {
+    let a: [f64; 4] = v[k..k + 4].try_into().expect("four values");
+    f64x4::new(a)
 }
 
 /// Whether every bound is a number and no lower bound exceeds its upper one (the boxes
@@ -372,8 +385,8 @@ fn proper(b: &Aabb) -> bool {
 
 /// The row a box's `cross` rows are compared against: `[max u, -min u, max v, -min v]`.
 #[inline(always)]
-fn against(b: &Aabb, u: usize, v: usize) -> f64x4 {
-    f64x4::new([b.max[u], -b.min[u], b.max[v], -b.min[v]])
+fn against(b: &Aabb, u: usize, v: usize) -> [f64; 4] {
+    [b.max[u], -b.min[u], b.max[v], -b.min[v]]
 }
 
 impl SweepAndPrune {
@@ -420,17 +433,27 @@ impl SweepAndPrune {
             lower[t] = kv;
         }
         // The other two axes' bounds copied into sweep order, so the scan below reads
-        // memory in order and tests a candidate with one four-lane comparison.
+        // memory in order and tests four candidates with one comparison per bound.
         let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
-        self.cross.clear();
-        self.cross.extend(order.iter().map(|&i| {
+        for c in self.cross.iter_mut() {
+            c.clear();
+        }
+        for &i in order.iter() {
             let b = &boxes[i as usize];
-            if !proper(b) {
-                f64x4::splat(f64::NAN)
+            let row = if proper(b) {
+                [b.min[u], -b.max[u], b.min[v], -b.max[v]]
             } else {
-                f64x4::new([b.min[u], -b.max[u], b.min[v], -b.max[v]])
+                [f64::NAN; 4]
+            };
+            for (c, r) in self.cross.iter_mut().zip(row) {
+                c.push(r);
             }
-        }));
+        }
+        lower.extend([f64::NAN; PAD]);
+        for c in self.cross.iter_mut() {
+            c.extend([f64::NAN; PAD]);
+        }
+        let cross = &self.cross;
         // Sweep: each box against the boxes after it in the order whose lower bound is
         // not past its upper bound (on `axis` they then overlap, as lower bounds rise).
         for s in 0..n {
@@ -439,22 +462,30 @@ impl SweepAndPrune {
             if !proper(bi) {
                 continue;
             }
-            let (hi, row) = (bi.max[axis], against(bi, u, v));
-            for k in s + 1..n {
-                // NaN bounds sort last and end the scan.
-                if matches!(
-                    lower[k].partial_cmp(&hi),
-                    None | Some(std::cmp::Ordering::Greater)
-                ) {
-                    break;
-                }
-                if self.cross[k].simd_le(row).all() {
+            let hi = f64x4::splat(bi.max[axis]);
+            let row = against(bi, u, v).map(f64x4::splat);
+            let mut k = s + 1;
+            while k < n {
+                // NaN bounds (improper boxes, the padding) sort last and end the scan.
+                let reach = four(lower, k).simd_le(hi);
+                let hit = reach
+                    & four(&cross[0], k).simd_le(row[0])
+                    & four(&cross[1], k).simd_le(row[1])
+                    & four(&cross[2], k).simd_le(row[2])
+                    & four(&cross[3], k).simd_le(row[3]);
+                let mut bits = hit.to_bitmask();
+                while bits != 0 {
                     if out.len() > max {
                         return false;
                     }
-                    let j = order[k];
+                    let j = order[k + bits.trailing_zeros() as usize];
                     out.push([i.min(j), i.max(j)]);
+                    bits &= bits - 1;
                 }
+                if !reach.all() {
+                    break;
+                }
+                k += 4;
             }
         }
         out.len() <= max
