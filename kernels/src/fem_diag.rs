@@ -46,110 +46,10 @@ use crate::fem::{Lame, Material, M3};
 use std::ops::{Add, Div, Mul, Neg, Sub};
 use wide::{f64x4, f64x8};
 
-/// One value per element: `f64` (the scalar twin) or `f64x4` (four elements at once).
-pub trait Lane:
-    Copy
-    + Add<Output = Self>
-    + Sub<Output = Self>
-    + Mul<Output = Self>
-    + Div<Output = Self>
-    + Neg<Output = Self>
-{
-    /// Every lane `v`.
-    fn splat(v: f64) -> Self;
-    /// `self * m + a`, fused.
-    fn fma(self, m: Self, a: Self) -> Self;
-    /// Square root.
-    fn sqrt(self) -> Self;
-    /// Absolute value.
-    fn abs(self) -> Self;
-    /// Lane-wise maximum.
-    fn max(self, o: Self) -> Self;
-    /// Natural logarithm.
-    fn ln(self) -> Self;
-    /// `if a < b { x } else { y }`, lane by lane.
-    fn if_lt(a: Self, b: Self, x: Self, y: Self) -> Self;
-    /// Whether `self <= 0` (or NaN) in any lane.
-    fn any_not_positive(self) -> bool;
-}
+pub use crate::lane::Lane;
 
-impl Lane for f64 {
-    #[inline(always)]
-    fn splat(v: f64) -> Self {
-        v
-    }
-    #[inline(always)]
-    fn fma(self, m: Self, a: Self) -> Self {
-        self.mul_add(m, a)
-    }
-    #[inline(always)]
-    fn sqrt(self) -> Self {
-        f64::sqrt(self)
-    }
-    #[inline(always)]
-    fn abs(self) -> Self {
-        f64::abs(self)
-    }
-    #[inline(always)]
-    fn max(self, o: Self) -> Self {
-        f64::max(self, o)
-    }
-    #[inline(always)]
-    fn ln(self) -> Self {
-        f64::ln(self)
-    }
-    #[inline(always)]
-    fn if_lt(a: Self, b: Self, x: Self, y: Self) -> Self {
-        if a < b {
-            x
-        } else {
-            y
-        }
-    }
-    #[inline(always)]
-    fn any_not_positive(self) -> bool {
-        self.is_nan() || self <= 0.0
-    }
-}
-
-macro_rules! wide_lane {
+macro_rules! wide_impl {
     ($t:ident, $n:literal) => {
-        impl Lane for $t {
-            #[inline(always)]
-            fn splat(v: f64) -> Self {
-                $t::splat(v)
-            }
-            #[inline(always)]
-            fn fma(self, m: Self, a: Self) -> Self {
-                self.mul_add(m, a)
-            }
-            #[inline(always)]
-            fn sqrt(self) -> Self {
-                $t::sqrt(self)
-            }
-            #[inline(always)]
-            fn abs(self) -> Self {
-                $t::abs(self)
-            }
-            #[inline(always)]
-            fn max(self, o: Self) -> Self {
-                $t::max(self, o)
-            }
-            #[inline(always)]
-            fn ln(self) -> Self {
-                $t::ln(self)
-            }
-            #[inline(always)]
-            fn if_lt(a: Self, b: Self, x: Self, y: Self) -> Self {
-                a.simd_lt(b).bitselect(x, y)
-            }
-            #[inline(always)]
-            fn any_not_positive(self) -> bool {
-                // Not (all lanes > 0): NaN lanes compare false.
-                !$t::ZERO.simd_lt(self).all()
-            }
-        }
-
         impl Wide for $t {
             const LANES: usize = $n;
             #[inline(always)]
@@ -183,9 +83,9 @@ pub trait Wide: Lane + Default {
     fn transpose_store(block: &[Self], out: &mut [f64], s: usize, at: usize);
 }
 
-wide_lane!(f64x4, 4);
+wide_impl!(f64x4, 4);
 // One AVX-512 register where the build has it, two `f64x4` otherwise.
-wide_lane!(f64x8, 8);
+wide_impl!(f64x8, 8);
 
 /// N groups of elements, one vector `L` each, every operation applied to all: the 3x3
 /// eigensolves are one long chain of dependent square roots and divisions, and with

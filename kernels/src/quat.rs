@@ -4,6 +4,7 @@
 //!
 //! Shared by the rigid bodies, the six-DoF haptic tool and the character animation.
 
+use crate::lane::Lane;
 use crate::v3::{add, cross, length_and_unit, scale};
 
 /// A unit quaternion `[w, x, y, z]`.
@@ -14,7 +15,7 @@ pub const IDENTITY: Quat = [1.0, 0.0, 0.0, 0.0];
 
 /// `a b` (apply b, then a).
 #[inline]
-pub fn mul(a: Quat, b: Quat) -> Quat {
+pub fn mul<R: Lane>(a: [R; 4], b: [R; 4]) -> [R; 4] {
     [
         a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
         a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
@@ -77,23 +78,24 @@ pub fn normalize(q: Quat) -> Option<Quat> {
 
 /// The rotation matrix of a unit `q`, rows.
 #[inline]
-pub fn to_matrix(q: Quat) -> [[f64; 3]; 3] {
+pub fn to_matrix<R: Lane>(q: [R; 4]) -> [[R; 3]; 3] {
     let [w, x, y, z] = q;
+    let (one, two) = (R::splat(1.0), R::splat(2.0));
     [
         [
-            1.0 - 2.0 * (y * y + z * z),
-            2.0 * (x * y - w * z),
-            2.0 * (x * z + w * y),
+            one - two * (y * y + z * z),
+            two * (x * y - w * z),
+            two * (x * z + w * y),
         ],
         [
-            2.0 * (x * y + w * z),
-            1.0 - 2.0 * (x * x + z * z),
-            2.0 * (y * z - w * x),
+            two * (x * y + w * z),
+            one - two * (x * x + z * z),
+            two * (y * z - w * x),
         ],
         [
-            2.0 * (x * z - w * y),
-            2.0 * (y * z + w * x),
-            1.0 - 2.0 * (x * x + y * y),
+            two * (x * z - w * y),
+            two * (y * z + w * x),
+            one - two * (x * x + y * y),
         ],
     ]
 }
@@ -140,21 +142,23 @@ pub fn from_matrix(r: [[f64; 3]; 3]) -> Quat {
 /// The time derivative of `q` under angular velocity `w` (world frame, rad/s):
 /// `1/2 [0, w] q` (Baraff, "Rigid body simulation", section 4).
 #[inline]
-pub fn derivative(q: Quat, w: [f64; 3]) -> Quat {
-    mul([0.0, w[0], w[1], w[2]], q).map(|c| 0.5 * c)
+pub fn derivative<R: Lane>(q: [R; 4], w: [R; 3]) -> [R; 4] {
+    mul([R::splat(0.0), w[0], w[1], w[2]], q).map(|c| R::splat(0.5) * c)
 }
 
 /// `q` advanced by `dt` (s) at angular velocity `w` by the first-order update
 /// `q + dt/2 [0, w] q`, renormalised (the form rigid-body solvers use; exact to first
-/// order, and keeps the drift of the norm out).
+/// order, and keeps the drift of the norm out); `q` itself where the update's norm is
+/// zero or not finite. Lane by lane the same bits as [`normalize`] of the update.
 #[inline]
-pub fn integrate(q: Quat, w: [f64; 3], dt: f64) -> Quat {
+pub fn integrate<R: Lane>(q: [R; 4], w: [R; 3], dt: R) -> [R; 4] {
     let d = derivative(q, w);
-    let r = [
-        q[0] + dt * d[0],
-        q[1] + dt * d[1],
-        q[2] + dt * d[2],
-        q[3] + dt * d[3],
-    ];
-    normalize(r).unwrap_or(q)
+    let r: [R; 4] = std::array::from_fn(|k| q[k] + dt * d[k]);
+    let n = (r[0] * r[0] + r[1] * r[1] + r[2] * r[2] + r[3] * r[3]).sqrt();
+    let inv = R::splat(1.0) / n;
+    // Kept where not 0 < n < infinity (NaN compares false).
+    std::array::from_fn(|k| {
+        let unit = R::if_lt(R::splat(0.0), n, r[k] * inv, q[k]);
+        R::if_lt(n, R::splat(f64::INFINITY), unit, q[k])
+    })
 }

@@ -9,7 +9,8 @@
 //! was found at, not last step's, so slow creep cannot carry a manifold further than that.
 
 use super::{
-    mat_t_vec, mat_vec, Collider, Rigid, RigidError, RigidState, RigidStepInfo, RigidWork,
+    clone_keeping_capacity, mat_t_vec, mat_vec, Collider, Rigid, RigidError, RigidState,
+    RigidStepInfo, RigidWork,
 };
 use largestep_kernels::collide::bv::Aabb;
 use largestep_kernels::collide::manifold::{
@@ -72,7 +73,6 @@ pub(crate) const KEEP_STEPS: u8 = 8;
 /// [`REUSE`] of the pose it was found at.
 #[derive(Clone, Copy, Debug, Default)]
 pub(crate) struct Kept {
-    pair: [u32; 2],
     /// b's centre in a's frame (m) and b's orientation relative to a's, when found.
     offset: [f64; 3],
     rel: Quat,
@@ -84,6 +84,36 @@ pub(crate) struct Kept {
     count: usize,
     /// Steps it has been kept since it was found.
     steps: u8,
+}
+
+/// The kept manifolds in pair order, with their pairs apart as 64-bit keys `a << 32 | b`:
+/// the walk that looks each pair up reads 8 bytes a manifold rather than a 290-byte
+/// record (the records' loads were a tenth of the collision stage's own time).
+#[derive(Debug, Default)]
+pub(crate) struct KeptManifolds {
+    keys: Vec<u64>,
+    list: Vec<Kept>,
+}
+
+impl Clone for KeptManifolds {
+    fn clone(&self) -> Self {
+        KeptManifolds {
+            keys: clone_keeping_capacity(&self.keys),
+            list: clone_keeping_capacity(&self.list),
+        }
+    }
+}
+
+impl KeptManifolds {
+    fn clear(&mut self) {
+        self.keys.clear();
+        self.list.clear();
+    }
+
+    fn push(&mut self, key: u64, k: Kept) {
+        self.keys.push(key);
+        self.list.push(k);
+    }
 }
 
 /// b's centre in a's frame and b's orientation relative to a's (`rot`: the bodies'
@@ -104,7 +134,6 @@ impl Kept {
         m: &Manifold,
     ) -> Kept {
         let mut k = Kept {
-            pair: [i as u32, j as u32],
             offset: pose.0,
             rel: pose.1,
             normal: mat_t_vec(&rot[i], m.normal),
@@ -273,9 +302,14 @@ pub(crate) fn collide(
         }
     }
     // Boxes grown by the margin and the distance the body may move this step.
+    // Each body's spin, the fastest its surface turns about its centre (m/s), kept for
+    // the pairs' margins below.
     w.boxes.clear();
+    w.spin.clear();
     for i in 0..n {
-        let sweep = (dot(s.v[i], s.v[i]).sqrt() + dot(s.w[i], s.w[i]).sqrt() * m.bound[i]) * dt;
+        let spin = dot(s.w[i], s.w[i]).sqrt() * m.bound[i];
+        let sweep = (dot(s.v[i], s.v[i]).sqrt() + spin) * dt;
+        w.spin.push(spin);
         w.boxes
             .push(body_box(m, s, &w.rot[i], i, MARGIN * m.size[i] + sweep));
     }
@@ -310,8 +344,7 @@ pub(crate) fn collide(
         info.pairs += 1;
         // Speculative reach: the margin and how far the two may close this step.
         let rel = sub(s.v[j], s.v[i]);
-        let spin =
-            dot(s.w[i], s.w[i]).sqrt() * m.bound[i] + dot(s.w[j], s.w[j]).sqrt() * m.bound[j];
+        let spin = w.spin[i] + w.spin[j];
         let size = m.size[i].min(m.size[j]);
         let margin = MARGIN * size + (dot(rel, rel).sqrt() + spin) * dt;
         // Only polyhedra keep manifolds: their contact features move with them. A
@@ -319,21 +352,31 @@ pub(crate) fn collide(
         let polyhedra = [i, j]
             .iter()
             .all(|&k| matches!(m.colliders[k], Collider::Box(_) | Collider::Hull(_)));
-        let pose = polyhedra.then(|| relative_pose(s, &w.rot, i, j));
-        while w.kept.get(kept).is_some_and(|k| k.pair < [a, b]) {
+        let key = (u64::from(a) << 32) | u64::from(b);
+        while w.kept.keys.get(kept).is_some_and(|&k| k < key) {
             kept += 1;
         }
-        let reuse = match (w.kept.get(kept), pose) {
-            (Some(k), Some(pose)) if k.pair == [a, b] && k.holds(pose, size) => {
+        // The relative pose only where a manifold is kept or will be (most of the broad
+        // phase's pairs find none).
+        let mut pose = None;
+        if polyhedra && w.kept.keys.get(kept) == Some(&key) {
+            pose = Some(relative_pose(s, &w.rot, i, j));
+        }
+        let reuse = match pose {
+            Some(pose) if w.kept.list[kept].holds(pose, size) => {
+                let k = &w.kept.list[kept];
                 let man = k.manifold(s, &w.rot, [i, j], margin);
                 let touching = man
                     .as_ref()
                     .is_some_and(|m| m.points().iter().any(|p| p.depth >= 0.0));
                 (touching || k.steps < KEEP_STEPS).then(|| {
-                    w.kept_next.push(Kept {
-                        steps: k.steps.saturating_add(1),
-                        ..*k
-                    });
+                    w.kept_next.push(
+                        key,
+                        Kept {
+                            steps: k.steps.saturating_add(1),
+                            ..*k
+                        },
+                    );
                     man
                 })
             }
@@ -349,8 +392,10 @@ pub(crate) fn collide(
                 let Some(man) = manifold(m, s, &w.rot, &w.hulls, i, j, margin) else {
                     continue;
                 };
-                if let Some(pose) = pose {
-                    w.kept_next.push(Kept::new(s, &w.rot, [i, j], pose, &man));
+                if polyhedra {
+                    let pose = pose.unwrap_or_else(|| relative_pose(s, &w.rot, i, j));
+                    w.kept_next
+                        .push(key, Kept::new(s, &w.rot, [i, j], pose, &man));
                 }
                 man
             }

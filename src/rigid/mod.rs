@@ -64,6 +64,8 @@ use crate::validate::ModelError;
 use largestep_kernels::collide::bv::Aabb;
 use largestep_kernels::collide::grid::SweepAndPrune;
 use largestep_kernels::quat::{self, Quat};
+use largestep_kernels::rigid;
+pub(crate) use largestep_kernels::rigid::{inertia_times, mat_t_vec, mat_vec};
 use largestep_kernels::v3::{add, cross, dot, scale, sub};
 use std::sync::Arc;
 
@@ -481,6 +483,8 @@ pub struct RigidState {
 #[derive(Debug, Default)]
 pub struct RigidWork {
     pub(crate) boxes: Vec<Aabb>,
+    /// Each body's `|w|` times its bounding radius (m/s), at the step's start.
+    pub(crate) spin: Vec<f64>,
     pub(crate) sap: SweepAndPrune,
     pub(crate) pairs: Vec<[u32; 2]>,
     pub(crate) contacts: Vec<ContactPoint>,
@@ -488,8 +492,8 @@ pub struct RigidWork {
     /// The bodies' rotation matrices at the step's start: formed by the collision stage
     /// (which every step runs first), read by it and by the solver.
     pub(crate) rot: Vec<[[f64; 3]; 3]>,
-    pub(crate) kept: Vec<contact::Kept>,
-    pub(crate) kept_next: Vec<contact::Kept>,
+    pub(crate) kept: contact::KeptManifolds,
+    pub(crate) kept_next: contact::KeptManifolds,
     pub(crate) solver: solver::SolverWork,
     pub(crate) hulls: Vec<Vec<[f64; 3]>>,
     pub(crate) sleep: sleep::SleepWork,
@@ -499,13 +503,14 @@ impl Clone for RigidWork {
     fn clone(&self) -> Self {
         RigidWork {
             boxes: self.boxes.clone(),
+            spin: self.spin.clone(),
             sap: self.sap.clone(),
             pairs: clone_keeping_capacity(&self.pairs),
             contacts: clone_keeping_capacity(&self.contacts),
             previous: clone_keeping_capacity(&self.previous),
             rot: self.rot.clone(),
-            kept: clone_keeping_capacity(&self.kept),
-            kept_next: clone_keeping_capacity(&self.kept_next),
+            kept: self.kept.clone(),
+            kept_next: self.kept_next.clone(),
             solver: self.solver.clone(),
             hulls: self.hulls.clone(),
             sleep: self.sleep.clone(),
@@ -1191,11 +1196,16 @@ impl Rigid {
             (true, RigidIntegrator::SymplecticEuler) => {
                 // L = I(q0) w is what the solver left; q advances by I(q0)^-1 L = w,
                 // and w is re-read from L at the new orientation.
-                let l = inertia_times(rot, self.inertia[i], s.w[i]);
-                s.x[i] = add(s.x[i], scale(add(s.v[i], pv), h));
-                s.q[i] = quat::integrate(s.q[i], add(s.w[i], pw), h);
-                *rot = quat::to_matrix(s.q[i]);
-                s.w[i] = inertia_times(rot, self.inv_inertia[i], l);
+                let p = rigid::symplectic(
+                    s.x[i],
+                    rot,
+                    s.q[i],
+                    (s.v[i], s.w[i]),
+                    (pv, pw),
+                    (self.inertia[i], self.inv_inertia[i]),
+                    h,
+                );
+                (s.x[i], s.q[i], s.w[i], *rot) = (p.x, p.q, p.w, p.rot);
             }
             (true, RigidIntegrator::ExplicitEuler | RigidIntegrator::Rk4) => {
                 // Back to the velocities at the sub-step's start (plus the impulses).
@@ -1226,13 +1236,6 @@ impl Rigid {
     }
 }
 
-/// `R diag(d) Rᵀ v` for the rotation `r`, as `R (d ⊙ (Rᵀ v))`: two products with `R`
-/// instead of forming the matrix.
-fn inertia_times(r: &[[f64; 3]; 3], d: [f64; 3], v: [f64; 3]) -> [f64; 3] {
-    let body = mat_t_vec(r, v);
-    mat_vec(*r, [0, 1, 2].map(|k| d[k] * body[k]))
-}
-
 /// `R diag(d) Rᵀ` for the rotation `r`.
 fn rotate_diag(r: &[[f64; 3]; 3], d: [f64; 3]) -> [[f64; 3]; 3] {
     let mut out = [[0.0; 3]; 3];
@@ -1246,19 +1249,9 @@ fn rotate_diag(r: &[[f64; 3]; 3], d: [f64; 3]) -> [[f64; 3]; 3] {
     out
 }
 
-#[inline]
-pub(crate) fn mat_vec(m: [[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
-    [dot(m[0], v), dot(m[1], v), dot(m[2], v)]
-}
-
 /// The columns of the rotation `r`: the body's axes in the world.
 pub(crate) fn columns(r: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
     std::array::from_fn(|k| [r[0][k], r[1][k], r[2][k]])
-}
-
-/// `mᵀ v`: a vector into the frame whose axes are the columns of the rotation `m`.
-pub(crate) fn mat_t_vec(m: &[[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
-    std::array::from_fn(|k| m[0][k] * v[0] + m[1][k] * v[1] + m[2][k] * v[2])
 }
 
 /// One Newton step of backward Euler on `I w' + w x I w = 0` in the body frame (Catto

@@ -20,11 +20,13 @@
 
 use super::batch::{self, Batcher, Batches, Lanes};
 use super::{
-    clone_keeping_capacity, mat_vec, Correction, Joint, JointKind, Rigid, RigidSolver, RigidState,
-    RigidWork,
+    clone_keeping_capacity, mat_vec, Correction, Joint, JointKind, Rigid, RigidIntegrator,
+    RigidSolver, RigidState, RigidWork,
 };
 use largestep_kernels::quat;
+use largestep_kernels::rigid;
 use largestep_kernels::v3::{add, cross, dot, length_and_unit, scale, sub, tangent_frame};
+use wide::f64x4;
 
 /// Baumgarte and split impulses leave this fraction of the feature size unresolved
 /// (slop), so resting contacts stay touching and their manifolds stay put.
@@ -510,19 +512,7 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
             }
             solve_pass(sw, Pass::Pseudo, false, false, params);
         }
-        // Positions.
-        for i in 0..n {
-            if s.asleep[i] {
-                continue;
-            }
-            let b = &mut sw.bodies[i];
-            s.v[i] = b.v;
-            s.w[i] = b.w;
-            let p = sw.pseudo[i];
-            m.advance_position(s, i, h, (p.v, p.w), &mut sw.rot[i]);
-            b.v = s.v[i];
-            b.w = s.w[i];
-        }
+        advance_positions(m, s, sw, h);
         if relax {
             solve_pass(sw, Pass::Relax, false, true, params);
         }
@@ -555,6 +545,85 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
         }
     } else {
         batch::impulses(&sw.batches, &mut w.contacts);
+    }
+}
+
+/// Every awake body's position over a sub-step `h` from the velocities the constraints
+/// left (and the pseudo-velocities), the solver's velocities updated to match. Under
+/// symplectic Euler the dynamic bodies go four at a time, one a lane
+/// ([`rigid::symplectic`] on `f64x4`: the bits of one at a time, with the square roots
+/// and divisions of four bodies in one instruction; a third of the scalar loop's time
+/// on the 1,000-box pile), the rest one by one.
+fn advance_positions(m: &Rigid, s: &mut RigidState, sw: &mut SolverWork, h: f64) {
+    let lanes = m.desc().integrator == RigidIntegrator::SymplecticEuler;
+    let (mut group, mut k) = ([0usize; 4], 0);
+    for i in 0..m.len() {
+        if s.asleep[i] {
+            continue;
+        }
+        let b = &mut sw.bodies[i];
+        s.v[i] = b.v;
+        s.w[i] = b.w;
+        if lanes && m.is_dynamic(i) {
+            group[k] = i;
+            k += 1;
+            if k == 4 {
+                symplectic_x4(m, s, sw, group, h);
+                k = 0;
+            }
+            continue;
+        }
+        let p = sw.pseudo[i];
+        m.advance_position(s, i, h, (p.v, p.w), &mut sw.rot[i]);
+        let b = &mut sw.bodies[i];
+        b.v = s.v[i];
+        b.w = s.w[i];
+    }
+    // The last few one by one.
+    for &i in &group[..k] {
+        let p = sw.pseudo[i];
+        m.advance_position(s, i, h, (p.v, p.w), &mut sw.rot[i]);
+        sw.bodies[i].w = s.w[i];
+    }
+}
+
+/// Symplectic Euler's position update of the four dynamic bodies `group`, one a lane.
+fn symplectic_x4(m: &Rigid, s: &mut RigidState, sw: &mut SolverWork, group: [usize; 4], h: f64) {
+    #[inline(always)]
+    fn lanes3(f: impl Fn(usize) -> [f64; 3], group: [usize; 4]) -> [f64x4; 3] {
+        let v = group.map(f);
+        std::array::from_fn(|c| f64x4::new([v[0][c], v[1][c], v[2][c], v[3][c]]))
+    }
+    let rot: [[f64x4; 3]; 3] = std::array::from_fn(|r| lanes3(|i| sw.rot[i][r], group));
+    let q = group.map(|i| s.q[i]);
+    let q: [f64x4; 4] = std::array::from_fn(|c| f64x4::new([q[0][c], q[1][c], q[2][c], q[3][c]]));
+    let p = rigid::symplectic(
+        lanes3(|i| s.x[i], group),
+        &rot,
+        q,
+        (lanes3(|i| s.v[i], group), lanes3(|i| s.w[i], group)),
+        (
+            lanes3(|i| sw.pseudo[i].v, group),
+            lanes3(|i| sw.pseudo[i].w, group),
+        ),
+        (
+            lanes3(|i| m.inertia[i], group),
+            lanes3(|i| m.inv_inertia[i], group),
+        ),
+        f64x4::splat(h),
+    );
+    let (x, q, w) = (
+        p.x.map(f64x4::to_array),
+        p.q.map(f64x4::to_array),
+        p.w.map(f64x4::to_array),
+    );
+    let rot = p.rot.map(|r| r.map(f64x4::to_array));
+    for (l, &i) in group.iter().enumerate() {
+        s.x[i] = [x[0][l], x[1][l], x[2][l]];
+        s.q[i] = [q[0][l], q[1][l], q[2][l], q[3][l]];
+        s.w[i] = [w[0][l], w[1][l], w[2][l]];
+        sw.rot[i] = rot.map(|r| [r[0][l], r[1][l], r[2][l]]);
+        sw.bodies[i].w = s.w[i];
     }
 }
 
