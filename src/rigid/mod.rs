@@ -487,6 +487,9 @@ pub struct RigidWork {
     pub(crate) spin: Vec<f64>,
     pub(crate) sap: SweepAndPrune,
     pub(crate) pairs: Vec<[u32; 2]>,
+    /// Scratch of the pairs' counting sort.
+    pub(crate) pair_starts: Vec<u32>,
+    pub(crate) pairs_sorted: Vec<[u32; 2]>,
     pub(crate) contacts: Vec<ContactPoint>,
     pub(crate) previous: Vec<ContactPoint>,
     /// The bodies' rotation matrices at the step's start: formed by the collision stage
@@ -506,6 +509,8 @@ impl Clone for RigidWork {
             spin: self.spin.clone(),
             sap: self.sap.clone(),
             pairs: clone_keeping_capacity(&self.pairs),
+            pair_starts: self.pair_starts.clone(),
+            pairs_sorted: clone_keeping_capacity(&self.pairs_sorted),
             contacts: clone_keeping_capacity(&self.contacts),
             previous: clone_keeping_capacity(&self.previous),
             rot: self.rot.clone(),
