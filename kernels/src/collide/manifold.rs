@@ -124,13 +124,16 @@ pub fn box_box(a: &BoxPose, b: &BoxPose, margin: f64) -> Option<Manifold> {
     // which every axis's projected radii follow (Gottschalk, Lin and Manocha 1996;
     // Ericson, "Real-Time Collision Detection" 4.4.1): nine dot products instead of
     // three for each of the fifteen axes' two radii.
-    let r: [[f64; 3]; 3] =
-        std::array::from_fn(|i| std::array::from_fn(|j| dot(a.axes[i], b.axes[j])));
-    let ar: [[f64; 3]; 3] = r.map(|row| row.map(f64::abs));
+    // Each row is formed just before A's face axis that needs it: most pairs that the
+    // broad phase passes on are apart along one of A's first axes.
+    let mut r = [[0.0; 3]; 3];
+    let mut ar = [[0.0; 3]; 3];
     // Face axes of A, then of B: the separation along each (> 0 apart).
     let mut ta = [0.0; 3];
     let mut best_a = (f64::NEG_INFINITY, 0usize);
     for k in 0..3 {
+        r[k] = std::array::from_fn(|j| dot(a.axes[k], b.axes[j]));
+        ar[k] = r[k].map(f64::abs);
         ta[k] = dot(t, a.axes[k]);
         let rb = b.half[0] * ar[k][0] + b.half[1] * ar[k][1] + b.half[2] * ar[k][2];
         let s = ta[k].abs() - a.half[k] - rb;
@@ -257,6 +260,17 @@ fn edge_edge(a: &BoxPose, b: &BoxPose, i: usize, j: usize, n: [f64; 3]) -> Manif
     m
 }
 
+/// The vertex after `e` of a closed polygon of `count` (`(e + 1) % count` without the
+/// integer division, which the clipping loops ran at every edge).
+#[inline(always)]
+fn next(e: usize, count: usize) -> usize {
+    if e + 1 == count {
+        0
+    } else {
+        e + 1
+    }
+}
+
 /// Clips the face of `inc` most anti-parallel to `n` against the face `k` of `reference`
 /// whose outward normal is `n` (pointing at `inc`): the manifold with normal `n`.
 fn clip_faces(reference: &BoxPose, k: usize, n: [f64; 3], inc: &BoxPose, margin: f64) -> Manifold {
@@ -302,7 +316,7 @@ fn clip_faces(reference: &BoxPose, k: usize, n: [f64; 3], inc: &BoxPose, margin:
         let mut out = 0;
         for e in 0..count {
             let p = poly[e];
-            let q = poly[(e + 1) % count];
+            let q = poly[next(e, count)];
             let dp = sgn * p[axis] - lim;
             let dq = sgn * q[axis] - lim;
             if dp <= 0.0 && out < 8 {
@@ -400,7 +414,7 @@ fn clip_convex(
     let mut poly: ArrayVec<[f64; 3], { 2 * FEATURE }> = incident.iter().copied().collect();
     let r = reference.len();
     for e in 0..r {
-        let (a, b) = (reference[e], reference[(e + 1) % r]);
+        let (a, b) = (reference[e], reference[next(e, r)]);
         // Inside: left of a -> b (>= 0).
         let side = |p: [f64; 3]| (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0]);
         let mut out: ArrayVec<[f64; 3], { 2 * FEATURE }> = ArrayVec::new();
@@ -413,7 +427,7 @@ fn clip_convex(
             // A segment is one edge (both ends kept here), not a closed loop of two.
             let edges = if m == 2 { 1 } else { m };
             for k in 0..edges {
-                let (p, q) = (poly[k], poly[(k + 1) % m]);
+                let (p, q) = (poly[k], poly[next(k, m)]);
                 let (dp, dq) = (side(p), side(q));
                 if dp >= 0.0 {
                     out.try_push(p).ok()?;
