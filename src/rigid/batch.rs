@@ -645,7 +645,7 @@ pub(crate) fn fill(batches: &mut Batches, inp: &RowInputs) {
             let p = v3(p);
             let (ra, rb) = (sub(p, xa), sub(p, xb));
             // The normal is zero in unused lanes, as the lever then is.
-            let normal = [0, 1, 2].map(|k| used.bitselect(n[k], zero));
+            let normal: V3 = std::array::from_fn(|k| used.bitselect(n[k], zero));
             let arm = [cross(ra, normal), cross(rb, normal)];
             let turn = [mat_vec(ia, arm[0]), mat_vec(ib, arm[1])];
             let k = ua.inv_mass + ub.inv_mass + dot(arm[0], turn[0]) + dot(arm[1], turn[1]);
@@ -707,16 +707,22 @@ pub(crate) fn fill(batches: &mut Batches, inp: &RowInputs) {
             let (l1, l2) = on_cone(dot(imp, t1), dot(imp, t2), friction * load);
             let cap = friction * moment;
             let l3 = (twist * per).max(-cap).min(cap);
-            [l1, l2, l3].map(|l| used.bitselect(l, zero))
+            [
+                used.bitselect(l1, zero),
+                used.bitselect(l2, zero),
+                used.bitselect(l3, zero),
+            ]
         } else {
             [zero; 3]
         };
         let f = Friction {
-            dir: dir.map(put3),
+            dir: [put3(dir[0]), put3(dir[1]), put3(dir[2])],
             ra: put3(ra),
             rb: put3(rb),
-            turn: turn.map(|t| t.map(put3)),
-            mass: put3(k.map(|k| (k.simd_gt(zero) & used).bitselect(one / k, zero))),
+            turn: std::array::from_fn(|r| [put3(turn[r][0]), put3(turn[r][1])]),
+            mass: put3(std::array::from_fn(|r| {
+                (k[r].simd_gt(zero) & used).bitselect(one / k[r], zero)
+            })),
             lambda,
             load,
             moment,
