@@ -317,16 +317,37 @@ pub(crate) fn collide(
     w: &mut RigidWork,
     dt: f64,
 ) -> Result<RigidStepInfo, RigidError> {
-    let n = m.len();
     std::mem::swap(&mut w.contacts, &mut w.previous);
     w.contacts.clear();
-    let mut info = RigidStepInfo::default();
     // The rotations of the step's start, for this stage and the solver's.
     w.rot.clear();
     w.rot.extend(s.q.iter().map(|q| quat::to_matrix(*q)));
     if !m.collides() {
-        return Ok(info);
+        return Ok(RigidStepInfo::default());
     }
+    broad_phase(m, s, w, dt)?;
+    Ok(narrow_phase(m, s, w, dt))
+}
+
+/// [`collide`] again at the same poses after bodies woke: the broad phase's pairs still
+/// stand, so only the narrow phase runs (with the woken bodies' pairs now in it).
+pub(crate) fn collide_again(
+    m: &Rigid,
+    s: &RigidState,
+    w: &mut RigidWork,
+    dt: f64,
+) -> RigidStepInfo {
+    std::mem::swap(&mut w.contacts, &mut w.previous);
+    w.contacts.clear();
+    if !m.collides() {
+        return RigidStepInfo::default();
+    }
+    narrow_phase(m, s, w, dt)
+}
+
+/// The bodies' bounding boxes and the pairs whose boxes overlap, sorted, into `w.pairs`.
+fn broad_phase(m: &Rigid, s: &RigidState, w: &mut RigidWork, dt: f64) -> Result<(), RigidError> {
+    let n = m.len();
     // Hull points in world coordinates, for the bodies that have them.
     for i in 0..n {
         if let Collider::Hull(h) = &m.colliders[i] {
@@ -358,6 +379,14 @@ pub(crate) fn collide(
     // Pairs in order, so the contacts come out sorted by pair (warm starting looks last
     // step's up by pair) without sorting the contacts themselves.
     sort_pairs(&mut w.pairs, n, &mut w.pair_starts, &mut w.pairs_sorted);
+    Ok(())
+}
+
+/// The manifolds of the broad phase's pairs (kept ones moved with their bodies where the
+/// pose holds), their points into `w.contacts` with last step's impulses (`w.previous`)
+/// to warm-start from.
+fn narrow_phase(m: &Rigid, s: &RigidState, w: &mut RigidWork, dt: f64) -> RigidStepInfo {
+    let mut info = RigidStepInfo::default();
     w.kept_next.clear();
     let mut kept = 0;
     for &[a, b] in &w.pairs {
@@ -476,7 +505,7 @@ pub(crate) fn collide(
             info.warm += 1;
         }
     }
-    Ok(info)
+    info
 }
 
 #[cfg(test)]

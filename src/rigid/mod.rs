@@ -1135,7 +1135,7 @@ impl Rigid {
         if self.desc.sleep.is_some() && sleep::wake_touched(self, s, &w.contacts, &mut w.sleep) {
             // The woken islands' own contacts were left out while they slept.
             std::mem::swap(&mut w.contacts, &mut w.previous);
-            info = contact::collide(self, s, w, dt)?;
+            info = contact::collide_again(self, s, w, dt);
         }
         solver::step(self, s, w, dt);
         s.time += dt;
