@@ -277,8 +277,9 @@ fn manifold(
 
 /// Sorts `pairs` (`[a, b]`, `a < b < n`, each once) by `a`, then `b`: a counting sort by
 /// `a` into `scratch` (`starts`: each `a`'s first place), then each `a`'s few pairs by `b`.
-/// Linear in the pairs and bodies: on the 1,000-box pile's 3,000 pairs a third of the
-/// time of a comparison sort of 64-bit keys (2% of a step).
+/// Linear in the pairs and bodies: on the 1,000-box pile (about 3,000 pairs) the
+/// comparison sort of 64-bit keys it replaces took 1.6% of a step in profiles, the
+/// per-body sorts here 0.5%.
 fn sort_pairs(
     pairs: &mut Vec<[u32; 2]>,
     n: usize,

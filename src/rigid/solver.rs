@@ -552,8 +552,8 @@ pub(crate) fn step(m: &Rigid, s: &mut RigidState, w: &mut RigidWork, dt: f64) {
 /// left (and the pseudo-velocities), the solver's velocities updated to match. Under
 /// symplectic Euler the dynamic bodies go four at a time, one a lane
 /// ([`rigid::symplectic`] on `f64x4`: the bits of one at a time, with the square roots
-/// and divisions of four bodies in one instruction; a third of the scalar loop's time
-/// on the 1,000-box pile), the rest one by one.
+/// and divisions of four bodies in one instruction; on the 1,000-box pile the update's
+/// share of a step fell from 10.4% to 7.2% in profiles), the rest one by one.
 fn advance_positions(m: &Rigid, s: &mut RigidState, sw: &mut SolverWork, h: f64) {
     let lanes = m.desc().integrator == RigidIntegrator::SymplecticEuler;
     let (mut group, mut k) = ([0usize; 4], 0);
