@@ -87,7 +87,7 @@ pub fn det(a: &M3) -> f64 {
 /// product of the other two columns of a, `cof a = [a1 x a2, a2 x a0, a0 x a1]`. For any
 /// lane type (the wide kernels' polar decomposition, [`crate::fem_diag::polar_newton`]).
 #[inline(always)]
-pub fn cofactor<R: crate::fem_diag::Lane>(a: &[R; 9]) -> [R; 9] {
+pub fn cofactor<R: crate::lane::Lane>(a: &[R; 9]) -> [R; 9] {
     [
         a[4] * a[8] - a[5] * a[7],
         a[5] * a[6] - a[3] * a[8],

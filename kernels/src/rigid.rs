@@ -13,7 +13,7 @@ use crate::quat;
 
 /// `a . b`.
 #[inline(always)]
-fn dot<R: Lane>(a: [R; 3], b: [R; 3]) -> R {
+pub fn dot<R: Lane>(a: [R; 3], b: [R; 3]) -> R {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 

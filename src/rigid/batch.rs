@@ -29,6 +29,7 @@
 
 use super::solver::{ContactRow, Pass, SolverBody, SolverMotion, MAX_PUSH};
 use super::{ContactPoint, Correction};
+use largestep_kernels::rigid::{dot, mat_vec};
 use largestep_kernels::v3;
 use wide::f64x4;
 
@@ -208,11 +209,6 @@ fn splat(x: f64) -> V {
 }
 
 #[inline(always)]
-fn dot(a: V3, b: V3) -> V {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-#[inline(always)]
 fn sub(a: V3, b: V3) -> V3 {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
@@ -225,11 +221,6 @@ fn add(a: V3, b: V3) -> V3 {
 #[inline(always)]
 fn scale(a: V3, s: V) -> V3 {
     [a[0] * s, a[1] * s, a[2] * s]
-}
-
-#[inline(always)]
-fn mat_vec(m: [V3; 3], v: V3) -> V3 {
-    [dot(m[0], v), dot(m[1], v), dot(m[2], v)]
 }
 
 /// A body's velocities in the lanes of `idx`, with its inverse mass.

@@ -331,18 +331,15 @@ pub(crate) fn collide(
 }
 
 /// [`collide`] again at the same poses after bodies woke: the broad phase's pairs still
-/// stand, so only the narrow phase runs (with the woken bodies' pairs now in it).
+/// stand, so only the narrow phase runs (with the woken bodies' pairs now in it), warm
+/// started from last step's contacts as before (`w.previous` is still theirs).
 pub(crate) fn collide_again(
     m: &Rigid,
     s: &RigidState,
     w: &mut RigidWork,
     dt: f64,
 ) -> RigidStepInfo {
-    std::mem::swap(&mut w.contacts, &mut w.previous);
     w.contacts.clear();
-    if !m.collides() {
-        return RigidStepInfo::default();
-    }
     narrow_phase(m, s, w, dt)
 }
 

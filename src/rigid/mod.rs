@@ -1134,7 +1134,6 @@ impl Rigid {
         let mut info = contact::collide(self, s, w, dt)?;
         if self.desc.sleep.is_some() && sleep::wake_touched(self, s, &w.contacts, &mut w.sleep) {
             // The woken islands' own contacts were left out while they slept.
-            std::mem::swap(&mut w.contacts, &mut w.previous);
             info = contact::collide_again(self, s, w, dt);
         }
         solver::step(self, s, w, dt);
