@@ -2911,3 +2911,24 @@ fn a_kept_preconditioner_gives_the_same_steps() {
     );
     assert!(diff < 1e-6, "same steps: {diff:.2e} m apart");
 }
+
+/// A kept hierarchy is made again once the steps slow (`MechSettings::reuse_preconditioner`
+/// with a bound too high to matter): as the cantilever sags and swings its elements turn
+/// away from the rotations the coarse levels were built with, and a hierarchy kept for
+/// good would cost ever more PCG iterations. Renewed when a step's PCG iterations per
+/// Newton iteration grow past those of the step that made it, the run takes about as
+/// many as one that makes a new hierarchy every ten steps, and ends at the same place.
+#[test]
+fn a_kept_preconditioner_is_renewed_when_the_steps_slow() {
+    let (ten, _, linear_ten) = cantilever_pcg_steps(|s| s.reuse_preconditioner = 10);
+    let (kept, _, linear_kept) = cantilever_pcg_steps(|s| s.reuse_preconditioner = 1000);
+    let diff = largest_difference(&ten, &kept);
+    println!("PCG iterations: every ten steps {linear_ten}, kept while fast {linear_kept}; largest position difference {diff:.2e} m");
+    // Measured: 1,357 and 1,363; with the hierarchy of the first step kept for all
+    // twenty (the test left out), 1,404 and 1,645.
+    assert!(
+        10 * linear_kept <= 11 * linear_ten,
+        "kept too long: {linear_ten} -> {linear_kept}"
+    );
+    assert!(diff < 1e-6, "same steps: {diff:.2e} m apart");
+}

@@ -192,8 +192,11 @@ pub struct MechSettings {
     /// taken from each new Jacobian ([`crate::solve::Pcg::resolve`]). Any fixed symmetric
     /// positive definite preconditioner leaves PCG exact, so the steps converge as
     /// before, perhaps in more iterations; a step whose solve fails with a kept hierarchy
-    /// is redone with a new one. It pays where the setup is a large part of a step
-    /// (smoothed aggregation on 3-D elasticity).
+    /// is redone with a new one, and a step after one whose PCG iterations per Newton
+    /// iteration grew well past those of the step that made the hierarchy makes a new one
+    /// (as the body turns, the rotations the coarse levels were built
+    /// with fall behind). It pays where the setup is a large part of a step (smoothed
+    /// aggregation on 3-D elasticity).
     pub reuse_preconditioner: usize,
     /// Whether PCG's products read the multigrid's `f32` copy of the system matrix
     /// ([`crate::solve::Pcg::set_rounded_products`]) in the Newton-solved methods
@@ -367,6 +370,8 @@ pub struct MechStepper {
     /// Newton iterations of the last implicit step: a step after one that needed none
     /// (a body at rest) does not build its Jacobian with its first residual.
     last_newton: usize,
+    /// PCG iterations per Newton iteration of the last implicit step (0 before one).
+    last_rate: f64,
     filter: Filter,
     y: Vec<f64>,
     rk: Option<RkWork>,
@@ -463,6 +468,7 @@ impl MechStepper {
             lag: None,
             kept: None,
             last_newton: 1,
+            last_rate: 0.0,
             filter: Filter::new(n),
             y,
             rk,
@@ -625,12 +631,13 @@ impl MechStepper {
                         .is_some_and(|l| l.serves(h, reuse, &self.filter));
                 // An earlier step's multigrid hierarchy, likewise (PCG only).
                 let keep = self.settings.reuse_preconditioner;
+                let last_rate = self.last_rate;
                 let mut kept = keep > 0
                     && matches!(w.linear, Linear::Pcg(_))
                     && self
                         .kept
                         .as_ref()
-                        .is_some_and(|l| l.serves(h, keep, &self.filter));
+                        .is_some_and(|l| l.serves(h, keep, &self.filter) && !l.slowed(last_rate));
                 let Implicit {
                     dfdx,
                     dfdv,
@@ -726,6 +733,14 @@ impl MechStepper {
                     }
                     let ni = res.map_err(solve_err)?;
                     self.last_newton = ni.iterations;
+                    if ni.iterations > 0 {
+                        self.last_rate = prob.linear_iterations as f64 / ni.iterations as f64;
+                        if prob.new_preconditioner {
+                            if let Some(l) = self.kept.as_mut() {
+                                l.rate = self.last_rate;
+                            }
+                        }
+                    }
                     for l in [&mut self.lag, &mut self.kept].into_iter().flatten() {
                         l.age += 1;
                     }
@@ -770,6 +785,19 @@ impl MechStepper {
 /// Jacobian gave up, then a new one was made); one Jacobian per step gave 491 ms.
 const LAGGED_ITERATIONS: usize = 8;
 
+/// How much slower than the step that made it (PCG iterations per Newton iteration) a
+/// kept hierarchy may let a step run before the next step makes a new one
+/// ([`MechSettings::reuse_preconditioner`]): `SLOWED` times its rate plus `SLOWED_SLACK`
+/// iterations (against a hierarchy's first rate of 2, a step of 2 Newton iterations with
+/// 7 PCG iterations makes a new one; with 6 it does not). Measured on the swinging
+/// 60,000-tetrahedron beam of issue 15 (120 steps of `benches/fem.rs`'s defaults, up to 30
+/// steps a hierarchy): 1.25 and 0.5 made 12-13 hierarchies with 4.96 PCG iterations a
+/// step; 1.5 and 0.5, 12 with 5.12; 1.25 and 0, 21 with 4.64; a new one every 10 steps
+/// without the test, 15 with 5.33 (and every 20 steps, in an earlier measurement, 9.8 PCG
+/// iterations a step instead of 5.6).
+const SLOWED: f64 = 1.25;
+const SLOWED_SLACK: f64 = 0.5;
+
 /// A Jacobian kept for later steps (see [`MechSettings::reuse_jacobian`]), or PCG's
 /// hierarchy ([`MechSettings::reuse_preconditioner`]): the step size and constraints it
 /// was made for, and the steps it has served.
@@ -779,12 +807,25 @@ struct Lag {
     age: usize,
     /// False once a step gave up on it (its buffers stay for the next one).
     valid: bool,
+    /// A kept hierarchy's PCG iterations per Newton iteration in the step that made it
+    /// (0 until known).
+    rate: f64,
 }
 
 impl Lag {
     /// Whether it may serve a step of size h under `filter`, given the steps it may serve.
     fn serves(&self, h: f64, most: usize, filter: &Filter) -> bool {
         self.valid && self.h == h && self.age < most && self.filter.same_projection(filter)
+    }
+
+    /// Whether a kept hierarchy has fallen behind the matrices: the last step took more
+    /// than [`SLOWED`] times the PCG iterations per Newton iteration of the step that made
+    /// it, plus [`SLOWED_SLACK`]. Then the next step makes a new one, as SUNDIALS' CVODE
+    /// sets its preconditioner up again when the linear solver slows (Hindmarsh et al.,
+    /// "SUNDIALS: Suite of nonlinear and differential/algebraic equation solvers", ACM
+    /// TOMS 31, 2005).
+    fn slowed(&self, last_rate: f64) -> bool {
+        self.rate > 0.0 && last_rate > SLOWED * self.rate + SLOWED_SLACK
     }
 
     /// Records a new one made for a step of size h under `filter` (kept buffers: no
@@ -795,11 +836,13 @@ impl Lag {
             filter: Filter::new(0),
             age: 0,
             valid: true,
+            rate: 0.0,
         });
         l.h = h;
         l.filter.clone_from(filter);
         l.age = 0;
         l.valid = true;
+        l.rate = 0.0;
     }
 }
 
