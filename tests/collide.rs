@@ -376,7 +376,18 @@ proptest! {
         let mut sap = SweepAndPrune::new();
         let mut got = Vec::new();
         sap.pairs(&boxes, &mut got);
-        prop_assert_eq!(sorted(got), want);
+        prop_assert_eq!(sorted(got), want.clone());
+        // With a limit: all of them when they fit, else max + 1 of them and `false`.
+        let mut got = Vec::new();
+        prop_assert!(sap.pairs_at_most(&boxes, want.len(), &mut got));
+        prop_assert_eq!(sorted(got), want.clone());
+        if !want.is_empty() {
+            let max = want.len() / 2;
+            let mut got = Vec::new();
+            prop_assert!(!sap.pairs_at_most(&boxes, max, &mut got));
+            prop_assert_eq!(got.len(), max + 1);
+            prop_assert!(got.iter().all(|p| want.binary_search(p).is_ok()));
+        }
         // Move every third box and sweep again from the kept order.
         let moved: Vec<Aabb> = boxes
             .iter()
