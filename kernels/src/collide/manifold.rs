@@ -312,7 +312,7 @@ fn clip_faces(reference: &BoxPose, k: usize, n: [f64; 3], inc: &BoxPose, margin:
     let mut count = 4;
     let mut tmp = [[0.0f64; 3]; 8];
     // Each plane clips `cur` into `clipped`, and the two swap (references, not the
-    // points: copying the polygon back was a call to memcpy, 2% of the late pile's step).
+    // points: copying the polygon back was a call to memcpy, 1.6% of the late pile's step).
     let (mut cur, mut clipped) = (&mut poly, &mut tmp);
     // Four side planes: +-u <= hu, +-v <= hv.
     for (axis, sgn, lim) in [(0, 1.0, hu), (0, -1.0, hu), (1, 1.0, hv), (1, -1.0, hv)] {
