@@ -48,8 +48,13 @@
 //!   defaults' predictor (Newton's first guess from the last step's velocity change);
 //!   `-f32` adds PCG's products with the multigrid's `f32` copy of the matrix
 //!   (`MechSettings::rounded_products`, off by default), `-plain` has the predictor off
-//!   (as before 2026-12-02). The summary gives the Newton iterations and the last linear
-//!   solve's residual of the timed steps.
+//!   (as before 2026-12-02); `-rate` has Newton's rate test (`NewtonParams::rate_test`,
+//!   Hairer and Wanner's estimate of the error left), the second-order predictor
+//!   (`MechSettings::second_order_predictor`) and forcing 0.1, `-rate-f32` the same with
+//!   PCG's products in `f32`. The summary gives the
+//!   Newton iterations and the last linear solve's residual of the timed steps, and the
+//!   worst velocity error of six more steps against the same steps solved to 1e-10,
+//!   `|v - v*| / (1 + |v*|)`, the quantity Newton's tolerance bounds.
 //!
 //! The peer (`benches/peers/rapier-fem`) steps the same mesh in rapier3d's FEM soft body.
 //! Run with `cargo bench --bench fem`; the summary is printed at the end and written to
@@ -104,6 +109,7 @@ struct Solver {
     newton: f64,
     predictor: bool,
     rounded: bool,
+    rate: bool,
 }
 
 fn solver(
@@ -121,6 +127,7 @@ fn solver(
         newton,
         predictor: true,
         rounded: false,
+        rate: false,
     }
 }
 
@@ -133,6 +140,7 @@ fn settings(solver: Solver) -> MechSettings {
         newton,
         predictor,
         rounded,
+        rate,
     } = solver;
     let mut s = MechSettings::new(Method::BackwardEuler);
     s.reuse_jacobian = reuse;
@@ -142,6 +150,8 @@ fn settings(solver: Solver) -> MechSettings {
     s.newton.forcing = forcing;
     s.predictor = predictor;
     s.rounded_products = rounded;
+    s.newton.rate_test = rate;
+    s.second_order_predictor = rate;
     s.linear = match pcg {
         None => LinearSolverKind::Cholesky,
         Some(preconditioner) => LinearSolverKind::Pcg(PcgParams {
@@ -313,7 +323,7 @@ fn main() {
         ));
     }
 
-    md.push_str("\n| step (dt = 1/60, backward Euler) | Newton tolerance | median | best | Newton iterations | linear iterations | last linear solve, relative residual (worst) |\n|---|---|---|---|---|---|---|\n");
+    md.push_str("\n| step (dt = 1/60, backward Euler) | Newton tolerance | median | best | Newton iterations | linear iterations | last linear solve, relative residual (worst) | velocity error (worst) |\n|---|---|---|---|---|---|---|---|\n");
     let (mg, sa) = (
         Some(Preconditioner::Multigrid),
         Some(Preconditioner::SmoothedAggregation),
@@ -358,6 +368,22 @@ fn main() {
                 ..solver(sa, 1, KEEP, Some(0.5), 1e-3)
             },
         ),
+        // Newton's rate test with the second-order predictor, forcing 0.1.
+        (
+            "pcg-sa-reuse-forcing-keep-1e-3-rate",
+            Solver {
+                rate: true,
+                ..solver(sa, 1, KEEP, Some(0.1), 1e-3)
+            },
+        ),
+        (
+            "pcg-sa-reuse-forcing-keep-1e-3-rate-f32",
+            Solver {
+                rate: true,
+                rounded: true,
+                ..solver(sa, 1, KEEP, Some(0.1), 1e-3)
+            },
+        ),
     ] {
         let id = format!("fem/step/{name}");
         if !wanted(&id) {
@@ -379,9 +405,10 @@ fn main() {
             linear += info.linear_iterations;
             residual = residual.max(info.residual);
         }
+        let error = step_error(&mut s, solver);
         times.sort_by(f64::total_cmp);
         md.push_str(&format!(
-            "| {id} | {:.0e} | {:.1} ms | {:.1} ms | {:.1} | {:.0} | {residual:.1e} |\n",
+            "| {id} | {:.0e} | {:.1} ms | {:.1} ms | {:.1} | {:.0} | {residual:.1e} | {error:.1e} |\n",
             solver.newton,
             1e3 * 0.5 * (times[2] + times[3]),
             1e3 * times[0],
@@ -393,6 +420,41 @@ fn main() {
     let dir = std::path::Path::new("target/criterion");
     let _ = std::fs::create_dir_all(dir);
     let _ = std::fs::write(dir.join("fem-summary.md"), md);
+}
+
+/// The worst velocity error of six more steps of `s`, each against the same step from
+/// the same state solved to 1e-10 (full Newton, PCG to 1e-11, no first guess), relative:
+/// `|v - v*| / (1 + |v*|)`, what the Newton tolerance bounds.
+fn step_error(s: &mut MechSimulation<Fem>, solver: Solver) -> f64 {
+    let mut tight = settings(solver);
+    tight.reuse_jacobian = 0;
+    tight.reuse_preconditioner = 0;
+    tight.newton.tolerance = 1e-10;
+    tight.newton.step_tolerance = 1e-10;
+    tight.newton.forcing = None;
+    tight.newton.rate_test = false;
+    tight.predictor = false;
+    tight.second_order_predictor = false;
+    tight.rounded_products = false;
+    tight.linear = LinearSolverKind::Pcg(PcgParams {
+        tolerance: 1e-11,
+        max_iterations: 4000,
+        preconditioner: Preconditioner::SmoothedAggregation,
+    });
+    let (fem, state) = beam().build().unwrap();
+    let mut reference = MechSimulation::new(fem, state, tight).unwrap();
+    reference.set_step_control(None);
+    let mut worst: f64 = 0.0;
+    for _ in 0..6 {
+        *reference.state_mut() = s.state().clone();
+        s.step(DT).unwrap();
+        reference.step(DT).unwrap();
+        let (v, w) = (s.state().v.as_slice(), reference.state().v.as_slice());
+        let norm = w.iter().map(|w| w * w).sum::<f64>().sqrt();
+        let err = v.iter().zip(w).map(|(v, w)| (v - w).powi(2)).sum::<f64>();
+        worst = worst.max(err.sqrt() / (1.0 + norm));
+    }
+    worst
 }
 
 /// The model's scratch, its forces and `df/dx` at `(x, v)`, assembled once.

@@ -2193,6 +2193,65 @@ fn the_predictor_and_rounded_products_converge_to_the_same_steps() {
     );
 }
 
+/// Newton's rate test (`NewtonParams::rate_test`, Hairer and Wanner's estimate of the
+/// error left) with the second-order predictor (`MechSettings::second_order_predictor`)
+/// and forcing 0.1: every backward Euler step of the swinging cantilever lands within
+/// the stated tolerance (1e-3 of 1 + |v|) of the same step solved to 1e-11 with
+/// Cholesky, in fewer Newton iterations than the plain step test takes (forcing 0.5,
+/// first-order guess, the bench's earlier settings).
+#[test]
+fn the_rate_test_steps_within_the_tolerance_in_fewer_iterations() {
+    use largestep::integrate::LinearSolverKind;
+    use largestep::solve::{PcgParams, Preconditioner};
+    let desc = FemDesc::cantilever([20, 2, 2], [1.0, 0.1, 0.1], corotational_beam(), 9.81);
+    let (fem, state) = desc.build().unwrap();
+    let settings = |rate: bool| {
+        let mut s = MechSettings::new(Method::BackwardEuler);
+        s.reuse_jacobian = 1;
+        s.newton.tolerance = 1e-3;
+        s.newton.step_tolerance = 1e-3;
+        s.newton.forcing = Some(if rate { 0.1 } else { 0.5 });
+        s.newton.rate_test = rate;
+        s.second_order_predictor = rate;
+        s.linear = LinearSolverKind::Pcg(PcgParams {
+            tolerance: 1e-6,
+            max_iterations: 2000,
+            preconditioner: Preconditioner::SmoothedAggregation,
+        });
+        s
+    };
+    let mut exact = MechSettings::new(Method::BackwardEuler);
+    exact.newton.tolerance = 1e-11;
+    exact.newton.step_tolerance = 1e-11;
+    exact.predictor = false;
+    exact.linear = LinearSolverKind::Cholesky;
+    let mut reference = MechSimulation::new(fem.clone(), state.clone(), exact).unwrap();
+    reference.set_step_control(None);
+    let mut newton = [0; 2];
+    let mut worst: f64 = 0.0;
+    for rate in [false, true] {
+        let mut sim = MechSimulation::new(fem.clone(), state.clone(), settings(rate)).unwrap();
+        sim.set_step_control(None);
+        for _ in 0..40 {
+            *reference.state_mut() = sim.state().clone();
+            newton[rate as usize] += sim.step(1.0 / 60.0).unwrap().newton_iterations;
+            reference.step(1.0 / 60.0).unwrap();
+            if rate {
+                let (v, w) = (sim.state().v.as_slice(), reference.state().v.as_slice());
+                let norm = w.iter().map(|w| w * w).sum::<f64>().sqrt();
+                let err = v.iter().zip(w).map(|(v, w)| (v - w).powi(2)).sum::<f64>();
+                worst = worst.max(err.sqrt() / (1.0 + norm));
+            }
+        }
+    }
+    println!(
+        "Newton iterations over 40 steps: {} plain, {} rate test; worst velocity error {worst:.2e}",
+        newton[0], newton[1]
+    );
+    assert!(worst <= 1e-3, "{worst}");
+    assert!(newton[1] < newton[0], "{newton:?}");
+}
+
 /// `[output] frames = "vtk"` writes each frame of an FEM scene as a legacy VTK grid
 /// (read back by the VTK reader, with the frame's time in its title); a scene without a
 /// volumetric system refuses it at the line.
@@ -2741,6 +2800,12 @@ fn fem_scenes_precondition_pcg_with_smoothed_aggregation_by_default() {
     let bad = format!("{base}\n[solver]\nreuse_preconditioner = -1\n");
     let e = Scene::parse(&bad, "bad.toml").unwrap_err().to_string();
     assert!(e.contains("reuse_preconditioner"), "{e}");
+    // Newton's rate test and the second-order predictor from the scene.
+    let rate = iterations("forcing = 0.1\nnewton_rate_test = true\nsecond_order_predictor = true");
+    assert!(rate > 0.0 && rate < 30.0, "per solve: {rate}");
+    let bad = format!("{base}\n[solver]\nnewton_rate_test = 1\n");
+    let e = Scene::parse(&bad, "bad.toml").unwrap_err().to_string();
+    assert!(e.contains("newton_rate_test"), "{e}");
 }
 
 /// `fem::settings` is what a `[fem]` scene without a named preconditioner runs: smoothed

@@ -663,6 +663,12 @@ fn solver_settings(
     if let Some(p) = t.predictor {
         settings.predictor = p;
     }
+    if let Some(p) = t.second_order_predictor {
+        settings.second_order_predictor = p;
+    }
+    if let Some(r) = t.newton_rate_test {
+        settings.newton.rate_test = r;
+    }
     if let Some(r) = t.rounded_products {
         settings.rounded_products = r;
     }

@@ -22,6 +22,8 @@
 //! forcing = 0.5               # inexact Newton: PCG tolerance up to this (Eisenstat-Walker)
 //! reuse_preconditioner = 0    # steps one PCG multigrid hierarchy may serve (0: new each time)
 //! predictor = true            # Newton starts from the last step's velocity change carried on
+//! second_order_predictor = false  # ... from the last two changes extrapolated linearly
+//! newton_rate_test = false    # Newton stops on the error left, from its contraction rate
 //! rounded_products = false    # PCG's products with the multigrid's f32 copy (Newton steps)
 //!
 //! [mass_spring.chain]         # one table per system: [mass_spring], [cloth], ...
@@ -91,6 +93,11 @@ pub struct SolverTable {
     pub reuse_preconditioner: Option<i64>,
     /// Newton's first guess from the last step's velocity change (default true).
     pub predictor: Option<bool>,
+    /// The predictor extrapolates the last two velocity changes (default false).
+    pub second_order_predictor: Option<bool>,
+    /// Newton's step test on the error estimated from the contraction rate (default
+    /// false).
+    pub newton_rate_test: Option<bool>,
     /// PCG's products through the multigrid's `f32` copy in Newton steps (default false).
     pub rounded_products: Option<bool>,
 }
