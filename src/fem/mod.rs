@@ -685,10 +685,12 @@ pub struct Fem {
 pub struct FemWork {
     /// Element forces (12 per element).
     f: Vec<f64>,
-    /// Stiffness blocks, all 16 local blocks of each element in the assembly's gather
-    /// order ([`ElementAssembly::par_write_ordered`]: on the 60,000-element beam the
-    /// streamed gather and the scattered stores took its assembly from 14.6 to 12.9 ms,
-    /// medians of six alternating runs, for 13 MB more), empty until their assembly is
+    /// Stiffness blocks, the 10 local blocks of each element on and above the diagonal
+    /// in the assembly's gather order ([`ElementAssembly::par_write_ordered`]: on the
+    /// 60,000-element beam the streamed gather and the scattered stores took its
+    /// assembly from 14.6 to 12.9 ms, medians of six alternating runs, with all 16
+    /// blocks; the 10 and the mirrored slots 13.2-14.6 ms against 14.6-17.7 ms for the
+    /// 16, three alternating runs in a slower spell), empty until their assembly is
     /// built for an implicit method; their precision is chosen with the scratch
     /// ([`Fem::exact_work`]).
     blocks: ElementBlocks,

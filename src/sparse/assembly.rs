@@ -167,15 +167,26 @@ pub struct ElementAssembly {
 #[derive(Clone, Debug)]
 struct Ordered {
     /// Where local block (p, q) of element e goes in the ordered buffer, at
-    /// `e * K * K + p * K + q`: a permutation of `0..elements * K * K` (see
-    /// [`OrderedChunk`]). Each chunk of [`ORDERED_CHUNK`] elements has its own part of the
-    /// buffer, its blocks sorted by slot there (in element order within a slot).
+    /// `e * K * K + p * K + q` (see [`OrderedChunk`]). Each chunk of [`ORDERED_CHUNK`]
+    /// elements has its own part of the buffer, its blocks sorted by slot there (in
+    /// element order within a slot). Every place is one local block's, except each
+    /// chunk's spare block, where the chunk's blocks of mirrored slots go (unread).
     order: Vec<u32>,
     /// The runs of the ordered buffer each slot sums, `runs[run_ptr[s]..run_ptr[s + 1]]`
     /// (first block, blocks), in chunk order: one per chunk with elements at the slot.
     run_ptr: Vec<u32>,
     runs: Vec<(u32, u32)>,
+    /// Blocks in the buffer.
+    blocks: usize,
+    /// For a symmetric layout, each slot below the diagonal with the slot it mirrors
+    /// (lower, upper): the gather sums the upper slot's runs only and writes the lower
+    /// slot as its transpose. Empty otherwise.
+    mirror: Vec<(u32, u32)>,
 }
+
+/// Which slots lie below the diagonal, and each such slot with its mirror above it
+/// (lower, upper), for a symmetric layout ([`ElementAssembly::with_ordered`]).
+type Mirror = (Vec<bool>, Vec<(u32, u32)>);
 
 /// Elements per chunk of [`ElementAssembly::par_write_ordered`], and so per part of its
 /// buffer: a chunk's 1,024 tetrahedra write 590 KB, which one core's L2 holds while the
@@ -288,14 +299,53 @@ impl ElementAssembly {
     /// The same assembly with the maps of the ordered buffer made
     /// ([`ElementAssembly::par_write_ordered`], [`ElementAssembly::gather_ordered`]): a
     /// sort of each chunk's local blocks by slot, and a `u32` per local block.
+    ///
+    /// With a symmetric layout (each block (q, p) the transpose of block (p, q), as
+    /// [`LocalLayout::symmetric`]) on a symmetric pattern, only the blocks of slots on and
+    /// above the diagonal are stored and summed, and each slot below is written as the
+    /// transpose of its mirror: the same bits, since the mirror's sources are the
+    /// transposes of its own in the same order, with 10 of a tetrahedron's 16 local
+    /// blocks stored and read instead of 16.
     pub fn with_ordered(mut self) -> Self {
         let kk = self.local_src.len();
+        let lower = self.mirror_slots();
         self.ordered = Some(ordered_runs(
             self.pattern.nnz_blocks(),
             &self.elem_slots,
             kk,
+            lower,
         ));
         self
+    }
+
+    /// Whether each slot lies below the diagonal, where the layout is symmetric and every
+    /// such slot has a mirror in the pattern; with the pairs (lower, upper).
+    fn mirror_slots(&self) -> Option<Mirror> {
+        let src = &self.local_src;
+        let k = (src.len() as f64).sqrt().round() as usize;
+        let symmetric = (0..k).all(|p| {
+            (0..k).filter(|&q| q != p).all(|q| {
+                let (a, b) = (src[p * k + q], src[q * k + p]);
+                a.index == b.index && a.negate == b.negate && a.transpose != b.transpose
+            })
+        });
+        if !symmetric || k * k != src.len() {
+            return None;
+        }
+        let pat = &self.pattern;
+        let (ptr, col) = (pat.row_ptr(), pat.col());
+        let mut lower = vec![false; pat.nnz_blocks()];
+        let mut pairs = Vec::new();
+        for i in 0..pat.n() {
+            for s in ptr[i] as usize..ptr[i + 1] as usize {
+                let j = col[s] as usize;
+                if j < i {
+                    lower[s] = true;
+                    pairs.push((s as u32, pat.slot(j, i)? as u32));
+                }
+            }
+        }
+        Some((lower, pairs))
     }
 
     /// The ordered buffer's maps.
@@ -325,9 +375,14 @@ impl ElementAssembly {
     }
 
     /// Length of the buffer of [`ElementAssembly::par_write_ordered`]: every local block
-    /// (`elements * K * K * 9`).
+    /// (`elements * K * K * 9`), or with a symmetric layout those of the slots on and
+    /// above the diagonal and a spare block a chunk (see
+    /// [`ElementAssembly::with_ordered`]).
+    ///
+    /// # Panics
+    /// Without [`ElementAssembly::with_ordered`].
     pub fn ordered_buffer_len(&self) -> usize {
-        self.elem_slots.len() * 9
+        self.ordered().blocks * 9
     }
 
     /// Runs `kernel` over the elements in chunks of [`ORDERED_CHUNK`] (in parallel), each call with
@@ -387,7 +442,10 @@ impl ElementAssembly {
         assert_eq!(ordered.len(), self.ordered_buffer_len());
         assert!(Arc::ptr_eq(out.pattern(), &self.pattern) || **out.pattern() == *self.pattern);
         let Ordered {
-            run_ptr: ptr, runs, ..
+            run_ptr: ptr,
+            runs,
+            mirror,
+            ..
         } = self.ordered();
         for_each_block(out, |s, v| {
             let mut acc = [0.0f64; 9];
@@ -400,6 +458,24 @@ impl ElementAssembly {
                 }
             }
             v.copy_from_slice(&acc);
+        });
+        if mirror.is_empty() {
+            return;
+        }
+        let vals = Disjoint::new(out.values_mut());
+        mirror.par_chunks(GATHER_CHUNK).for_each(|pairs| {
+            for &(l, u) in pairs {
+                let (l, u) = (9 * l as usize, 9 * u as usize);
+                // SAFETY: the pairs match each slot below the diagonal with its mirror
+                // above it, so every slot is in one pair at most, once: no two slices
+                // overlap.
+                let (dst, src) = unsafe { (vals.slice(l..l + 9), vals.slice(u..u + 9)) };
+                for r in 0..3 {
+                    for c in 0..3 {
+                        dst[3 * r + c] = src[3 * c + r];
+                    }
+                }
+            }
         });
     }
 
@@ -450,26 +526,49 @@ impl ElementAssembly {
 /// The ordered buffer's layout for local blocks with slots `elem_slots` (`kk` per
 /// element): each local block's position (`order`), and each slot's runs (CSR). Within a
 /// chunk of [`ORDERED_CHUNK`] elements the blocks are sorted by slot, stably, so a slot's
-/// runs in chunk order hold its sources in element order, as `block_src` does.
-fn ordered_runs(slots: usize, elem_slots: &[u32], kk: usize) -> Ordered {
+/// runs in chunk order hold its sources in element order, as `block_src` does. With
+/// `mirror` (which slots lie below the diagonal, and the pairs of mirrored slots) the
+/// blocks of lower slots go to their chunk's spare block after its sorted ones.
+fn ordered_runs(
+    slots: usize,
+    elem_slots: &[u32],
+    kk: usize,
+    mirror: Option<Mirror>,
+) -> Ordered {
+    let (lower, mirror) = mirror.unzip();
+    let lower = |s: u32| lower.as_ref().is_some_and(|l| l[s as usize]);
     let mut order = vec![0u32; elem_slots.len()];
     let mut run_pairs: Vec<(usize, (u32, u32))> = Vec::new();
     let mut local: Vec<(u32, u32)> = Vec::with_capacity(ORDERED_CHUNK * kk);
+    let mut base = 0;
     for (c, chunk) in elem_slots.chunks(ORDERED_CHUNK * kk).enumerate() {
-        let base = c * ORDERED_CHUNK * kk;
+        let first = c * ORDERED_CHUNK * kk;
         local.clear();
-        local.extend(chunk.iter().enumerate().map(|(g, &s)| (s, g as u32)));
+        local.extend(
+            (chunk.iter().enumerate())
+                .filter(|&(_, &s)| !lower(s))
+                .map(|(g, &s)| (s, g as u32)),
+        );
         // Stable: equal slots keep element (and local block) order.
         local.sort_by_key(|&(s, _)| s);
+        let spare = base + local.len();
+        let mut spares = 0;
+        for (g, &s) in chunk.iter().enumerate() {
+            if lower(s) {
+                order[first + g] = spare as u32;
+                spares = 1;
+            }
+        }
         let mut start = 0;
         for (rank, &(s, g)) in local.iter().enumerate() {
-            order[base + g as usize] = (base + rank) as u32;
+            order[first + g as usize] = (base + rank) as u32;
             if rank + 1 == local.len() || local[rank + 1].0 != s {
                 let run = ((base + start) as u32, (rank + 1 - start) as u32);
                 run_pairs.push((s as usize, run));
                 start = rank + 1;
             }
         }
+        base = spare + spares;
     }
     // Runs in chunk order within each slot (csr keeps the pairs' order).
     let (run_ptr, idx) = csr(
@@ -484,12 +583,14 @@ fn ordered_runs(slots: usize, elem_slots: &[u32], kk: usize) -> Ordered {
         order,
         run_ptr,
         runs,
+        blocks: base,
+        mirror: mirror.unwrap_or_default(),
     }
 }
 
 /// One chunk's view of [`ElementAssembly::par_write_ordered`]'s buffer: stores the blocks
 /// of the chunk's elements only, so concurrent chunks never write the same place (each
-/// element's positions are its own: `order` is a permutation).
+/// element's positions are its own, and each chunk's spare block its own).
 pub struct OrderedChunk<'a, T> {
     asm: &'a ElementAssembly,
     order: &'a [u32],
@@ -515,9 +616,10 @@ impl<T> OrderedChunk<'_, T> {
         let order = &self.order[e * kk..(e + 1) * kk];
         for (src, &at) in self.asm.local_src.iter().zip(order) {
             let at = 9 * at as usize;
-            // SAFETY: `at` belongs to element e alone (order is a permutation, built with
-            // the pattern), and e to this chunk alone (asserted above; the chunks of
-            // par_write_ordered are disjoint), so no other live slice overlaps it.
+            // SAFETY: `at` belongs to element e alone, or is the spare block of e's chunk
+            // (`ordered_runs`), and e to this chunk alone (asserted above; the chunks of
+            // par_write_ordered are disjoint), so no other live slice overlaps it (this
+            // loop's slices live one iteration each).
             let dst = unsafe { self.out.slice(at..at + 9) };
             let b: &[f64; 9] = unique[9 * src.index as usize..][..9].try_into().expect("9");
             let sign = if src.negate { -1.0 } else { 1.0 };
