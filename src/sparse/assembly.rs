@@ -529,12 +529,7 @@ impl ElementAssembly {
 /// runs in chunk order hold its sources in element order, as `block_src` does. With
 /// `mirror` (which slots lie below the diagonal, and the pairs of mirrored slots) the
 /// blocks of lower slots go to their chunk's spare block after its sorted ones.
-fn ordered_runs(
-    slots: usize,
-    elem_slots: &[u32],
-    kk: usize,
-    mirror: Option<Mirror>,
-) -> Ordered {
+fn ordered_runs(slots: usize, elem_slots: &[u32], kk: usize, mirror: Option<Mirror>) -> Ordered {
     let (lower, mirror) = mirror.unzip();
     let lower = |s: u32| lower.as_ref().is_some_and(|l| l[s as usize]);
     let mut order = vec![0u32; elem_slots.len()];
