@@ -227,9 +227,9 @@ pub struct MechSettings {
     /// steps both continued, instead of carrying the last change on. On the beam of
     /// issue 15 (`benches/fem.rs`) with Newton's rate test
     /// ([`NewtonParams::rate_test`]) and forcing 0.1 this guess left most steps one
-    /// Newton iteration from done: 1.29 Newton and 4.8 PCG iterations a step against
+    /// Newton iteration from done: 1.29 Newton and 4.4 PCG iterations a step against
     /// 2.13 and 5.0 with the plain test, forcing 0.5 and the first-order guess, and the
-    /// same worst velocity error against steps solved to 1e-10 (2.5e-4 and 2.4e-4, to a
+    /// same worst velocity error against steps solved to 1e-10 (2.6e-4 and 2.4e-4, to a
     /// tolerance of 1e-3). Off by default: where the motion turns quickly the
     /// extrapolation overshoots.
     pub second_order_predictor: bool,
