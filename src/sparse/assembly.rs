@@ -322,14 +322,16 @@ impl ElementAssembly {
     /// such slot has a mirror in the pattern; with the pairs (lower, upper).
     fn mirror_slots(&self) -> Option<Mirror> {
         let src = &self.local_src;
+        // K x K sources (asserted when built).
         let k = (src.len() as f64).sqrt().round() as usize;
-        let symmetric = (0..k).all(|p| {
-            (0..k).filter(|&q| q != p).all(|q| {
-                let (a, b) = (src[p * k + q], src[q * k + p]);
-                a.index == b.index && a.negate == b.negate && a.transpose != b.transpose
-            })
-        });
-        if !symmetric || k * k != src.len() {
+        let symmetric = k * k == src.len()
+            && (0..k).all(|p| {
+                (0..k).filter(|&q| q != p).all(|q| {
+                    let (a, b) = (src[p * k + q], src[q * k + p]);
+                    a.index == b.index && a.negate == b.negate && a.transpose != b.transpose
+                })
+            });
+        if !symmetric {
             return None;
         }
         let pat = &self.pattern;
