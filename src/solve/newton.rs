@@ -45,11 +45,12 @@
 //! `eta_k = 0.9 (|F_k| / |F_(k-1)|)^2`, kept above `0.9 eta_(k-1)^2` when that exceeds 0.1,
 //! capped at `eta_max`, and never below `0.5 target / |F_k|`, so the last step is not
 //! solved tighter than the tolerance needs. With the rate test and `eta_max` at most
-//! [`RATE_TEST_LINEAR`] the forcing term stays at `eta_max`: the test stops on the contraction it measures, and a fixed forcing term
-//! still contracts the error by about `eta_max` an iteration (Dembo, Eisenstat and
-//! Steihaug 1982, "Inexact Newton methods"), which a loose step tolerance does not need
-//! sharpened; tightening the second linear solve tenfold or more (choice 2 after a
-//! tenfold fall in |F|) only made the two-iteration steps dearer.
+//! [`RATE_TEST_LINEAR`] the forcing term stays at `eta_max`: the test stops on the
+//! contraction it measures, and a fixed forcing term still contracts the error by about
+//! `eta_max` an iteration (Dembo, Eisenstat and Steihaug 1982, "Inexact Newton
+//! methods"), which a loose step tolerance does not need sharpened; tightening the
+//! second linear solve tenfold or more (choice 2 after a tenfold fall in |F|) only made
+//! the two-iteration steps dearer.
 
 use super::{SolveError, SolveInfo};
 use largestep_kernels::vec as kv;
@@ -92,9 +93,9 @@ pub struct NewtonParams {
     /// with velocity errors up to 3.5e-3. With it: 2.8e-4 at `forcing` 0.5 (2.0 Newton
     /// iterations a step), 2.5e-4 at 0.1 (1.3); the plain test at 0.5: 2.4e-4 (2.1).
     /// With it a `forcing` of at most [`RATE_TEST_LINEAR`] is held at its bound instead
-    /// of following Eisenstat and Walker
-    /// (module docs): on the same beam at 0.1, 4.4 PCG iterations a step instead of 4.8,
-    /// the same 1.3 Newton iterations, worst error 2.6e-4 instead of 2.5e-4.
+    /// of following Eisenstat and Walker (module docs): on the same beam at 0.1, 4.4 PCG
+    /// iterations a step instead of 4.8, the same 1.3 Newton iterations, worst error
+    /// 2.6e-4 instead of 2.5e-4.
     pub rate_test: bool,
 }
 

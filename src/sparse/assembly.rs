@@ -109,6 +109,20 @@ impl LocalLayout {
         }
     }
 
+    /// Whether every block (q, p), q != p, is the transpose of block (p, q) (the same
+    /// unique block, the same sign), as in [`LocalLayout::symmetric`]: then the element
+    /// adds to a matrix slot below the diagonal the transposes of what it adds to the
+    /// slot's mirror, whatever the vertex order.
+    pub fn is_symmetric(&self) -> bool {
+        let (k, src) = (self.k, &self.block_src);
+        (0..k).all(|p| {
+            (0..k).filter(|&q| q != p).all(|q| {
+                let (a, b) = (src[p * k + q], src[q * k + p]);
+                a.index == b.index && a.negate == b.negate && a.transpose != b.transpose
+            })
+        })
+    }
+
     /// Where block (p, q), p <= q, of a [`LocalLayout::symmetric`] element is written
     /// among its unique blocks.
     pub const fn symmetric_index(k: usize, p: usize, q: usize) -> usize {
@@ -157,6 +171,8 @@ pub struct ElementAssembly {
     block_src: Vec<u32>,
     /// The layout's sources of the K x K local blocks (row-major).
     local_src: Vec<Src>,
+    /// Whether the layout is symmetric ([`LocalLayout::is_symmetric`]).
+    symmetric: bool,
     /// The ordered buffer's maps, for the kernels that store in gather order
     /// ([`ElementAssembly::with_ordered`]); none for the others.
     ordered: Option<Ordered>,
@@ -182,11 +198,9 @@ struct Ordered {
     /// (lower, upper): the gather sums the upper slot's runs only and writes the lower
     /// slot as its transpose. Empty otherwise.
     mirror: Vec<(u32, u32)>,
+    /// Whether each slot is the lower one of a pair in `mirror` (empty without them).
+    lower: Vec<bool>,
 }
-
-/// Which slots lie below the diagonal, and each such slot with its mirror above it
-/// (lower, upper), for a symmetric layout ([`ElementAssembly::with_ordered`]).
-type Mirror = (Vec<bool>, Vec<(u32, u32)>);
 
 /// Elements per chunk of [`ElementAssembly::par_write_ordered`], and so per part of its
 /// buffer: a chunk's 1,024 tetrahedra write 590 KB, which one core's L2 holds while the
@@ -291,6 +305,7 @@ impl ElementAssembly {
             elem_slots,
             block_ptr,
             block_src,
+            symmetric: layout.is_symmetric(),
             local_src: layout.block_src,
             ordered: None,
         })
@@ -308,46 +323,35 @@ impl ElementAssembly {
     /// blocks stored and read instead of 16.
     pub fn with_ordered(mut self) -> Self {
         let kk = self.local_src.len();
-        let lower = self.mirror_slots();
+        let mirror = if self.symmetric {
+            self.mirror_pairs()
+        } else {
+            None
+        };
         self.ordered = Some(ordered_runs(
             self.pattern.nnz_blocks(),
             &self.elem_slots,
             kk,
-            lower,
+            mirror.unwrap_or_default(),
         ));
         self
     }
 
-    /// Whether each slot lies below the diagonal, where the layout is symmetric and every
-    /// such slot has a mirror in the pattern; with the pairs (lower, upper).
-    fn mirror_slots(&self) -> Option<Mirror> {
-        let src = &self.local_src;
-        // K x K sources (asserted when built).
-        let k = (src.len() as f64).sqrt().round() as usize;
-        let symmetric = k * k == src.len()
-            && (0..k).all(|p| {
-                (0..k).filter(|&q| q != p).all(|q| {
-                    let (a, b) = (src[p * k + q], src[q * k + p]);
-                    a.index == b.index && a.negate == b.negate && a.transpose != b.transpose
-                })
-            });
-        if !symmetric {
-            return None;
-        }
+    /// Each slot below the diagonal with its mirror above it (lower, upper); none where
+    /// the pattern lacks a mirror.
+    fn mirror_pairs(&self) -> Option<Vec<(u32, u32)>> {
         let pat = &self.pattern;
         let (ptr, col) = (pat.row_ptr(), pat.col());
-        let mut lower = vec![false; pat.nnz_blocks()];
         let mut pairs = Vec::new();
         for i in 0..pat.n() {
-            for s in ptr[i] as usize..ptr[i + 1] as usize {
-                let j = col[s] as usize;
-                if j < i {
-                    lower[s] = true;
-                    pairs.push((s as u32, pat.slot(j, i)? as u32));
+            let row = ptr[i] as usize..ptr[i + 1] as usize;
+            for (s, &j) in row.clone().zip(&col[row]) {
+                if (j as usize) < i {
+                    pairs.push((s as u32, pat.slot(j as usize, i)? as u32));
                 }
             }
         }
-        Some((lower, pairs))
+        Some(pairs)
     }
 
     /// The ordered buffer's maps.
@@ -447,9 +451,14 @@ impl ElementAssembly {
             run_ptr: ptr,
             runs,
             mirror,
+            lower,
             ..
         } = self.ordered();
         for_each_block(out, |s, v| {
+            // A mirrored slot is written by the transposes below.
+            if lower.get(s) == Some(&true) {
+                return;
+            }
             let mut acc = [0.0f64; 9];
             for &(first, len) in &runs[ptr[s] as usize..ptr[s + 1] as usize] {
                 let run = &ordered[9 * first as usize..9 * (first + len) as usize];
@@ -528,12 +537,15 @@ impl ElementAssembly {
 /// The ordered buffer's layout for local blocks with slots `elem_slots` (`kk` per
 /// element): each local block's position (`order`), and each slot's runs (CSR). Within a
 /// chunk of [`ORDERED_CHUNK`] elements the blocks are sorted by slot, stably, so a slot's
-/// runs in chunk order hold its sources in element order, as `block_src` does. With
-/// `mirror` (which slots lie below the diagonal, and the pairs of mirrored slots) the
-/// blocks of lower slots go to their chunk's spare block after its sorted ones.
-fn ordered_runs(slots: usize, elem_slots: &[u32], kk: usize, mirror: Option<Mirror>) -> Ordered {
-    let (lower, mirror) = mirror.unzip();
-    let lower = |s: u32| lower.as_ref().is_some_and(|l| l[s as usize]);
+/// runs in chunk order hold its sources in element order, as `block_src` does. The
+/// blocks of the lower slots of `mirror`'s pairs (lower, upper) go to their chunk's spare
+/// block after its sorted ones.
+fn ordered_runs(slots: usize, elem_slots: &[u32], kk: usize, mirror: Vec<(u32, u32)>) -> Ordered {
+    let mut is_lower = vec![false; if mirror.is_empty() { 0 } else { slots }];
+    for &(l, _) in &mirror {
+        is_lower[l as usize] = true;
+    }
+    let lower = |s: u32| is_lower.get(s as usize) == Some(&true);
     let mut order = vec![0u32; elem_slots.len()];
     let mut run_pairs: Vec<(usize, (u32, u32))> = Vec::new();
     let mut local: Vec<(u32, u32)> = Vec::with_capacity(ORDERED_CHUNK * kk);
@@ -581,7 +593,8 @@ fn ordered_runs(slots: usize, elem_slots: &[u32], kk: usize, mirror: Option<Mirr
         run_ptr,
         runs,
         blocks: base,
-        mirror: mirror.unwrap_or_default(),
+        mirror,
+        lower: is_lower,
     }
 }
 
