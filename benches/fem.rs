@@ -51,7 +51,9 @@
 //!   (as before 2026-12-02); `-rate` has Newton's rate test (`NewtonParams::rate_test`,
 //!   Hairer and Wanner's estimate of the error left), the second-order predictor
 //!   (`MechSettings::second_order_predictor`) and forcing 0.1, `-rate-f32` the same with
-//!   PCG's products in `f32`. The summary gives the
+//!   PCG's products in `f32`; `-skip` adds `NewtonParams::skip_last_residual` (the step
+//!   the rate test accepts is taken without its residual: the same steps to the bit, one
+//!   force evaluation fewer a step). The summary gives the
 //!   Newton iterations and the last linear solve's residual of the timed steps, and the
 //!   worst velocity error of six more steps against the same steps solved to 1e-10,
 //!   `|v - v*| / (1 + |v*|)`, the quantity Newton's tolerance bounds.
@@ -110,6 +112,7 @@ struct Solver {
     predictor: bool,
     rounded: bool,
     rate: bool,
+    skip: bool,
 }
 
 fn solver(
@@ -128,6 +131,7 @@ fn solver(
         predictor: true,
         rounded: false,
         rate: false,
+        skip: false,
     }
 }
 
@@ -141,6 +145,7 @@ fn settings(solver: Solver) -> MechSettings {
         predictor,
         rounded,
         rate,
+        skip,
     } = solver;
     let mut s = MechSettings::new(Method::BackwardEuler);
     s.reuse_jacobian = reuse;
@@ -151,6 +156,7 @@ fn settings(solver: Solver) -> MechSettings {
     s.predictor = predictor;
     s.rounded_products = rounded;
     s.newton.rate_test = rate;
+    s.newton.skip_last_residual = skip;
     s.second_order_predictor = rate;
     s.linear = match pcg {
         None => LinearSolverKind::Cholesky,
@@ -381,6 +387,24 @@ fn main() {
             Solver {
                 rate: true,
                 rounded: true,
+                ..solver(sa, 1, KEEP, Some(0.1), 1e-3)
+            },
+        ),
+        // ... taking the accepted step without evaluating its residual.
+        (
+            "pcg-sa-reuse-forcing-keep-1e-3-rate-skip",
+            Solver {
+                rate: true,
+                skip: true,
+                ..solver(sa, 1, KEEP, Some(0.1), 1e-3)
+            },
+        ),
+        (
+            "pcg-sa-reuse-forcing-keep-1e-3-rate-f32-skip",
+            Solver {
+                rate: true,
+                rounded: true,
+                skip: true,
                 ..solver(sa, 1, KEEP, Some(0.1), 1e-3)
             },
         ),

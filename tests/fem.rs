@@ -2198,15 +2198,18 @@ fn the_predictor_and_rounded_products_converge_to_the_same_steps() {
 /// and forcing 0.1: every backward Euler step of the swinging cantilever lands within
 /// the stated tolerance (1e-3 of 1 + |v|) of the same step solved to 1e-11 with
 /// Cholesky, in fewer Newton iterations than the plain step test takes (forcing 0.5,
-/// first-order guess, the bench's earlier settings).
+/// first-order guess, the bench's earlier settings). Taking the accepted step without
+/// evaluating its residual (`NewtonParams::skip_last_residual`) gives the same steps to
+/// the bit.
 #[test]
 fn the_rate_test_steps_within_the_tolerance_in_fewer_iterations() {
     use largestep::integrate::LinearSolverKind;
     use largestep::solve::{PcgParams, Preconditioner};
     let desc = FemDesc::cantilever([20, 2, 2], [1.0, 0.1, 0.1], corotational_beam(), 9.81);
     let (fem, state) = desc.build().unwrap();
-    let settings = |rate: bool| {
+    let settings = |rate: bool, skip: bool| {
         let mut s = MechSettings::new(Method::BackwardEuler);
+        s.newton.skip_last_residual = skip;
         s.reuse_jacobian = 1;
         s.newton.tolerance = 1e-3;
         s.newton.step_tolerance = 1e-3;
@@ -2227,14 +2230,19 @@ fn the_rate_test_steps_within_the_tolerance_in_fewer_iterations() {
     exact.linear = LinearSolverKind::Cholesky;
     let mut reference = MechSimulation::new(fem.clone(), state.clone(), exact).unwrap();
     reference.set_step_control(None);
-    let mut newton = [0; 2];
+    let mut newton = [0; 3];
     let mut worst: f64 = 0.0;
-    for rate in [false, true] {
-        let mut sim = MechSimulation::new(fem.clone(), state.clone(), settings(rate)).unwrap();
+    let mut ends = Vec::new();
+    for (k, (rate, skip)) in [(false, false), (true, false), (true, true)]
+        .into_iter()
+        .enumerate()
+    {
+        let mut sim =
+            MechSimulation::new(fem.clone(), state.clone(), settings(rate, skip)).unwrap();
         sim.set_step_control(None);
         for _ in 0..40 {
             *reference.state_mut() = sim.state().clone();
-            newton[rate as usize] += sim.step(1.0 / 60.0).unwrap().newton_iterations;
+            newton[k] += sim.step(1.0 / 60.0).unwrap().newton_iterations;
             reference.step(1.0 / 60.0).unwrap();
             if rate {
                 let (v, w) = (sim.state().v.as_slice(), reference.state().v.as_slice());
@@ -2243,6 +2251,7 @@ fn the_rate_test_steps_within_the_tolerance_in_fewer_iterations() {
                 worst = worst.max(err.sqrt() / (1.0 + norm));
             }
         }
+        ends.push(sim.state().clone());
     }
     println!(
         "Newton iterations over 40 steps: {} plain, {} rate test; worst velocity error {worst:.2e}",
@@ -2250,6 +2259,9 @@ fn the_rate_test_steps_within_the_tolerance_in_fewer_iterations() {
     );
     assert!(worst <= 1e-3, "{worst}");
     assert!(newton[1] < newton[0], "{newton:?}");
+    assert_eq!(newton[2], newton[1]);
+    assert_eq!(ends[2].x.as_slice(), ends[1].x.as_slice());
+    assert_eq!(ends[2].v.as_slice(), ends[1].v.as_slice());
 }
 
 /// `[output] frames = "vtk"` writes each frame of an FEM scene as a legacy VTK grid
@@ -2803,6 +2815,10 @@ fn fem_scenes_precondition_pcg_with_smoothed_aggregation_by_default() {
     // Newton's rate test and the second-order predictor from the scene.
     let rate = iterations("forcing = 0.1\nnewton_rate_test = true\nsecond_order_predictor = true");
     assert!(rate > 0.0 && rate < 30.0, "per solve: {rate}");
+    let skip = iterations(
+        "forcing = 0.1\nnewton_rate_test = true\nsecond_order_predictor = true\nnewton_skip_last_residual = true",
+    );
+    assert_eq!(skip, rate, "the same steps");
     let bad = format!("{base}\n[solver]\nnewton_rate_test = 1\n");
     let e = Scene::parse(&bad, "bad.toml").unwrap_err().to_string();
     assert!(e.contains("newton_rate_test"), "{e}");

@@ -669,6 +669,9 @@ fn solver_settings(
     if let Some(r) = t.newton_rate_test {
         settings.newton.rate_test = r;
     }
+    if let Some(r) = t.newton_skip_last_residual {
+        settings.newton.skip_last_residual = r;
+    }
     if let Some(r) = t.rounded_products {
         settings.rounded_products = r;
     }

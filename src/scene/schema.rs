@@ -24,6 +24,7 @@
 //! predictor = true            # Newton starts from the last step's velocity change carried on
 //! second_order_predictor = false  # ... from the last two changes extrapolated linearly
 //! newton_rate_test = false    # Newton stops on the error left, from its contraction rate
+//! newton_skip_last_residual = false  # ... and takes the step it accepts unevaluated
 //! rounded_products = false    # PCG's products with the multigrid's f32 copy (Newton steps)
 //!
 //! [mass_spring.chain]         # one table per system: [mass_spring], [cloth], ...
@@ -98,6 +99,9 @@ pub struct SolverTable {
     /// Newton's step test on the error estimated from the contraction rate (default
     /// false).
     pub newton_rate_test: Option<bool>,
+    /// With the rate test, the step it accepts is taken without evaluating the residual
+    /// at its end (default false).
+    pub newton_skip_last_residual: Option<bool>,
     /// PCG's products through the multigrid's `f32` copy in Newton steps (default false).
     pub rounded_products: Option<bool>,
 }

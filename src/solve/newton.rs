@@ -97,6 +97,14 @@ pub struct NewtonParams {
     /// iterations a step instead of 4.8, the same 1.3 Newton iterations, worst error
     /// 2.6e-4 instead of 2.5e-4.
     pub rate_test: bool,
+    /// With the rate test: a full step that the test accepts from its length and the
+    /// contraction rate alone is taken without evaluating the residual at its end, so
+    /// without a line search on it (RADAU5's simplified Newton does not evaluate F at the
+    /// iterate it accepts either; Hairer and Wanner 1996, section IV.8). A step the test
+    /// does not accept is checked as usual. [`NewtonInfo::residual`] is then the residual
+    /// at the start of that last step. Saves one residual evaluation a solve (one force
+    /// evaluation a time step for the implicit integrators). Off by default.
+    pub skip_last_residual: bool,
 }
 
 impl Default for NewtonParams {
@@ -109,6 +117,7 @@ impl Default for NewtonParams {
             min_step: 1.0 / 1024.0,
             forcing: None,
             rate_test: false,
+            skip_last_residual: false,
         }
     }
 }
@@ -170,6 +179,30 @@ fn forcing_term(eta_max: f64, last: Option<(f64, f64)>, fnorm: f64, target: f64)
         }
     };
     eta.max(0.5 * target / fnorm).min(eta_max)
+}
+
+/// The rate test's error factor for a full step of length `step` after a linear solve
+/// that reached the relative residual `linear` (see [`NewtonParams::rate_test`]), and
+/// the new contraction factor `theta / (1 - theta)` if the step measures one (there was
+/// a full step of length `last_step` before it); `eta` is the factor in hand.
+fn rate_factor(eta: f64, last_step: Option<f64>, step: f64, linear: f64) -> (f64, Option<f64>) {
+    let rate = last_step.filter(|&p| p > 0.0).map(|prev| {
+        let theta = step / prev;
+        if theta < 1.0 {
+            theta / (1.0 - theta)
+        } else {
+            1.0
+        }
+    });
+    // An inexact linear solve leaves about its own relative residual of the step undone,
+    // whatever the rate, and after a loose one the error in y may be many times that (the
+    // residual is measured in F): then the plain test (factor 1).
+    let factor = if linear <= RATE_TEST_LINEAR {
+        rate.unwrap_or(eta).max(linear).min(1.0)
+    } else {
+        1.0
+    };
+    (factor, rate)
 }
 
 /// Newton workspace for systems of a given dimension (allocated once).
@@ -275,6 +308,20 @@ impl Newton {
                     iteration: it,
                 });
             }
+            if params.rate_test && params.skip_last_residual {
+                // The rate test on the full step, before its residual is evaluated.
+                let step = kv::norm2(&self.dy);
+                let (factor, rate) = rate_factor(eta, last_step, step, lin.residual);
+                kv::waxpy(&mut self.yt, y, 1.0, &self.dy);
+                if factor * step <= params.step_tolerance * (1.0 + kv::norm2(&self.yt)) {
+                    if let Some(rate) = rate {
+                        self.eta_old = Some(rate);
+                    }
+                    y.copy_from_slice(&self.yt);
+                    info.iterations = it;
+                    return Ok(info);
+                }
+            }
             let slope = kv::dot(&self.r, &self.dy);
             // The merit at y, computed only if some trial fails the residual test.
             let mut merit0: Option<Option<f64>> = None;
@@ -317,23 +364,13 @@ impl Newton {
             let mut factor = 1.0;
             if params.rate_test {
                 if alpha == 1.0 {
-                    if let Some(prev) = last_step.filter(|&p| p > 0.0) {
-                        let theta = step / prev;
-                        eta = if theta < 1.0 {
-                            theta / (1.0 - theta)
-                        } else {
-                            1.0
-                        };
-                        self.eta_old = Some(eta);
+                    let rate;
+                    (factor, rate) = rate_factor(eta, last_step, step, lin.residual);
+                    if let Some(rate) = rate {
+                        eta = rate;
+                        self.eta_old = Some(rate);
                     }
                     last_step = Some(step);
-                    // An inexact linear solve leaves about its own relative residual of
-                    // the step undone, whatever the rate, and after a loose one the
-                    // error in y may be many times that (the residual is measured in
-                    // F): then the plain test.
-                    if lin.residual <= RATE_TEST_LINEAR {
-                        factor = eta.max(lin.residual).min(1.0);
-                    }
                 } else {
                     // A shortened step says nothing of the rate of full ones.
                     last_step = None;
@@ -367,6 +404,8 @@ mod tests {
         linear: f64,
         /// Each linear tolerance Newton set, in order.
         tolerances: Vec<f64>,
+        /// Residual evaluations.
+        residuals: usize,
     }
 
     impl NewtonProblem for Damped {
@@ -374,6 +413,7 @@ mod tests {
             self.tolerances.push(eta);
         }
         fn residual(&mut self, y: &[f64], r: &mut [f64]) -> Result<(), SolveError> {
+            self.residuals += 1;
             for ((r, y), b) in r.iter_mut().zip(y).zip(&self.b) {
                 *r = y - b;
             }
@@ -429,6 +469,7 @@ mod tests {
             c: 0.95,
             linear: 1e-3,
             tolerances: Vec::new(),
+            residuals: 0,
         };
         let (plain_its, plain_err) = solve(&mut Newton::new(3), &mut p, &y0, false);
         let mut rate = Newton::new(3);
@@ -465,6 +506,51 @@ mod tests {
         assert_eq!(slow_rate, slow_plain);
     }
 
+    /// `skip_last_residual` takes the same steps to the same bits, with one residual
+    /// evaluation fewer a solve: the step the rate test accepts is not evaluated.
+    #[test]
+    fn skipping_the_last_residual_saves_one_evaluation_and_nothing_else() {
+        let run = |skip: bool| {
+            let mut p = Damped {
+                b: vec![3.0, -4.0, 12.0],
+                c: 0.95,
+                linear: 1e-3,
+                tolerances: Vec::new(),
+                residuals: 0,
+            };
+            let params = NewtonParams {
+                tolerance: 1e-30,
+                step_tolerance: 1e-6,
+                rate_test: true,
+                skip_last_residual: skip,
+                ..NewtonParams::default()
+            };
+            let mut newton = Newton::new(3);
+            let mut out = Vec::new();
+            // A solve from afar (the rate measured on the way), then one from nearby
+            // (accepted after one step on the rate carried over).
+            for y0 in [[0.0; 3], [3.0 + 5e-5, -4.0 - 4e-5, 12.0]] {
+                let mut y = y0.to_vec();
+                p.residuals = 0;
+                let info = newton.solve(&mut p, &mut y, &params).unwrap();
+                out.push((info.iterations, y, p.residuals));
+            }
+            out
+        };
+        let (checked, skipped) = (run(false), run(true));
+        for ((its, y, evals), (its_s, y_s, evals_s)) in checked.iter().zip(&skipped) {
+            assert_eq!(its, its_s);
+            assert_eq!(y, y_s, "the same bits");
+            assert_eq!(
+                *evals,
+                its + 1,
+                "checked: one residual a step, plus the first"
+            );
+            assert_eq!(*evals_s, *evals - 1);
+        }
+        assert_eq!(skipped[1].0, 1);
+    }
+
     /// Plain inexact Newton tightens the linear tolerance as |F| falls (Eisenstat and
     /// Walker); with the rate test it stays at eta_max, unless eta_max is looser than
     /// the rate test accepts (then the tightening is what brings the rate test in).
@@ -476,6 +562,7 @@ mod tests {
                 c: 0.9,
                 linear: 0.05,
                 tolerances: Vec::new(),
+                residuals: 0,
             };
             let params = NewtonParams {
                 tolerance: 1e-30,
