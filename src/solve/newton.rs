@@ -588,8 +588,9 @@ mod tests {
     }
 
     /// Plain inexact Newton tightens the linear tolerance as |F| falls (Eisenstat and
-    /// Walker); with the rate test it stays at eta_max, unless eta_max is looser than
-    /// the rate test accepts (then the tightening is what brings the rate test in).
+    /// Walker); with the rate test the first is eta_max and none is tighter, unless
+    /// eta_max is looser than the rate test accepts (then the tightening is what brings
+    /// the rate test in).
     #[test]
     fn the_rate_test_holds_the_forcing_term_at_its_bound() {
         let run = |rate: bool, eta_max: f64| {
