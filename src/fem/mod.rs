@@ -994,6 +994,41 @@ impl Fem {
         });
     }
 
+    /// The forces into `f` and `scale df/dx + diag(d)` into `out` (see
+    /// `ElementAssembly::gather_ordered_affine`): [`MechModel::force_jacobians`] with
+    /// scale 1 and no diagonal, [`MechModel::force_system`] with an implicit step's.
+    #[allow(clippy::too_many_arguments)]
+    fn assemble(
+        &self,
+        work: &mut FemWork,
+        t: f64,
+        x: &[f64],
+        v: &[f64],
+        f: &mut [f64],
+        out: &mut Bsr3,
+        scale: f64,
+        diag: Option<&[f64]>,
+    ) -> Result<(), IntegrateError> {
+        self.prepare_jacobians(work)
+            .map_err(IntegrateError::Sparse)?;
+        self.loads.forces(t, &self.body(), x, v, f);
+        let FemWork { f: ef, blocks, asm } = work;
+        let asm = asm.as_ref().expect("prepared above");
+        match blocks {
+            ElementBlocks::Single(kbuf) => {
+                self.element_jacobians(asm, ef, kbuf, x, v, |k| k as f32);
+                asm.gather_ordered_affine(kbuf, out, scale, diag);
+            }
+            ElementBlocks::Double(kbuf) => {
+                self.element_jacobians(asm, ef, kbuf, x, v, |k| k);
+                asm.gather_ordered_affine(kbuf, out, scale, diag);
+            }
+        }
+        self.gather.gather_vectors_add(ef, f);
+        self.add_mass_damping(v, f);
+        Ok(())
+    }
+
     /// Scratch for evaluations whose stiffness matrix must be exact (modal analysis,
     /// eigenvalue estimates): [`MechModel::work`] with the element blocks kept in `f64`
     /// (see `ElementBlocks` for why stepping rounds them).
@@ -1114,24 +1149,8 @@ impl MechModel for Fem {
         dfdx: &mut Bsr3,
         dfdv: Option<&mut Bsr3>,
     ) -> Result<(), IntegrateError> {
-        self.prepare_jacobians(work)
-            .map_err(IntegrateError::Sparse)?;
-        self.loads.forces(t, &self.body(), x, v, f);
+        self.assemble(work, t, x, v, f, dfdx, 1.0, None)?;
         let beta = self.rayleigh[1];
-        let FemWork { f: ef, blocks, asm } = work;
-        let asm = asm.as_ref().expect("prepared above");
-        match blocks {
-            ElementBlocks::Single(kbuf) => {
-                self.element_jacobians(asm, ef, kbuf, x, v, |k| k as f32);
-                asm.gather_ordered(kbuf, dfdx);
-            }
-            ElementBlocks::Double(kbuf) => {
-                self.element_jacobians(asm, ef, kbuf, x, v, |k| k);
-                asm.gather_ordered(kbuf, dfdx);
-            }
-        }
-        self.gather.gather_vectors_add(ef, f);
-        self.add_mass_damping(v, f);
         // df/dv of the damping force -(alpha M + beta K) v, K = -df_el/dx: beta dfdx -
         // alpha M (its dependence on x through K is left out, as usual for Rayleigh
         // damping).
@@ -1140,6 +1159,24 @@ impl MechModel for Fem {
             d.add_scaled_diagonal(-self.rayleigh[0], &self.mass);
         }
         Ok(())
+    }
+
+    fn force_system(
+        &self,
+        work: &mut FemWork,
+        t: f64,
+        x: &[f64],
+        v: &[f64],
+        f: &mut [f64],
+        a: &mut Bsr3,
+        ck: f64,
+        d: &[f64],
+    ) -> Result<bool, IntegrateError> {
+        if self.has_velocity_jacobian() || self.mass_matrix.is_some() {
+            return Ok(false);
+        }
+        self.assemble(work, t, x, v, f, a, -ck, Some(d))?;
+        Ok(true)
     }
 
     fn has_velocity_jacobian(&self) -> bool {

@@ -111,6 +111,26 @@ pub trait Mechanical {
             reason: "the system provides no Jacobians",
         })
     }
+    /// `f = force` and, in place of `df/dx`, an implicit step's matrix `a = diag(d) - ck
+    /// df/dx` (`d_i I` on each diagonal block) written by the assembly in one pass, bit
+    /// for bit what [`Mechanical::force_jacobians`] and the combination after give, where
+    /// the system can (it has no `df/dv` and no consistent mass matrix). Returns
+    /// `Ok(false)` having done nothing where it cannot (the default): the stepper then
+    /// assembles `df/dx` and combines it.
+    #[allow(clippy::too_many_arguments)]
+    fn force_system(
+        &mut self,
+        t: f64,
+        x: &[f64],
+        v: &[f64],
+        f: &mut [f64],
+        a: &mut Bsr3,
+        ck: f64,
+        d: &[f64],
+    ) -> Result<bool, IntegrateError> {
+        let _ = (t, x, v, f, a, ck, d);
+        Ok(false)
+    }
 }
 
 /// Positions and velocities (m, m/s) of a mechanical system's vertices.
@@ -723,6 +743,7 @@ impl MechStepper {
                         new_preconditioner: false,
                         assemble_first: !lagged && self.last_newton > 0,
                         assembled: false,
+                        system_ready: false,
                     };
                     // An old Jacobian gets a few iterations (as many as a new one usually
                     // needs, plus a margin); then the step starts over with a new one.
@@ -1047,6 +1068,9 @@ struct Residual<'a> {
     /// whether this step built a new one.
     keep_preconditioner: bool,
     new_preconditioner: bool,
+    /// Whether `a` holds the system matrix of the last assembly already (written by
+    /// [`Mechanical::force_system`]), so the Newton step need not combine it.
+    system_ready: bool,
     /// Build the Jacobian with the first residual (`Residual::residual`), as the first
     /// Newton step would at the same point: the forces then come with it, one force
     /// evaluation fewer a step. Whether the Jacobian in `dfdx` is that of the last
@@ -1058,6 +1082,30 @@ struct Residual<'a> {
 impl Residual<'_> {
     /// The forces and their Jacobians at the point `eval_point` set.
     fn assemble(&mut self) -> Result<(), SolveError> {
+        self.system_ready = false;
+        if self.dfdv.is_none() && self.sys.mass_matrix().is_none() {
+            // The system matrix straight from the assembly, where the system can.
+            let (h, c) = (self.h, self.c);
+            match self.sys.force_system(
+                self.t,
+                self.xe,
+                self.ve,
+                self.f,
+                self.a,
+                h * c.w1 * h * c.b,
+                self.mass,
+            ) {
+                Ok(true) => {
+                    self.system_ready = true;
+                    return Ok(());
+                }
+                Ok(false) => {}
+                Err(e) => {
+                    self.err = Some(e);
+                    return Err(SolveError::Factorization("Jacobian assembly failed".into()));
+                }
+            }
+        }
         if let Err(e) = self.sys.force_jacobians(
             self.t,
             self.xe,
@@ -1151,15 +1199,17 @@ impl NewtonProblem for Residual<'_> {
         }
         let (h, c) = (self.h, self.c);
         let (ck, cd) = (h * c.w1 * h * c.b, h * c.w1 * c.d);
-        system_matrix(
-            self.a,
-            self.dfdx,
-            self.dfdv.as_deref(),
-            self.mass,
-            self.sys.mass_matrix(),
-            ck,
-            cd,
-        );
+        if !std::mem::take(&mut self.system_ready) {
+            system_matrix(
+                self.a,
+                self.dfdx,
+                self.dfdv.as_deref(),
+                self.mass,
+                self.sys.mass_matrix(),
+                ck,
+                cd,
+            );
+        }
         kv::scale_copy(self.rhs, -1.0, r);
         dy.fill(0.0);
         self.linear.set_coordinates(self.xe);

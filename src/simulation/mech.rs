@@ -153,6 +153,24 @@ pub trait MechModel: Send + Sync + 'static {
             reason: "the system provides no Jacobians",
         })
     }
+    /// `f` and an implicit step's matrix `a = diag(d) - ck df/dx` in one pass, where the
+    /// model can (see [`Mechanical::force_system`]); `Ok(false)` having done nothing
+    /// where it cannot (the default).
+    #[allow(clippy::too_many_arguments)]
+    fn force_system(
+        &self,
+        work: &mut Self::Work,
+        t: f64,
+        x: &[f64],
+        v: &[f64],
+        f: &mut [f64],
+        a: &mut Bsr3,
+        ck: f64,
+        d: &[f64],
+    ) -> Result<bool, IntegrateError> {
+        let _ = (work, t, x, v, f, a, ck, d);
+        Ok(false)
+    }
 
     /// Every obstacle the model collides with (for penetration reports and scenery).
     fn obstacles(&self) -> &[Obstacle] {
@@ -323,6 +341,26 @@ impl<M: MechModel> Mechanical for Bound<'_, M> {
         }
         self.contacts.record_pull(f);
         Ok(())
+    }
+    fn force_system(
+        &mut self,
+        t: f64,
+        x: &[f64],
+        v: &[f64],
+        f: &mut [f64],
+        a: &mut Bsr3,
+        ck: f64,
+        d: &[f64],
+    ) -> Result<bool, IntegrateError> {
+        // Moving obstacles' penalty Jacobians are added to df/dx on its own.
+        if moving_penalty(self.model, self.moving).is_some() {
+            return Ok(false);
+        }
+        let done = self.model.force_system(self.work, t, x, v, f, a, ck, d)?;
+        if done {
+            self.contacts.record_pull(f);
+        }
+        Ok(done)
     }
 }
 

@@ -445,6 +445,23 @@ impl ElementAssembly {
     /// # Panics
     /// Without [`ElementAssembly::with_ordered`].
     pub fn gather_ordered<T: BlockValue>(&self, ordered: &[T], out: &mut Bsr3) {
+        self.gather_ordered_affine(ordered, out, 1.0, None);
+    }
+
+    /// Like [`ElementAssembly::gather_ordered`], but writes `scale` times the assembled
+    /// matrix plus `diag_i I` on each diagonal block i when `diag` is given: an implicit
+    /// step's `M - h^2 K` in the same pass, bit for bit what scaling the gathered matrix
+    /// and adding the diagonal after would give (one pass over the matrix fewer).
+    ///
+    /// # Panics
+    /// Without [`ElementAssembly::with_ordered`], or with a `diag` not of length n.
+    pub fn gather_ordered_affine<T: BlockValue>(
+        &self,
+        ordered: &[T],
+        out: &mut Bsr3,
+        scale: f64,
+        diag: Option<&[f64]>,
+    ) {
         assert_eq!(ordered.len(), self.ordered_buffer_len());
         assert!(Arc::ptr_eq(out.pattern(), &self.pattern) || **out.pattern() == *self.pattern);
         let Ordered {
@@ -468,26 +485,30 @@ impl ElementAssembly {
                     }
                 }
             }
-            v.copy_from_slice(&acc);
-        });
-        if mirror.is_empty() {
-            return;
-        }
-        let vals = Disjoint::new(out.values_mut());
-        mirror.par_chunks(GATHER_CHUNK).for_each(|pairs| {
-            for &(l, u) in pairs {
-                let (l, u) = (9 * l as usize, 9 * u as usize);
-                // SAFETY: the pairs match each slot below the diagonal with its mirror
-                // above it, so every slot is in one pair at most, once: no two slices
-                // overlap.
-                let (dst, src) = unsafe { (vals.slice(l..l + 9), vals.slice(u..u + 9)) };
-                for r in 0..3 {
-                    for c in 0..3 {
-                        dst[3 * r + c] = src[3 * c + r];
-                    }
-                }
+            for (v, a) in v.iter_mut().zip(acc) {
+                *v = scale * a;
             }
         });
+        if !mirror.is_empty() {
+            let vals = Disjoint::new(out.values_mut());
+            mirror.par_chunks(GATHER_CHUNK).for_each(|pairs| {
+                for &(l, u) in pairs {
+                    let (l, u) = (9 * l as usize, 9 * u as usize);
+                    // SAFETY: the pairs match each slot below the diagonal with its mirror
+                    // above it, so every slot is in one pair at most, once: no two slices
+                    // overlap.
+                    let (dst, src) = unsafe { (vals.slice(l..l + 9), vals.slice(u..u + 9)) };
+                    for r in 0..3 {
+                        for c in 0..3 {
+                            dst[3 * r + c] = src[3 * c + r];
+                        }
+                    }
+                }
+            });
+        }
+        if let Some(d) = diag {
+            out.add_diagonal(d);
+        }
     }
 
     /// Overwrites `out` with the assembled matrix of the element blocks (stored as `f64`,
