@@ -2193,6 +2193,48 @@ fn the_predictor_and_rounded_products_converge_to_the_same_steps() {
     );
 }
 
+/// The fast step settings of the beam's bench rows on a small mesh: backward Euler,
+/// Newton to 1e-3 with inexact PCG solves (smoothed aggregation, at most `forcing`), one
+/// Jacobian a step; with `rate`, Newton's rate test and the second-order first guess;
+/// with `skip`, the step the rate test accepts taken unevaluated.
+fn fast_step_settings(rate: bool, skip: bool, forcing: f64) -> MechSettings {
+    use largestep::integrate::LinearSolverKind;
+    use largestep::solve::{PcgParams, Preconditioner};
+    let mut s = MechSettings::new(Method::BackwardEuler);
+    s.reuse_jacobian = 1;
+    s.newton.tolerance = 1e-3;
+    s.newton.step_tolerance = 1e-3;
+    s.newton.forcing = Some(forcing);
+    s.newton.rate_test = rate;
+    s.newton.skip_last_residual = skip;
+    s.second_order_predictor = rate;
+    s.linear = LinearSolverKind::Pcg(PcgParams {
+        tolerance: 1e-6,
+        max_iterations: 2000,
+        preconditioner: Preconditioner::SmoothedAggregation,
+    });
+    s
+}
+
+/// Reference steps: backward Euler, full Newton to `tolerance` (up to 200 iterations)
+/// with sparse Cholesky, no first guess.
+fn cholesky_reference(tolerance: f64) -> MechSettings {
+    let mut s = MechSettings::new(Method::BackwardEuler);
+    s.newton.tolerance = tolerance;
+    s.newton.step_tolerance = tolerance;
+    s.newton.max_iterations = 200;
+    s.predictor = false;
+    s.linear = largestep::integrate::LinearSolverKind::Cholesky;
+    s
+}
+
+/// The velocity error Newton's step tolerance bounds: `|v - w| / (1 + |w|)`.
+fn velocity_error(v: &[f64], w: &[f64]) -> f64 {
+    let norm = w.iter().map(|w| w * w).sum::<f64>().sqrt();
+    let err = v.iter().zip(w).map(|(v, w)| (v - w).powi(2)).sum::<f64>();
+    err.sqrt() / (1.0 + norm)
+}
+
 /// Newton's rate test (`NewtonParams::rate_test`, Hairer and Wanner's estimate of the
 /// error left) with the second-order predictor (`MechSettings::second_order_predictor`)
 /// and forcing 0.1: every backward Euler step of the swinging cantilever lands within
@@ -2203,31 +2245,11 @@ fn the_predictor_and_rounded_products_converge_to_the_same_steps() {
 /// the bit.
 #[test]
 fn the_rate_test_steps_within_the_tolerance_in_fewer_iterations() {
-    use largestep::integrate::LinearSolverKind;
-    use largestep::solve::{PcgParams, Preconditioner};
     let desc = FemDesc::cantilever([20, 2, 2], [1.0, 0.1, 0.1], corotational_beam(), 9.81);
     let (fem, state) = desc.build().unwrap();
-    let settings = |rate: bool, skip: bool| {
-        let mut s = MechSettings::new(Method::BackwardEuler);
-        s.newton.skip_last_residual = skip;
-        s.reuse_jacobian = 1;
-        s.newton.tolerance = 1e-3;
-        s.newton.step_tolerance = 1e-3;
-        s.newton.forcing = Some(if rate { 0.1 } else { 0.5 });
-        s.newton.rate_test = rate;
-        s.second_order_predictor = rate;
-        s.linear = LinearSolverKind::Pcg(PcgParams {
-            tolerance: 1e-6,
-            max_iterations: 2000,
-            preconditioner: Preconditioner::SmoothedAggregation,
-        });
-        s
-    };
-    let mut exact = MechSettings::new(Method::BackwardEuler);
-    exact.newton.tolerance = 1e-11;
-    exact.newton.step_tolerance = 1e-11;
-    exact.predictor = false;
-    exact.linear = LinearSolverKind::Cholesky;
+    let settings =
+        |rate: bool, skip: bool| fast_step_settings(rate, skip, if rate { 0.1 } else { 0.5 });
+    let exact = cholesky_reference(1e-11);
     let mut reference = MechSimulation::new(fem.clone(), state.clone(), exact).unwrap();
     reference.set_step_control(None);
     let mut newton = [0; 3];
@@ -2246,9 +2268,7 @@ fn the_rate_test_steps_within_the_tolerance_in_fewer_iterations() {
             reference.step(1.0 / 60.0).unwrap();
             if rate {
                 let (v, w) = (sim.state().v.as_slice(), reference.state().v.as_slice());
-                let norm = w.iter().map(|w| w * w).sum::<f64>().sqrt();
-                let err = v.iter().zip(w).map(|(v, w)| (v - w).powi(2)).sum::<f64>();
-                worst = worst.max(err.sqrt() / (1.0 + norm));
+                worst = worst.max(velocity_error(v, w));
             }
         }
         ends.push(sim.state().clone());
@@ -2277,30 +2297,8 @@ fn the_rate_test_steps_within_the_tolerance_in_fewer_iterations() {
 ///   printed); rubber at dt = 1/10 stops every variant with an error naming the step.
 #[test]
 fn the_fast_step_settings_from_tissue_to_steel() {
-    use largestep::integrate::LinearSolverKind;
-    use largestep::solve::{PcgParams, Preconditioner};
-    let settings = |rate: bool, skip: bool| {
-        let mut s = MechSettings::new(Method::BackwardEuler);
-        s.reuse_jacobian = 1;
-        s.newton.tolerance = 1e-3;
-        s.newton.step_tolerance = 1e-3;
-        s.newton.forcing = Some(0.1);
-        s.newton.rate_test = rate;
-        s.newton.skip_last_residual = skip;
-        s.second_order_predictor = rate;
-        s.linear = LinearSolverKind::Pcg(PcgParams {
-            tolerance: 1e-6,
-            max_iterations: 2000,
-            preconditioner: Preconditioner::SmoothedAggregation,
-        });
-        s
-    };
-    let mut exact = MechSettings::new(Method::BackwardEuler);
-    exact.newton.tolerance = 1e-9;
-    exact.newton.step_tolerance = 1e-9;
-    exact.newton.max_iterations = 200;
-    exact.predictor = false;
-    exact.linear = LinearSolverKind::Cholesky;
+    let settings = |rate: bool, skip: bool| fast_step_settings(rate, skip, 0.1);
+    let exact = cholesky_reference(1e-9);
     for material in [
         FemMaterial::soft_tissue(Material::Corotational),
         FemMaterial::rubber(Material::Corotational),
@@ -2322,9 +2320,7 @@ fn the_fast_step_settings_from_tissue_to_steel() {
                     sim.step(dt).map_err(|e| e.to_string())?;
                     reference.step(dt).unwrap();
                     let (v, w) = (sim.state().v.as_slice(), reference.state().v.as_slice());
-                    let norm = w.iter().map(|w| w * w).sum::<f64>().sqrt();
-                    let err = v.iter().zip(w).map(|(v, w)| (v - w).powi(2)).sum::<f64>();
-                    worst = worst.max(err.sqrt() / (1.0 + norm));
+                    worst = worst.max(velocity_error(v, w));
                 }
                 Ok((worst, sim.state().v.as_slice().to_vec()))
             };

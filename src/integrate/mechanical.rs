@@ -114,9 +114,9 @@ pub trait Mechanical {
     /// `f = force` and, in place of `df/dx`, an implicit step's matrix `a = diag(d) - ck
     /// df/dx` (`d_i I` on each diagonal block) written by the assembly in one pass, bit
     /// for bit what [`Mechanical::force_jacobians`] and the combination after give, where
-    /// the system can (it has no `df/dv` and no consistent mass matrix). Returns
-    /// `Ok(false)` having done nothing where it cannot (the default): the stepper then
-    /// assembles `df/dx` and combines it.
+    /// the system can. A system with a `df/dv` or a consistent mass matrix must decline,
+    /// as must one that cannot (the default): `Ok(false)`, having done nothing, and the
+    /// stepper then assembles `df/dx` and combines it.
     #[allow(clippy::too_many_arguments)]
     fn force_system(
         &mut self,
@@ -1073,8 +1073,8 @@ struct Residual<'a> {
     system_ready: bool,
     /// Build the Jacobian with the first residual (`Residual::residual`), as the first
     /// Newton step would at the same point: the forces then come with it, one force
-    /// evaluation fewer a step. Whether the Jacobian in `dfdx` is that of the last
-    /// residual's point.
+    /// evaluation fewer a step. Whether the last assembly (`dfdx`, or `a` when
+    /// `system_ready`) is that of the last residual's point.
     assemble_first: bool,
     assembled: bool,
 }
@@ -1082,42 +1082,36 @@ struct Residual<'a> {
 impl Residual<'_> {
     /// The forces and their Jacobians at the point `eval_point` set.
     fn assemble(&mut self) -> Result<(), SolveError> {
-        self.system_ready = false;
-        if self.dfdv.is_none() && self.sys.mass_matrix().is_none() {
-            // The system matrix straight from the assembly, where the system can.
-            let (h, c) = (self.h, self.c);
-            match self.sys.force_system(
+        // The system matrix straight from the assembly, where the system can (it
+        // declines with a damping Jacobian or a consistent mass matrix).
+        let (ck, _) = self.coefficients();
+        let fused = self
+            .sys
+            .force_system(self.t, self.xe, self.ve, self.f, self.a, ck, self.mass);
+        let done = fused.and_then(|fused| {
+            self.system_ready = fused;
+            if fused {
+                return Ok(());
+            }
+            self.sys.force_jacobians(
                 self.t,
                 self.xe,
                 self.ve,
                 self.f,
-                self.a,
-                h * c.w1 * h * c.b,
-                self.mass,
-            ) {
-                Ok(true) => {
-                    self.system_ready = true;
-                    return Ok(());
-                }
-                Ok(false) => {}
-                Err(e) => {
-                    self.err = Some(e);
-                    return Err(SolveError::Factorization("Jacobian assembly failed".into()));
-                }
-            }
-        }
-        if let Err(e) = self.sys.force_jacobians(
-            self.t,
-            self.xe,
-            self.ve,
-            self.f,
-            self.dfdx,
-            self.dfdv.as_deref_mut(),
-        ) {
+                self.dfdx,
+                self.dfdv.as_deref_mut(),
+            )
+        });
+        done.map_err(|e| {
             self.err = Some(e);
-            return Err(SolveError::Factorization("Jacobian assembly failed".into()));
-        }
-        Ok(())
+            SolveError::Factorization("Jacobian assembly failed".into())
+        })
+    }
+
+    /// The coefficients `(ck, cd)` of the step's matrix `M - ck df/dx - cd df/dv`.
+    fn coefficients(&self) -> (f64, f64) {
+        let (h, c) = (self.h, self.c);
+        (h * c.w1 * h * c.b, h * c.w1 * c.d)
     }
 
     fn eval_point(&mut self, v1: &[f64]) {
@@ -1197,8 +1191,7 @@ impl NewtonProblem for Residual<'_> {
         if !std::mem::take(&mut self.assembled) {
             self.assemble()?;
         }
-        let (h, c) = (self.h, self.c);
-        let (ck, cd) = (h * c.w1 * h * c.b, h * c.w1 * c.d);
+        let (ck, cd) = self.coefficients();
         if !std::mem::take(&mut self.system_ready) {
             system_matrix(
                 self.a,

@@ -207,11 +207,12 @@ fn later_forcing(eta_max: f64, eta: f64, last_step: Option<f64>, tol: f64) -> f6
     let Some(prev) = last_step else {
         return eta_max;
     };
+    let loosest = RATE_TEST_LATER_FORCING.max(eta_max);
     let expected = eta / (1.0 + eta) * prev;
     if expected > 0.0 {
-        (0.5 * tol / expected).clamp(eta_max, RATE_TEST_LATER_FORCING.max(eta_max))
+        (0.5 * tol / expected).clamp(eta_max, loosest)
     } else {
-        RATE_TEST_LATER_FORCING.max(eta_max)
+        loosest
     }
 }
 
@@ -345,16 +346,24 @@ impl Newton {
                     iteration: it,
                 });
             }
-            if params.rate_test && params.skip_last_residual {
-                // The rate test on the full step, before its residual is evaluated.
-                let step = kv::norm2(&self.dy);
-                let (factor, rate) = rate_factor(eta, last_step, step, lin.residual);
+            // The full step's length and, under the rate test, its error factor and the
+            // rate it measures: the same whether the step is judged before its residual
+            // is evaluated (skip_last_residual) or after the line search takes it whole.
+            let full = kv::norm2(&self.dy);
+            let (full_factor, full_rate) = if params.rate_test {
+                rate_factor(eta, last_step, full, lin.residual)
+            } else {
+                (1.0, None)
+            };
+            let within = |factor: f64, step: f64, y: &[f64]| {
+                factor * step <= params.step_tolerance * (1.0 + kv::norm2(y))
+            };
+            // Only where Newton contracts fast (theta below 1/2, measured in this solve or
+            // carried): where it does not, the line search's check stays.
+            if params.rate_test && params.skip_last_residual && full_rate.unwrap_or(eta) < 1.0 {
                 kv::waxpy(&mut self.yt, y, 1.0, &self.dy);
-                // Only where Newton contracts fast (theta below 1/2, measured in this
-                // solve or carried): where it does not, the line search's check stays.
-                let tol = params.step_tolerance * (1.0 + kv::norm2(&self.yt));
-                if rate.unwrap_or(eta) < 1.0 && factor * step <= tol {
-                    if let Some(rate) = rate {
+                if within(full_factor, full, &self.yt) {
+                    if let Some(rate) = full_rate {
                         self.eta_old = Some(rate);
                     }
                     y.copy_from_slice(&self.yt);
@@ -399,14 +408,10 @@ impl Newton {
             std::mem::swap(&mut self.r, &mut self.rt);
             info.iterations = it;
             info.residual = fnorm;
-            let step = alpha * kv::norm2(&self.dy);
-            // The error the step test judges, as a multiple of the step (rate test).
-            let mut factor = 1.0;
+            let step = alpha * full;
             if params.rate_test {
                 if alpha == 1.0 {
-                    let rate;
-                    (factor, rate) = rate_factor(eta, last_step, step, lin.residual);
-                    if let Some(rate) = rate {
+                    if let Some(rate) = full_rate {
                         eta = rate;
                         self.eta_old = Some(rate);
                     }
@@ -416,9 +421,9 @@ impl Newton {
                     last_step = None;
                 }
             }
-            if fnorm <= target(problem)
-                || (alpha == 1.0 && factor * step <= params.step_tolerance * (1.0 + kv::norm2(y)))
-            {
+            // The error the step test judges is `full_factor` times the step (1 without
+            // the rate test).
+            if fnorm <= target(problem) || (alpha == 1.0 && within(full_factor, step, y)) {
                 return Ok(info);
             }
         }
