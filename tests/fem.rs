@@ -1451,6 +1451,54 @@ fn the_quick_fem_accuracy_study_reports_convergence() {
     let _ = std::fs::remove_dir_all(&out);
 }
 
+/// The quick `fem-steps` study writes its report, says it was quick, and every way of
+/// solving the steps gets closer to the reference as Newton's tolerance tightens (to
+/// within 1e-5 of `1 + |v|` at 1e-6); PCG solving each Newton step to 1e-6 gives the
+/// Cholesky way's errors (the same Newton iterates, to the solves' accuracy).
+#[cfg(feature = "cli")]
+#[test]
+fn the_quick_fem_steps_study_reports_each_way_converging() {
+    let out = std::env::temp_dir().join(format!("largestep-fem-steps-{}", std::process::id()));
+    let summary = largestep::study::run(
+        "fem-steps",
+        &out,
+        true,
+        &largestep::study::Progress::silent(),
+    )
+    .unwrap();
+    assert!(summary.contains("fem-steps"), "{summary}");
+    let md = std::fs::read_to_string(out.join("fem-steps.md")).unwrap();
+    assert!(
+        md.contains("fem-steps --quick") && md.contains("20 x 2 x 2 cubes"),
+        "{md}"
+    );
+    let json: Vec<serde_json::Value> =
+        serde_json::from_str(&std::fs::read_to_string(out.join("fem-steps.json")).unwrap())
+            .unwrap();
+    assert_eq!(json.len(), 5);
+    let errors = |way: usize| -> Vec<f64> {
+        json[way]["points"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|p| p["velocity_error"].as_f64().unwrap())
+            .collect()
+    };
+    for (way, sweep) in json.iter().enumerate() {
+        let e = errors(way);
+        assert!(
+            e[e.len() - 1] < 1e-5 && e[e.len() - 1] < e[0] / 100.0,
+            "{}: {e:?}",
+            sweep["name"]
+        );
+    }
+    for (c, p) in errors(0).iter().zip(errors(1)) {
+        assert!((c - p).abs() <= 0.2 * c, "{:?} {:?}", errors(0), errors(1));
+    }
+    assert!(out.join("fem-steps.png").is_file());
+    let _ = std::fs::remove_dir_all(&out);
+}
+
 /// The quick `fem-stability` study finds symplectic Euler's largest stable step within 2%
 /// of `2 / omega_max` for every material constant, and a smaller one from an inverted
 /// start.

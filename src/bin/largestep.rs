@@ -152,7 +152,7 @@ enum Command {
     /// Run a study: error against run time, orders, stability.
     Study {
         /// Which study (integrators, jello-stability, jello-accuracy, cloth-accuracy, cloth-stability,
-        /// fem-accuracy, fem-stability, modes, fluids, poisson, cavity, distance-fields,
+        /// fem-accuracy, fem-stability, fem-steps, modes, fluids, poisson, cavity, distance-fields,
         /// rigid-integrators, rigid-contacts, anim-ik, anim-sampling).
         name: String,
         /// Output folder for the report (default: out/studies; `--out docs/studies`

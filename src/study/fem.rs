@@ -11,6 +11,17 @@
 //! material on the 40 x 4 x 4 mesh. Run time: build and solve, wall clock. The tip sags by
 //! 15% of the length, so the nonlinear materials also see the geometric stiffening that
 //! small-deflection beam theory leaves out (about 1% here).
+//!
+//! **Step settings** (`fem-steps`). Backward Euler on the same cantilever (corotational),
+//! released from rest at its undeformed shape and swinging under its weight: 30 steps of
+//! 1/60 s on the 100 x 10 x 10 beam of issue 15's bench (20 x 2 x 2 quick). Each way of
+//! solving a step (the linear solver, how long the multigrid hierarchy is kept, inexact
+//! Newton, Newton's stopping test, `f32` products; cumulative, as the bench's rows) runs
+//! at Newton tolerances from 1e-2 to 1e-6, and its trajectory is compared with the same
+//! steps solved by full Newton to 1e-10 with sparse Cholesky. Error: the largest over the
+//! steps of `|v - v*| / (1 + |v*|)` (what Newton's step tolerance bounds within one step;
+//! here accumulated over the run) and the largest difference of the tip's height (m).
+//! Run time: the mean wall time of a step, the solvers' setup in the first steps included.
 
 use super::{write_file, write_plot_and_numbers, Progress, StudyError};
 use crate::fem::mesh::box_mesh;
@@ -478,5 +489,322 @@ pub(super) fn stability(
         "fem-stability: measured / predicted {}; report: {}",
         ratios.join(", "),
         out.join("fem-stability.md").display()
+    ))
+}
+
+/// Backward Euler steps of 1/60 s a `fem-steps` run takes (half a second of the swing).
+const STEPS: usize = 30;
+
+/// One way of solving the steps, at one Newton tolerance.
+#[derive(Serialize, Clone)]
+struct StepPoint {
+    tolerance: f64,
+    newton_per_step: f64,
+    pcg_per_step: f64,
+    seconds_per_step: f64,
+    velocity_error: Option<f64>,
+    tip_error: Option<f64>,
+    /// Why the run stopped early (a step that failed), if it did.
+    failure: Option<String>,
+}
+
+#[derive(Serialize)]
+struct StepSweep {
+    name: String,
+    points: Vec<StepPoint>,
+}
+
+/// The ways of solving a step the study compares, cumulative from the second: each adds
+/// to the one before, as the bench's rows `fem/step/...` do (`benches/fem.rs`).
+const STEP_WAYS: [&str; 5] = [
+    "Cholesky, a Jacobian per step",
+    "PCG + smoothed aggregation, solves to 1e-6",
+    "+ inexact Newton (forcing 0.5), hierarchy kept up to 30 steps",
+    "+ rate test, second-order guess, forcing 0.1",
+    "+ f32 products, accepted step without its residual",
+];
+
+/// The settings of way `way` (an index into [`STEP_WAYS`]) with Newton to `tolerance`.
+fn step_settings(way: usize, tolerance: f64) -> crate::integrate::MechSettings {
+    use crate::integrate::{LinearSolverKind, MechSettings, Method};
+    use crate::solve::{PcgParams, Preconditioner};
+    let mut s = MechSettings::new(Method::BackwardEuler);
+    s.newton.tolerance = tolerance;
+    s.newton.step_tolerance = tolerance;
+    s.reuse_jacobian = 1;
+    s.linear = if way == 0 {
+        LinearSolverKind::Cholesky
+    } else {
+        LinearSolverKind::Pcg(PcgParams {
+            tolerance: 1e-6,
+            max_iterations: 2000,
+            preconditioner: Preconditioner::SmoothedAggregation,
+        })
+    };
+    if way >= 2 {
+        s.newton.forcing = Some(0.5);
+        s.reuse_preconditioner = 30;
+    }
+    if way >= 3 {
+        s.newton.forcing = Some(0.1);
+        s.newton.rate_test = true;
+        s.second_order_predictor = true;
+    }
+    if way >= 4 {
+        s.rounded_products = true;
+        s.newton.skip_last_residual = true;
+    }
+    s
+}
+
+/// The reference: full Newton to 1e-10 with sparse Cholesky, no first guess.
+fn step_reference() -> crate::integrate::MechSettings {
+    use crate::integrate::{LinearSolverKind, MechSettings, Method};
+    let mut s = MechSettings::new(Method::BackwardEuler);
+    s.newton.tolerance = 1e-10;
+    s.newton.step_tolerance = 1e-10;
+    s.newton.max_iterations = 200;
+    s.predictor = false;
+    s.linear = LinearSolverKind::Cholesky;
+    s
+}
+
+/// `STEPS` steps of `settings` from the cantilever's rest state: per step, the velocities
+/// and the tip's mean vertical position, and the counts and mean step time; or the
+/// failure of a step (the states before it kept).
+struct StepRun {
+    velocities: Vec<Vec<f64>>,
+    tips: Vec<f64>,
+    newton: usize,
+    pcg: usize,
+    seconds: f64,
+    failure: Option<String>,
+}
+
+fn step_run(
+    fem: &crate::fem::Fem,
+    state: &crate::integrate::MechState,
+    tip: &[usize],
+    settings: crate::integrate::MechSettings,
+) -> StepRun {
+    use crate::simulation::{MechModel, MechSimulation};
+    let mut run = StepRun {
+        velocities: Vec::with_capacity(STEPS),
+        tips: Vec::with_capacity(STEPS),
+        newton: 0,
+        pcg: 0,
+        seconds: 0.0,
+        failure: None,
+    };
+    let mut sim = match MechSimulation::new(fem.clone(), state.clone(), settings) {
+        Ok(sim) => sim,
+        Err(e) => {
+            run.failure = Some(e.to_string());
+            return run;
+        }
+    };
+    sim.set_step_control(None);
+    let n = fem.vertex_count();
+    for _ in 0..STEPS {
+        let t0 = Instant::now();
+        let step = sim.step(1.0 / 60.0);
+        run.seconds += t0.elapsed().as_secs_f64();
+        match step {
+            Ok(info) => {
+                run.newton += info.newton_iterations;
+                run.pcg += info.linear_iterations;
+            }
+            Err(e) => {
+                run.failure = Some(e.to_string());
+                break;
+            }
+        }
+        let s = sim.state();
+        run.velocities.push(s.v.as_slice().to_vec());
+        let y = &s.x.as_slice()[n..2 * n];
+        run.tips
+            .push(tip.iter().map(|&i| y[i]).sum::<f64>() / tip.len() as f64);
+    }
+    run
+}
+
+pub(super) fn steps(
+    out: &Path,
+    quick: bool,
+    progress: &Progress<'_>,
+) -> Result<String, StudyError> {
+    let cubes = if quick { [20, 2, 2] } else { [100, 10, 10] };
+    let tols: Vec<f64> = if quick {
+        vec![1e-2, 1e-3, 1e-6]
+    } else {
+        vec![1e-2, 1e-3, 1e-4, 1e-6]
+    };
+    progress.expect(1 + STEP_WAYS.len() * tols.len());
+    let d = FemDesc::cantilever(
+        cubes,
+        [L, H, H],
+        FemMaterial {
+            model: Material::Corotational,
+            young: E,
+            poisson: NU,
+            density: RHO,
+        },
+        G,
+    );
+    let tip: Vec<usize> = (0..d.positions.len())
+        .filter(|&i| d.positions[i][0] == L)
+        .collect();
+    let tetrahedra = d.tets.len();
+    let vertices = d.positions.len();
+    let (fem, state) = d.build().expect("the study's cantilever is valid");
+    let reference = step_run(&fem, &state, &tip, step_reference());
+    progress.tick("reference (Cholesky, Newton to 1e-10)");
+    if let Some(why) = &reference.failure {
+        return Err(StudyError::Write {
+            path: out.join("fem-steps.md").display().to_string(),
+            message: format!("the reference run failed: {why}"),
+        });
+    }
+    let swing = reference
+        .tips
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &t| {
+            (lo.min(t), hi.max(t))
+        });
+    let sweeps: Vec<StepSweep> = STEP_WAYS
+        .iter()
+        .enumerate()
+        .map(|(way, name)| StepSweep {
+            name: name.to_string(),
+            points: tols
+                .iter()
+                .map(|&tol| {
+                    let run = step_run(&fem, &state, &tip, step_settings(way, tol));
+                    progress.tick(&format!("{name}, Newton to {tol:.0e}"));
+                    let done = run.velocities.len().max(1) as f64;
+                    let complete = run.failure.is_none();
+                    let velocity_error = complete.then(|| {
+                        run.velocities
+                            .iter()
+                            .zip(&reference.velocities)
+                            .map(|(v, w)| {
+                                let norm = w.iter().map(|w| w * w).sum::<f64>().sqrt();
+                                let diff = v.iter().zip(w).map(|(v, w)| (v - w).powi(2));
+                                diff.sum::<f64>().sqrt() / (1.0 + norm)
+                            })
+                            .fold(0.0, f64::max)
+                    });
+                    let tip_error = complete.then(|| {
+                        run.tips
+                            .iter()
+                            .zip(&reference.tips)
+                            .map(|(a, b)| (a - b).abs())
+                            .fold(0.0, f64::max)
+                    });
+                    StepPoint {
+                        tolerance: tol,
+                        newton_per_step: run.newton as f64 / done,
+                        pcg_per_step: run.pcg as f64 / done,
+                        seconds_per_step: run.seconds / done,
+                        velocity_error,
+                        tip_error,
+                        failure: run.failure,
+                    }
+                })
+                .collect(),
+        })
+        .collect();
+    let curves = |y: &dyn Fn(&StepPoint) -> Option<f64>| {
+        sweeps
+            .iter()
+            .enumerate()
+            .map(|(i, s)| {
+                (
+                    i,
+                    Curve {
+                        label: s.name.clone(),
+                        points: s
+                            .points
+                            .iter()
+                            .filter_map(|p| y(p).map(|e| (p.seconds_per_step, e.max(1e-14))))
+                            .collect(),
+                        dashed: false,
+                    },
+                )
+            })
+            .collect()
+    };
+    let title = format!(
+        "backward Euler, {} x {} x {} cubes: error against time a step",
+        cubes[0], cubes[1], cubes[2]
+    );
+    let panels = vec![
+        Panel {
+            title: title.clone(),
+            x_label: "time a step (s)".into(),
+            y_label: "max |v - v*| / (1 + |v*|)".into(),
+            scale: Scale::LogLog,
+            curves: curves(&|p| p.velocity_error),
+        },
+        Panel {
+            title: "the same runs: the tip's position".into(),
+            x_label: "time a step (s)".into(),
+            y_label: "max |tip - tip*| (m)".into(),
+            scale: Scale::LogLog,
+            curves: curves(&|p| p.tip_error),
+        },
+    ];
+    write_plot_and_numbers(out, "fem-steps", &panels, 1, (820, 440), &sweeps)?;
+    let mut md = String::new();
+    let _ = writeln!(
+        md,
+        "# FEM: how a backward Euler step is solved, error against run time\n\nGenerated by `largestep study fem-steps{}` ({} threads). Plot: [fem-steps.svg](fem-steps.svg) ([PNG](fem-steps.png)); numbers: [fem-steps.json](fem-steps.json).\n\nThe cantilever of `fem-accuracy` (L = {L} m, section {H} m, E = {E:e} Pa, nu = {NU}, {RHO} kg/m^3, corotational), {} x {} x {} cubes ({vertices} vertices, {tetrahedra} tetrahedra), clamped at x = 0 and released from rest at its undeformed shape: {STEPS} backward Euler steps of 1/60 s under its weight (the tip swings through {:.4} m). Each way of solving the steps runs at Newton tolerances from {:.0e} to {:.0e} (relative residual and velocity change), and its trajectory is compared with the same steps solved by full Newton to 1e-10 with sparse Cholesky (taking {:.3} s a step). Error: the largest over the steps of `|v - v*| / (1 + |v*|)` (Newton's step tolerance bounds it within one step; here it is accumulated over the run), and the largest difference of the tip's mean height. Run time: the mean wall time of a step, the solvers' setup in the first steps included. The ways are cumulative, each adding to the one before (the rows of `cargo bench --bench fem -- fem/step`): the Jacobian made once a step and reused by its later Newton iterations in all; smoothed aggregation multigrid with rigid-body modes as PCG's preconditioner; the hierarchy kept up to 30 steps; Newton's rate test (Hairer and Wanner's estimate of the error left) with the second-order first guess; the multigrid's `f32` copy of the matrix in PCG's products, and a step the rate test accepts taken without evaluating its residual.\n\nWhat the error measures: each step's own error (the step solved from the same state to 1e-10) stays within the tolerance in every way (`tests/fem.rs`); over a run those errors add up. A stopping test that accepts a step as soon as its estimated error is inside the tolerance (the rate test, one Newton iteration on most steps) leaves errors of about the same size and sign step after step, while the plain test stops only after an iteration whose change is small, which Newton's fast convergence usually takes well past the tolerance; so at the same tolerance the rate test's runs drift further from the reference, and it takes a tighter tolerance to match the plain test's error. Compare the ways at equal error, not at equal tolerance.\n",
+        if quick { " --quick" } else { "" },
+        rayon::current_num_threads(),
+        cubes[0],
+        cubes[1],
+        cubes[2],
+        swing.1 - swing.0,
+        tols[0],
+        tols[tols.len() - 1],
+        reference.seconds / STEPS as f64,
+    );
+    for s in &sweeps {
+        let _ = writeln!(
+            md,
+            "## {}\n\n| Newton tolerance | Newton iterations a step | PCG iterations a step | time a step (ms) | velocity error | tip error (m) |\n|---|---|---|---|---|---|",
+            s.name
+        );
+        for p in &s.points {
+            let e = |v: Option<f64>| v.map_or("-".into(), |v| format!("{v:.2e}"));
+            let _ = writeln!(
+                md,
+                "| {:.0e} | {:.2} | {:.2} | {:.2} | {} | {} |",
+                p.tolerance,
+                p.newton_per_step,
+                p.pcg_per_step,
+                1e3 * p.seconds_per_step,
+                e(p.velocity_error),
+                e(p.tip_error),
+            );
+            if let Some(why) = &p.failure {
+                let _ = writeln!(md, "\n(stopped: {why})\n");
+            }
+        }
+        md.push('\n');
+    }
+    write_file(&out.join("fem-steps.md"), &md)?;
+    // The bench's fastest row: the last way at Newton 1e-3 (in both sweeps).
+    let fastest = sweeps
+        .last()
+        .and_then(|s| s.points.iter().find(|p| p.tolerance == 1e-3));
+    Ok(format!(
+        "fem-steps: the last way at Newton 1e-3 {}; report: {}",
+        fastest.map_or("-".into(), |p| format!(
+            "{:.2} ms a step, velocity error {}",
+            1e3 * p.seconds_per_step,
+            p.velocity_error.map_or("-".into(), |e| format!("{e:.2e}"))
+        )),
+        out.join("fem-steps.md").display()
     ))
 }

@@ -100,6 +100,8 @@ const STUDIES: &[Study] = &[
     ("fem-accuracy", fem::accuracy),
     #[cfg(feature = "fem")]
     ("fem-stability", fem::stability),
+    #[cfg(feature = "fem")]
+    ("fem-steps", fem::steps),
     #[cfg(feature = "modal")]
     ("modes", modal::modes),
     #[cfg(feature = "fluid")]
