@@ -177,6 +177,25 @@ pub struct Iso {
     pub clamp: Option<f64>,
     /// Project the tangent onto the semi-definite cone (the definiteness fix).
     pub project: bool,
+    /// The corotational material's tangent without the rotation's derivative: Müller and
+    /// Gross's stiffness warping (2004, "Interactive virtual materials"), `K = R K0 R^T`
+    /// per element, in the singular-value frame the pair blocks with `q+ = 0` (see
+    /// [`corotational_warped`]). Symmetric positive semi-definite for any F; the forces
+    /// and energy are unchanged. Only for [`Material::Corotational`].
+    pub warped: bool,
+}
+
+/// A pair block's eigenvalues `(q-, q+)` as the tangent uses them: `q+` zero for the
+/// warped tangent, both clamped at zero by the definiteness fix.
+#[inline(always)]
+fn pair_eigenvalues<R: Lane>(iso: &Iso, qm: R, qp: R) -> (R, R) {
+    let zero = R::splat(0.0);
+    let qp = if iso.warped { zero } else { qp };
+    if iso.project {
+        (qm.max(zero), qp.max(zero))
+    } else {
+        (qm, qp)
+    }
 }
 
 /// Cyclic Jacobi sweeps of the 3x3 eigensolves: convergence is quadratic, and four sweeps
@@ -548,13 +567,8 @@ fn element_in_frame<R: Lane>(
     let mut pa = [zero; 3];
     let mut pb = [zero; 3];
     for n in 0..3 {
-        let (e1, e2) = (d.qm[n], d.qp[n]);
         // Eigenvalues a + b = q-, a - b = q+.
-        let (e1, e2) = if iso.project {
-            (e1.max(zero), e2.max(zero))
-        } else {
-            (e1, e2)
-        };
+        let (e1, e2) = pair_eigenvalues(iso, d.qm[n], d.qp[n]);
         pa[n] = half * (e1 + e2);
         pb[n] = half * (e1 - e2);
     }
@@ -851,8 +865,70 @@ pub fn corotational_forces<R: Lane>(
     x: &[[R; 3]; 4],
     dm_inv: &[R; 9],
     vol: R,
+    lame: [R; 2],
+) -> (R, R) {
+    let (e, ok, _) = polar_forces(f, x, dm_inv, vol, lame);
+    (e, ok)
+}
+
+/// [`corotational_forces`] with the element's ten warped stiffness blocks
+/// `K_ab = df_a/dx_b = -vol (mu (g_a . g_b) I + lambda h_a h_b^T + mu h_b h_a^T)`, `h_a =
+/// R g_a` (a <= b, the order of [`element`]): the linear material's blocks `K0` turned by
+/// the element's rotation, `R K0 R^T` (Müller and Gross 2004), which is
+/// [`element`]'s tangent with [`Iso::warped`] (to rounding) at a fraction of its cost: no
+/// SVD, and a block is two outer products. Returns the energy and the same validity as
+/// [`corotational_forces`]; where a lane's is not positive the caller evaluates the
+/// element through the SVD (with [`Iso::warped`]).
+#[inline(always)]
+pub fn corotational_warped<R: Lane>(
+    f: &mut [[R; 3]; 4],
+    k: &mut [R; 90],
+    x: &[[R; 3]; 4],
+    dm_inv: &[R; 9],
+    vol: R,
     [mu, lambda]: [R; 2],
 ) -> (R, R) {
+    let (e, ok, r) = polar_forces(f, x, dm_inv, vol, [mu, lambda]);
+    let g1 = [dm_inv[0], dm_inv[1], dm_inv[2]];
+    let g2 = [dm_inv[3], dm_inv[4], dm_inv[5]];
+    let g3 = [dm_inv[6], dm_inv[7], dm_inv[8]];
+    let g0: [R; 3] = std::array::from_fn(|j| -(g1[j] + g2[j] + g3[j]));
+    let g = [g0, g1, g2, g3];
+    let h: [[R; 3]; 4] = g.map(|g| {
+        std::array::from_fn(|i| r[3 * i].fma(g[0], r[3 * i + 1].fma(g[1], r[3 * i + 2] * g[2])))
+    });
+    let nvol = -vol;
+    let (nl, nm) = (nvol * lambda, nvol * mu);
+    let mut out = 0;
+    for a in 0..4 {
+        // -vol lambda h_a and -vol mu h_a, the row factors of the outer products.
+        let la: [R; 3] = h[a].map(|v| nl * v);
+        let ma: [R; 3] = h[a].map(|v| nm * v);
+        for b in a..4 {
+            let gg = g[a][0].fma(g[b][0], g[a][1].fma(g[b][1], g[a][2] * g[b][2]));
+            let diag = nm * gg;
+            for i in 0..3 {
+                for c in 0..3 {
+                    let v = la[i].fma(h[b][c], h[b][i] * ma[c]);
+                    k[out + 3 * i + c] = if i == c { v + diag } else { v };
+                }
+            }
+            out += 9;
+        }
+    }
+    (e, ok)
+}
+
+/// The polar part of [`corotational_forces`]: forces into f, and the energy, the validity
+/// and R returned.
+#[inline(always)]
+fn polar_forces<R: Lane>(
+    f: &mut [[R; 3]; 4],
+    x: &[[R; 3]; 4],
+    dm_inv: &[R; 9],
+    vol: R,
+    [mu, lambda]: [R; 2],
+) -> (R, R, [R; 9]) {
     let fg = gradient(x, dm_inv);
     let (r, det, change) = polar_newton(&fg);
     // Positive where both hold: -max(change - tolerance, min det - det). A NaN F makes
@@ -878,7 +954,7 @@ pub fn corotational_forces<R: Lane>(
         }
     }
     f[0] = std::array::from_fn(|i| -(f[1][i] + f[2][i] + f[3][i]));
-    (vol * psi, ok)
+    (vol * psi, ok, r)
 }
 
 /// [`corotational_forces`] over elements `e0..e0 + 8` as two groups of four
@@ -886,19 +962,50 @@ pub fn corotational_forces<R: Lane>(
 /// returned; `None` (f untouched) where some element needs the SVD.
 pub fn corotational_forces_x8(f: &mut [f64; 96], els: &Elements, e0: usize) -> Option<[f64; 8]> {
     let mut energy = [0.0; 8];
-    polar_groups::<f64x4>(f, els, e0, &mut energy).then_some(energy)
+    polar_groups::<f64x4>(f, None, els, e0, &mut energy).then_some(energy)
 }
 
 /// [`corotational_forces_x8`] over elements `e0..e0 + 16`, two groups of eight (`f64x8`).
 pub fn corotational_forces_x16(f: &mut [f64; 192], els: &Elements, e0: usize) -> Option<[f64; 16]> {
     let mut energy = [0.0; 16];
-    polar_groups::<f64x8>(f, els, e0, &mut energy).then_some(energy)
+    polar_groups::<f64x8>(f, None, els, e0, &mut energy).then_some(energy)
 }
 
-/// Two groups of `W::LANES` elements through [`corotational_forces`]; false, with nothing
-/// written, where a lane's result does not stand.
+/// [`corotational_warped`] over elements `e0..e0 + 8` as two groups of four (`f64x4`):
+/// forces into f (12 per element), the warped stiffness into k (90 per element), the
+/// energies returned; `None` (f and k untouched) where some element needs the SVD.
+pub fn corotational_warped_x8(
+    f: &mut [f64; 96],
+    k: &mut [f64; 720],
+    els: &Elements,
+    e0: usize,
+) -> Option<[f64; 8]> {
+    let mut energy = [0.0; 8];
+    polar_groups::<f64x4>(f, Some(k), els, e0, &mut energy).then_some(energy)
+}
+
+/// [`corotational_warped_x8`] over elements `e0..e0 + 16`, two groups of eight (`f64x8`).
+pub fn corotational_warped_x16(
+    f: &mut [f64; 192],
+    k: &mut [f64; 1440],
+    els: &Elements,
+    e0: usize,
+) -> Option<[f64; 16]> {
+    let mut energy = [0.0; 16];
+    polar_groups::<f64x8>(f, Some(k), els, e0, &mut energy).then_some(energy)
+}
+
+/// Two groups of `W::LANES` elements through [`corotational_forces`], or with k through
+/// [`corotational_warped`] (90 values per element); false, with nothing written, where a
+/// lane's result does not stand.
 #[inline(always)]
-fn polar_groups<W: Wide>(f: &mut [f64], els: &Elements, e0: usize, energy: &mut [f64]) -> bool {
+fn polar_groups<W: Wide>(
+    f: &mut [f64],
+    k: Option<&mut [f64]>,
+    els: &Elements,
+    e0: usize,
+    energy: &mut [f64],
+) -> bool {
     let n = W::LANES;
     let inputs = [els.group::<W>(e0), els.group::<W>(e0 + n)];
     let two = |a: W, b: W| Groups([a, b]);
@@ -908,16 +1015,41 @@ fn polar_groups<W: Wide>(f: &mut [f64], els: &Elements, e0: usize, energy: &mut 
     let vol = two(inputs[0].2, inputs[1].2);
     let lame = [0, 1].map(|k| two(inputs[0].3[k], inputs[1].3[k]));
     let mut fl = [[Groups::<2, W>::splat(0.0); 3]; 4];
-    let (e, ok) = corotational_forces(&mut fl, &x, &dm, vol, lame);
+    let Some(k) = k else {
+        let (e, ok) = corotational_forces(&mut fl, &x, &dm, vol, lame);
+        if ok.any_not_positive() {
+            return false;
+        }
+        store_groups(&fl, e, f, energy);
+        return true;
+    };
+    let mut kl = [Groups::<2, W>::splat(0.0); 90];
+    let (e, ok) = corotational_warped(&mut fl, &mut kl, &x, &dm, vol, lame);
     if ok.any_not_positive() {
         return false;
     }
+    store_groups(&fl, e, f, energy);
+    for g in 0..2 {
+        let kg: [W; 90] = std::array::from_fn(|i| kl[i].0[g]);
+        scatter_lanes(&kg, &mut k[90 * n * g..90 * n * (g + 1)]);
+    }
+    true
+}
+
+/// Both groups' forces (12 per element) into f and energies into `energy`.
+#[inline(always)]
+fn store_groups<W: Wide>(
+    fl: &[[Groups<2, W>; 3]; 4],
+    e: Groups<2, W>,
+    f: &mut [f64],
+    energy: &mut [f64],
+) {
+    let n = W::LANES;
     for g in 0..2 {
         let fg: [W; 12] = std::array::from_fn(|i| fl[i / 3][i % 3].0[g]);
         scatter_lanes(&fg, &mut f[12 * n * g..12 * n * (g + 1)]);
         e.0[g].store(&mut energy[n * g..n * (g + 1)]);
     }
-    true
 }
 
 /// The material of `iso` at one deformation gradient F, through the singular-value frame
@@ -946,10 +1078,7 @@ pub fn evaluate(iso: &Iso, lame: Lame, f: &M3) -> (f64, M3, [f64; 81]) {
             dph[4 * m] = (0..3).map(|q| a[3 * m + q] * dfh[4 * q]).sum();
         }
         for (n, &(i, j, _)) in PAIRS.iter().enumerate() {
-            let (mut e1, mut e2) = (d.qm[n], d.qp[n]);
-            if iso.project {
-                (e1, e2) = (e1.max(0.0), e2.max(0.0));
-            }
+            let (e1, e2) = pair_eigenvalues(iso, d.qm[n], d.qp[n]);
             let (pa, pb) = (0.5 * (e1 + e2), 0.5 * (e1 - e2));
             dph[3 * i + j] = pa * dfh[3 * i + j] + pb * dfh[3 * j + i];
             dph[3 * j + i] = pb * dfh[3 * i + j] + pa * dfh[3 * j + i];

@@ -63,11 +63,13 @@ const GROUP: usize = 16;
 
 #[cfg(target_feature = "avx512f")]
 use largestep_kernels::fem_diag::{
-    corotational_forces_x16 as polar_group, element_x16 as element_group,
+    corotational_forces_x16 as polar_group, corotational_warped_x16 as warped_group,
+    element_x16 as element_group,
 };
 #[cfg(not(target_feature = "avx512f"))]
 use largestep_kernels::fem_diag::{
-    corotational_forces_x8 as polar_group, element_x8 as element_group,
+    corotational_forces_x8 as polar_group, corotational_warped_x8 as warped_group,
+    element_x8 as element_group,
 };
 const _: () = assert!(CHUNK % GROUP == 0, "chunks hold whole groups");
 
@@ -240,6 +242,19 @@ pub struct FemDesc {
     /// compression and inversion; the Jacobian is then exact only where the material's
     /// tangent is definite. Default on.
     pub definiteness_fix: bool,
+    /// The corotational material's tangent without the derivative of the rotation:
+    /// stiffness warping, each element's linear stiffness turned by its rotation, `R K0
+    /// R^T` (Müller and Gross 2004, "Interactive virtual materials"). The forces and the
+    /// energy stay the exact corotational ones, so Newton converges to the same solution
+    /// to the same tolerance; only the Jacobian that steers it differs (positive
+    /// semi-definite for any deformation, and equal to the exact one at rest). Its kernel
+    /// needs no SVD (`largestep_kernels::fem_diag::corotational_warped`, which takes the
+    /// rotation from the polar decomposition's Newton iteration; flat, inverted and
+    /// strongly strained elements go through the SVD kernel with the same tangent). On
+    /// the swinging beam of issue 15 the implicit steps took the same Newton and PCG
+    /// iterations as with the exact tangent (`benches/fem.rs`, `docs/benchmarks.md`).
+    /// Only for [`Material::Corotational`]. Default off.
+    pub warped_tangent: bool,
 }
 
 impl FemDesc {
@@ -263,6 +278,7 @@ impl FemDesc {
             mass: FemMass::Lumped,
             notes: Vec::new(),
             definiteness_fix: true,
+            warped_tangent: false,
         }
     }
 
@@ -409,6 +425,16 @@ impl FemDesc {
                 "applies to the nonlinear materials (linear elasticity has no inversion)",
             )?;
         }
+        if self.warped_tangent {
+            require(
+                "material",
+                0,
+                "warped_tangent",
+                1.0,
+                first.model == Material::Corotational,
+                "applies to the corotational material only",
+            )?;
+        }
         for (c, &g) in self.gravity.iter().enumerate() {
             check("gravity", c, "g", g, Rule::Finite)?;
         }
@@ -537,6 +563,7 @@ impl FemDesc {
                 material: first.model,
                 clamp: self.inversion_threshold,
                 project: self.definiteness_fix,
+                warped: self.warped_tangent,
             }),
             surface,
             fixed,
@@ -875,13 +902,20 @@ impl Fem {
             // Forces alone of the corotational material: the polar decomposition by
             // Newton instead of the SVD (`polar_group`), unless an element of the group
             // is flat, inverted or strained past it.
-            if k.is_none() && iso.material == Material::Corotational && iso.clamp.is_none() {
-                if let Some(e) = polar_group(fg, &self.elements(x), e0) {
+            // With the warped tangent, also the stiffness (`warped_group`).
+            let mut kg: Option<&mut [f64; TET_K * GROUP]> =
+                k.map(|k| k.try_into().expect("90 stiffness values per element"));
+            if iso.material == Material::Corotational && iso.clamp.is_none() {
+                let els = self.elements(x);
+                let polar = match kg.as_deref_mut() {
+                    None => polar_group(fg, &els, e0),
+                    Some(kg) if iso.warped => warped_group(fg, kg, &els, e0),
+                    Some(_) => None,
+                };
+                if let Some(e) = polar {
                     return e;
                 }
             }
-            let kg: Option<&mut [f64; TET_K * GROUP]> =
-                k.map(|k| k.try_into().expect("90 stiffness values per element"));
             return element_group(fg, kg, &self.elements(x), e0, iso);
         }
         for q in (0..n).step_by(4) {
@@ -1279,6 +1313,12 @@ impl MechModel for Fem {
             stages.push(Stage::built(
                 "invertible material",
                 format!("singular values of F clamped at {c}"),
+            ));
+        }
+        if self.iso.is_some_and(|i| i.warped) {
+            stages.push(Stage::built(
+                "warped tangent",
+                "each element's linear stiffness turned by its rotation, R K0 R^T",
             ));
         }
         stages.push(if self.definiteness_fix {

@@ -49,6 +49,8 @@
 //! poisson = 0.45
 //! density = 1100.0              # kg/m^3
 //! # inversion_threshold = 0.3   # the invertible version: singular values of F clamped
+//! # warped_tangent = true       # corotational: Newton's Jacobian R K0 R^T per element
+//!                               # (stiffness warping; no SVD), forces exact
 //! # [[fem.region]]              # elements whose centroid lies in [min, max] (m) take
 //! # min = [0.5, -1.0, -1.0]     # these constants (the model is [fem.material]'s); later
 //! # max = [1.0, 1.0, 1.0]       # regions win; preset, young, poisson, density as above
@@ -258,6 +260,10 @@ pub struct MaterialTable {
     /// The invertible version's clamp of the singular values of F, in (0, 1).
     #[serde(default)]
     pub inversion_threshold: Option<f64>,
+    /// The corotational material's warped tangent `R K0 R^T` instead of the exact one
+    /// ([`FemDesc::warped_tangent`]; default false).
+    #[serde(default)]
+    pub warped_tangent: Option<bool>,
 }
 
 /// `[[fem.region]]`: the elements whose centroid lies in `[min, max]` take these
@@ -493,6 +499,7 @@ pub fn desc(ctx: &Context<'_>, t: &FemTable) -> Result<FemDesc, SceneError> {
         desc.use_veg_materials(kind, parts);
     }
     desc.inversion_threshold = m.inversion_threshold;
+    desc.warped_tangent = m.warped_tangent.unwrap_or(false);
     desc.notes = notes;
     for (k, r) in t.region.iter().enumerate() {
         let key = at(&[&"region", &k]);
