@@ -49,7 +49,7 @@ use wide::{f64x4, f64x8};
 pub use crate::lane::Lane;
 
 macro_rules! wide_impl {
-    ($t:ident, $n:literal) => {
+    ($t:ident, $n:literal, $transpose:path) => {
         impl Wide for $t {
             const LANES: usize = $n;
             #[inline(always)]
@@ -62,7 +62,7 @@ macro_rules! wide_impl {
             }
             #[inline(always)]
             fn transpose_store(block: &[Self], out: &mut [f64], s: usize, at: usize) {
-                let t = $t::transpose(std::array::from_fn(|i| block[i]));
+                let t = $transpose(std::array::from_fn(|i| block[i]));
                 for (l, tl) in t.iter().enumerate() {
                     out[s * l + at..s * l + at + $n].copy_from_slice(&tl.to_array());
                 }
@@ -83,9 +83,62 @@ pub trait Wide: Lane + Default {
     fn transpose_store(block: &[Self], out: &mut [f64], s: usize, at: usize);
 }
 
-wide_impl!(f64x4, 4);
+wide_impl!(f64x4, 4, f64x4::transpose);
 // One AVX-512 register where the build has it, two `f64x4` otherwise.
-wide_impl!(f64x8, 8);
+#[cfg(target_feature = "avx512f")]
+wide_impl!(f64x8, 8, transpose8);
+#[cfg(not(target_feature = "avx512f"))]
+wide_impl!(f64x8, 8, f64x8::transpose);
+
+/// An 8x8 transpose of `f64x8` rows in three rounds of shuffles (24 instructions:
+/// pairs of rows interleaved, then 128-bit and 256-bit halves exchanged). `wide`'s
+/// `f64x8::transpose` builds each column lane by lane; the x16 kernels store their 102
+/// outputs through it, and with it the lane transposes were a quarter of the warped
+/// kernel's samples (perf, the beam's steps).
+#[cfg(target_feature = "avx512f")]
+#[inline(always)]
+fn transpose8(rows: [f64x8; 8]) -> [f64x8; 8] {
+    use std::arch::x86_64::{
+        __m512d, _mm512_shuffle_f64x2, _mm512_unpackhi_pd, _mm512_unpacklo_pd,
+    };
+    // SAFETY: with AVX-512 `f64x8` is one `__m512d` (wide's representation), so both
+    // transmutes reinterpret eight 64-byte values as they are; the intrinsics need only
+    // avx512f, which this function's cfg guarantees.
+    unsafe {
+        let r: [__m512d; 8] = std::mem::transmute(rows);
+        // t_2k = [r_2k[0] r_2k+1[0] | r_2k[2] r_2k+1[2] | ...], t_2k+1 the odd entries.
+        let t: [__m512d; 8] = std::array::from_fn(|i| {
+            let (a, b) = (r[i & !1], r[i | 1]);
+            if i % 2 == 0 {
+                _mm512_unpacklo_pd(a, b)
+            } else {
+                _mm512_unpackhi_pd(a, b)
+            }
+        });
+        // Four rows' entries c and c + 4 in 128-bit lanes: 0x88 takes lanes 0 and 2 of
+        // each operand, 0xDD lanes 1 and 3.
+        let u = [
+            _mm512_shuffle_f64x2::<0x88>(t[0], t[2]),
+            _mm512_shuffle_f64x2::<0x88>(t[1], t[3]),
+            _mm512_shuffle_f64x2::<0xDD>(t[0], t[2]),
+            _mm512_shuffle_f64x2::<0xDD>(t[1], t[3]),
+            _mm512_shuffle_f64x2::<0x88>(t[4], t[6]),
+            _mm512_shuffle_f64x2::<0x88>(t[5], t[7]),
+            _mm512_shuffle_f64x2::<0xDD>(t[4], t[6]),
+            _mm512_shuffle_f64x2::<0xDD>(t[5], t[7]),
+        ];
+        // Column c (c < 4) from u_c and u_c+4's lanes 0 and 2; column c + 4 from lanes 1, 3.
+        let out: [__m512d; 8] = std::array::from_fn(|c| {
+            let (a, b) = (u[c % 4], u[c % 4 + 4]);
+            if c < 4 {
+                _mm512_shuffle_f64x2::<0x88>(a, b)
+            } else {
+                _mm512_shuffle_f64x2::<0xDD>(a, b)
+            }
+        });
+        std::mem::transmute(out)
+    }
+}
 
 /// N groups of elements, one vector `L` each, every operation applied to all: the 3x3
 /// eigensolves are one long chain of dependent square roots and divisions, and with
