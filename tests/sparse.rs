@@ -179,7 +179,7 @@ fn pcg_converges_with_every_preconditioner() {
     // masses, where the diagonal preconditioners earn their keep.
     let mut a = grid_spd(&[8, 7, 6], 1.0, 0.05);
     let n = a.n();
-    let d = |i: usize| if i % 3 == 0 { 10.0 } else { 1.0 };
+    let d = |i: usize| if i.is_multiple_of(3) { 10.0 } else { 1.0 };
     let p = a.pattern().clone();
     for i in 0..n {
         for k in p.row_ptr()[i] as usize..p.row_ptr()[i + 1] as usize {

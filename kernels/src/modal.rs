@@ -64,7 +64,10 @@ pub fn resonate(
     out: &mut [f64],
 ) {
     let m = bank.m();
-    assert!(m % PASS == 0, "pad the bank to a multiple of {PASS} modes");
+    assert!(
+        m.is_multiple_of(PASS),
+        "pad the bank to a multiple of {PASS} modes"
+    );
     for base in (0..m).step_by(PASS) {
         let mut x: [f64; PASS] = std::array::from_fn(|k| x_in[base + k]);
         let mut ev = 0;
@@ -107,7 +110,10 @@ pub fn resonate_x4(
     out: &mut [f64],
 ) {
     let m = bank.m();
-    assert!(m % PASS == 0, "pad the bank to a multiple of {PASS} modes");
+    assert!(
+        m.is_multiple_of(PASS),
+        "pad the bank to a multiple of {PASS} modes"
+    );
     let load = |v: &[f64], i: usize| f64x4::new([v[i], v[i + 1], v[i + 2], v[i + 3]]);
     for base in (0..m).step_by(PASS) {
         let at = |g: usize| base + 4 * g;

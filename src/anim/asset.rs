@@ -291,7 +291,7 @@ impl Asset {
                 Some(i) => i.into_u32().collect(),
                 None => (0..n as u32).collect(),
             };
-            if idx.len() % 3 != 0 {
+            if !idx.len().is_multiple_of(3) {
                 return Err(format!("{} indices: not whole triangles", idx.len()));
             }
             if let Some(&bad) = idx.iter().find(|&&i| i as usize >= n) {
@@ -541,7 +541,7 @@ impl Asset {
 /// Appends `bytes` to the binary chunk (4-byte aligned) and returns its buffer view
 /// JSON.
 fn push_view(bin: &mut Vec<u8>, bytes: &[u8], views: &mut Vec<serde_json::Value>) -> usize {
-    while bin.len() % 4 != 0 {
+    while !bin.len().is_multiple_of(4) {
         bin.push(0);
     }
     views
@@ -777,7 +777,7 @@ pub fn write_glb(
         }
         animations.push(json!({"name": name, "samplers": samplers, "channels": channels}));
     }
-    while bin.len() % 4 != 0 {
+    while !bin.len().is_multiple_of(4) {
         bin.push(0);
     }
     let mut root = json!({

@@ -76,7 +76,7 @@ impl BlendshapeDesc {
                 .unwrap_or_default(),
             message,
         };
-        if m % 3 != 0 || !self.neutral.iter().all(|v| v.is_finite()) {
+        if !m.is_multiple_of(3) || !self.neutral.iter().all(|v| v.is_finite()) {
             return Err(ShapeError {
                 index: 0,
                 name: "neutral".into(),

@@ -71,7 +71,7 @@ use largestep_kernels::fem_diag::{
     corotational_forces_x8 as polar_group, corotational_warped_x8 as warped_group,
     element_x8 as element_group,
 };
-const _: () = assert!(CHUNK % GROUP == 0, "chunks hold whole groups");
+const _: () = assert!(CHUNK.is_multiple_of(GROUP), "chunks hold whole groups");
 
 /// A material: the model and its constants.
 #[derive(Clone, Copy, Debug, PartialEq)]

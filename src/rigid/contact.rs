@@ -520,7 +520,7 @@ mod tests {
         for a in 0..n {
             for b in a + 1..n {
                 h = h.wrapping_mul(1_103_515_245).wrapping_add(12_345);
-                if a == 0 || (h >> 16) % 7 == 0 {
+                if a == 0 || (h >> 16).is_multiple_of(7) {
                     pairs.push([a, b]);
                 }
             }

@@ -1401,16 +1401,17 @@ fn taps(i: usize, fine: usize, coarse: usize, sides: [Side; 2]) -> [(usize, f64)
     if fine == 1 {
         return [(q, 1.0), (q, 0.0)];
     }
-    let (inside, side) = if i % 2 == 0 {
+    let (inside, side) = if i.is_multiple_of(2) {
         (q.checked_sub(1), sides[0])
     } else {
         ((q + 1 < coarse).then_some(q + 1), sides[1])
     };
     match (inside, side) {
         (Some(nb), _) => [(q, 0.75), (nb, 0.25)],
-        (None, Side::Periodic) if coarse > 1 => {
-            [(q, 0.75), (if i % 2 == 0 { coarse - 1 } else { 0 }, 0.25)]
-        }
+        (None, Side::Periodic) if coarse > 1 => [
+            (q, 0.75),
+            (if i.is_multiple_of(2) { coarse - 1 } else { 0 }, 0.25),
+        ],
         (None, Side::Open) => [(q, 0.75), (q, 0.0)],
         // A wall, or a periodic axis of one coarse cell: the parent itself.
         (None, _) => [(q, 1.0), (q, 0.0)],

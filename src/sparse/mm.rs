@@ -22,7 +22,7 @@ pub struct MatrixMarket {
 impl MatrixMarket {
     /// The matrix as a Bsr3 (square, size a multiple of 3).
     pub fn to_bsr3(&self, file: &str) -> Result<Bsr3, SparseError> {
-        if self.nrows != self.ncols || self.nrows % 3 != 0 {
+        if self.nrows != self.ncols || !self.nrows.is_multiple_of(3) {
             return Err(SparseError::Parse {
                 file: file.to_string(),
                 line: 2,

@@ -367,7 +367,7 @@ impl Bsr3 {
         size: usize,
         triplets: &[(usize, usize, f64)],
     ) -> Result<Self, SparseError> {
-        assert!(size % 3 == 0, "a Bsr3 matrix has size 3n");
+        assert!(size.is_multiple_of(3), "a Bsr3 matrix has size 3n");
         let n = size / 3;
         let pairs: Vec<[u32; 2]> = triplets
             .iter()
