@@ -2437,7 +2437,8 @@ fn the_warped_tangent_steers_newton_to_the_same_steps() {
 ///   contraction too slow for the rate test keeps the line search's check: without that
 ///   guard, soft tissue at dt = 1/10 ended 0.10 from the reference against 0.026);
 /// - where the plain step test (forcing 0.1, first-order guess) lands within the
-///   tolerance (1e-3 of 1 + |v|), so do they. Near-incompressible rubber and soft tissue at
+///   tolerance (1e-3 of 1 + |v|), so do they, and so does the skipping variant with the
+///   warped tangent (`FemDesc::warped_tangent`) against the exact model's steps. Near-incompressible rubber and soft tissue at
 ///   dt = 1/10 are where no variant does at a Newton tolerance of 1e-3 (their errors are
 ///   printed); rubber at dt = 1/10 stops every variant with an error naming the step.
 #[test]
@@ -2450,12 +2451,16 @@ fn the_fast_step_settings_from_tissue_to_steel() {
         FemMaterial::steel(Material::Corotational),
     ] {
         for dt in [1.0 / 60.0, 0.1] {
-            let desc = FemDesc::cantilever([20, 2, 2], [1.0, 0.1, 0.1], material, 9.81);
+            let mut desc = FemDesc::cantilever([20, 2, 2], [1.0, 0.1, 0.1], material, 9.81);
             let (fem, state) = desc.build().unwrap();
-            // The worst error over 20 steps and the end state of each variant, or the
-            // step's error message.
-            let run = |s: MechSettings| -> Result<(f64, Vec<f64>), String> {
-                let mut sim = MechSimulation::new(fem.clone(), state.clone(), s).unwrap();
+            desc.warped_tangent = true;
+            let (warped, _) = desc.build().unwrap();
+            // The worst error over 20 steps and the end state of each variant (on `model`,
+            // against the exact model's steps), or the step's error message.
+            let run_on = |model: &largestep::fem::Fem,
+                          s: MechSettings|
+             -> Result<(f64, Vec<f64>), String> {
+                let mut sim = MechSimulation::new(model.clone(), state.clone(), s).unwrap();
                 sim.set_step_control(None);
                 let mut reference = MechSimulation::new(fem.clone(), state.clone(), exact).unwrap();
                 reference.set_step_control(None);
@@ -2469,23 +2474,35 @@ fn the_fast_step_settings_from_tissue_to_steel() {
                 }
                 Ok((worst, sim.state().v.as_slice().to_vec()))
             };
-            let (plain, rate, skip) = (
+            let run = |s: MechSettings| run_on(&fem, s);
+            let (plain, rate, skip, warp) = (
                 run(settings(false, false)),
                 run(settings(true, false)),
                 run(settings(true, true)),
+                run_on(&warped, settings(true, true)),
             );
             let show = |r: &Result<(f64, Vec<f64>), String>| match r {
                 Ok((e, _)) => format!("{e:.2e}"),
                 Err(e) => e.chars().take(60).collect(),
             };
             println!(
-                "E {:.0e}, nu {}, dt {dt:.3}: worst velocity error, plain {}, rate test {}, skipped {}",
+                "E {:.0e}, nu {}, dt {dt:.3}: worst velocity error, plain {}, rate test {}, skipped {}, warped tangent {}",
                 material.young,
                 material.poisson,
                 show(&plain),
                 show(&rate),
-                show(&skip)
+                show(&skip),
+                show(&warp)
             );
+            // The warped tangent: within the tolerance wherever the plain test is, and
+            // otherwise a result or an error naming the step, never a panic.
+            match &warp {
+                Ok((e, _)) if plain.as_ref().is_ok_and(|p| p.0 <= 1e-3) => {
+                    assert!(*e <= 1e-3, "warped, E {} dt {dt}: {e}", material.young)
+                }
+                Ok(_) => {}
+                Err(e) => assert!(e.contains("step"), "{e}"),
+            }
             match (&rate, &skip) {
                 (Ok((e, v)), Ok((es, vs))) => {
                     assert_eq!(v, vs, "E {} dt {dt}: the same steps", material.young);
