@@ -40,7 +40,11 @@
 //! The corotational material's forces alone ([`corotational_forces`]) skip the SVD: R
 //! from Newton's iteration for the polar decomposition ([`polar_newton`]), for elements
 //! neither flat, inverted nor strained past about a factor 1.8 (the caller sends the
-//! others through the SVD kernel).
+//! others through the SVD kernel). So does the warped tangent's kernel
+//! ([`corotational_warped`], [`Iso::warped`]): with `h_a = R g_a` each stiffness block is
+//! `-vol (mu (g_a . g_b) I + lambda h_a h_b^T + mu h_b h_a^T)`, the linear material's
+//! turned by R (Müller and Gross 2004), which in the singular-value frame is the pair
+//! blocks with `q+ = 0`.
 
 use crate::fem::{Lame, Material, M3};
 use std::ops::{Add, Div, Mul, Neg, Sub};
