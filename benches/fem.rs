@@ -503,6 +503,11 @@ fn step_error(s: &mut MechSimulation<Fem>, solver: Solver) -> f64 {
     worst
 }
 
+/// An element kernel's outputs (forces, stiffness) and inputs (vertices, `Dm^-1`,
+/// volume, Lamé constants) in counted numbers.
+type CountedElement = ([[Counted; 3]; 4], [Counted; 90]);
+type CountedInputs = ([[Counted; 3]; 4], [Counted; 9], Counted, [Counted; 2]);
+
 /// The model's scratch, its forces and `df/dx` at `(x, v)`, assembled once.
 fn jacobian(fem: &Fem, x: &[f64], v: &[f64]) -> (FemWork, Vec<f64>, Bsr3) {
     let mut work = fem.work();
@@ -664,38 +669,28 @@ fn kernels(
             sinkw += kwc[e % 1440];
         }
     };
-    // Flops, counted on the same elements.
-    FLOPS.with(|c| c.set(0));
-    for e in 0..ne {
-        let mut fe = [[Counted(0.0); 3]; 4];
-        let mut ke = [Counted(0.0); 90];
-        let l = lame(e);
-        element(
-            &mut fe,
-            Some(&mut ke),
-            &xs(e).map(|p| p.map(Counted)),
-            &fem.dm_inv(e).map(Counted),
-            Counted(fem.volumes()[e]),
-            [Counted(l.mu), Counted(l.lambda)],
-            &iso,
-        );
-    }
-    let flops = FLOPS.with(|c| c.get()) as f64 / ne as f64;
-    FLOPS.with(|c| c.set(0));
-    for e in 0..ne {
-        let mut fe = [[Counted(0.0); 3]; 4];
-        let mut ke = [Counted(0.0); 90];
-        let l = lame(e);
-        corotational_warped(
-            &mut fe,
-            &mut ke,
-            &xs(e).map(|p| p.map(Counted)),
-            &fem.dm_inv(e).map(Counted),
-            Counted(fem.volumes()[e]),
-            [Counted(l.mu), Counted(l.lambda)],
-        );
-    }
-    let warped_flops = FLOPS.with(|c| c.get()) as f64 / ne as f64;
+    // Flops an element, counted on the same elements through each kernel's scalar twin.
+    let counted = |kernel: &dyn Fn(&mut CountedElement, CountedInputs)| {
+        FLOPS.with(|c| c.set(0));
+        for e in 0..ne {
+            let mut out = ([[Counted(0.0); 3]; 4], [Counted(0.0); 90]);
+            let l = lame(e);
+            let inputs = (
+                xs(e).map(|p| p.map(Counted)),
+                fem.dm_inv(e).map(Counted),
+                Counted(fem.volumes()[e]),
+                [Counted(l.mu), Counted(l.lambda)],
+            );
+            kernel(&mut out, inputs);
+        }
+        FLOPS.with(|c| c.get()) as f64 / ne as f64
+    };
+    let flops = counted(&|(f, k), (x, dm, vol, lame)| {
+        element(f, Some(k), &x, &dm, vol, lame, &iso);
+    });
+    let warped_flops = counted(&|(f, k), (x, dm, vol, lame)| {
+        corotational_warped(f, k, &x, &dm, vol, lame);
+    });
     md.push_str(
         "| kernel (one core, corotational, forces + stiffness; exact tangent with the definiteness fix, or `-warped`: R K0 R^T) | elements | best | elements/s | GFLOP/s (flops/element, counted) | of one core's 4-wide FMA peak | of one core's 8-wide FMA peak |\n|---|---|---|---|---|---|---|\n",
     );

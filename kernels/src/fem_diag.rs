@@ -577,6 +577,20 @@ pub fn element<R: Lane>(
     element_in_frame(f, k, (&u, sigma, &v), dm_inv, vol, lame, iso)
 }
 
+/// An element's shape gradients `g_a`: the rows of `Dm^-1` for vertices 1 to 3, and
+/// `g_0` minus their sum.
+#[inline(always)]
+fn shape_gradients<R: Lane>(dm_inv: &[R; 9]) -> [[R; 3]; 4] {
+    let row = |a: usize| -> [R; 3] { std::array::from_fn(|j| dm_inv[3 * a + j]) };
+    let (g1, g2, g3) = (row(0), row(1), row(2));
+    [
+        std::array::from_fn(|j| -(g1[j] + g2[j] + g3[j])),
+        g1,
+        g2,
+        g3,
+    ]
+}
+
 /// `F = Ds Dm^-1` of an element with vertices x.
 #[inline(always)]
 fn gradient<R: Lane>(x: &[[R; 3]; 4], dm_inv: &[R; 9]) -> [R; 9] {
@@ -600,12 +614,8 @@ fn element_in_frame<R: Lane>(
 ) -> R {
     let d = clamped(iso, lame[0], lame[1], sigma);
     let psi = d.psi;
-    // Shape gradients g_a (rows of Dm^-1, g_0 minus their sum) in V's frame.
-    let g1 = [dm_inv[0], dm_inv[1], dm_inv[2]];
-    let g2 = [dm_inv[3], dm_inv[4], dm_inv[5]];
-    let g3 = [dm_inv[6], dm_inv[7], dm_inv[8]];
-    let g0: [R; 3] = std::array::from_fn(|j| -(g1[j] + g2[j] + g3[j]));
-    let gh: [[R; 3]; 4] = [g0, g1, g2, g3]
+    // Shape gradients in V's frame.
+    let gh: [[R; 3]; 4] = shape_gradients(dm_inv)
         .map(|g| std::array::from_fn(|n| g[0].fma(v[n], g[1].fma(v[3 + n], g[2] * v[6 + n]))));
     let nvol = -vol;
     for (fa, ga) in f.iter_mut().zip(&gh) {
@@ -946,12 +956,9 @@ pub fn corotational_warped<R: Lane>(
     [mu, lambda]: [R; 2],
 ) -> (R, R) {
     let (e, ok, r) = polar_forces(f, x, dm_inv, vol, [mu, lambda]);
-    let g1 = [dm_inv[0], dm_inv[1], dm_inv[2]];
-    let g2 = [dm_inv[3], dm_inv[4], dm_inv[5]];
-    let g3 = [dm_inv[6], dm_inv[7], dm_inv[8]];
-    let g0: [R; 3] = std::array::from_fn(|j| -(g1[j] + g2[j] + g3[j]));
-    let g = [g0, g1, g2, g3];
-    let h: [[R; 3]; 4] = g.map(|g| {
+    let g = shape_gradients(dm_inv);
+    let h: [[R; 3]; 4] = std::array::from_fn(|a| {
+        let g = g[a];
         std::array::from_fn(|i| r[3 * i].fma(g[0], r[3 * i + 1].fma(g[1], r[3 * i + 2] * g[2])))
     });
     let nvol = -vol;
@@ -959,8 +966,8 @@ pub fn corotational_warped<R: Lane>(
     let mut out = 0;
     for a in 0..4 {
         // -vol lambda h_a and -vol mu h_a, the row factors of the outer products.
-        let la: [R; 3] = h[a].map(|v| nl * v);
-        let ma: [R; 3] = h[a].map(|v| nm * v);
+        let la: [R; 3] = std::array::from_fn(|i| nl * h[a][i]);
+        let ma: [R; 3] = std::array::from_fn(|i| nm * h[a][i]);
         for b in a..4 {
             let gg = g[a][0].fma(g[b][0], g[a][1].fma(g[b][1], g[a][2] * g[b][2]));
             let diag = nm * gg;

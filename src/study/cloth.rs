@@ -18,7 +18,9 @@
 //! shrinks like 1/sqrt(k); the implicit step allows steps hundreds of times larger, and
 //! with the paper's step-size control (third series) any dt tried.
 
-use super::{log_slope, max_distance, write_file, write_plot_and_numbers, Progress, StudyError};
+use super::{
+    log_slope, max_distance, solid_curves, write_file, write_plot_and_numbers, Progress, StudyError,
+};
 use crate::plot::{Curve, Panel, Scale};
 use crate::scene::Scene;
 use serde::Serialize;
@@ -171,24 +173,11 @@ pub(super) fn accuracy(
         x_label: "run time (s)".into(),
         y_label: "max vertex distance from reference (m)".into(),
         scale: Scale::LogLog,
-        curves: sweeps
-            .iter()
-            .enumerate()
-            .map(|(i, s)| {
-                (
-                    i,
-                    Curve {
-                        label: s.name.clone(),
-                        points: s
-                            .points
-                            .iter()
-                            .filter_map(|p| p.error.map(|e| (p.seconds, e.max(1e-12))))
-                            .collect(),
-                        dashed: false,
-                    },
-                )
-            })
-            .collect(),
+        curves: solid_curves(sweeps.iter().map(|s| {
+            let points = s.points.iter();
+            let points = points.filter_map(|p| p.error.map(|e| (p.seconds, e.max(1e-12))));
+            (s.name.clone(), points.collect())
+        })),
     }];
     write_plot_and_numbers(out, "cloth-accuracy", &panels, 1, (760, 520), &sweeps)?;
     let mut md = String::new();

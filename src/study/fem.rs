@@ -24,7 +24,7 @@
 //! difference of the tip's height (m). Run time: the mean wall time of a step, the
 //! solvers' setup in the first steps included.
 
-use super::{write_file, write_plot_and_numbers, Progress, StudyError};
+use super::{solid_curves, write_file, write_plot_and_numbers, Progress, StudyError};
 use crate::fem::mesh::box_mesh;
 use crate::fem::{FemDesc, FemMaterial, Material};
 use crate::plot::{Curve, Panel, Scale};
@@ -159,24 +159,12 @@ pub(super) fn accuracy(
         x_label: "run time (s)".into(),
         y_label: "|tip - Timoshenko| / Timoshenko".into(),
         scale: Scale::LogLog,
-        curves: sweeps
-            .iter()
-            .enumerate()
-            .map(|(i, s)| {
-                (
-                    i,
-                    Curve {
-                        label: s.name.clone(),
-                        points: s
-                            .points
-                            .iter()
-                            .filter_map(|p| p.error.map(|e| (p.seconds.max(1e-6), e.max(1e-12))))
-                            .collect(),
-                        dashed: false,
-                    },
-                )
-            })
-            .collect(),
+        curves: solid_curves(sweeps.iter().map(|s| {
+            let points = s.points.iter();
+            let points =
+                points.filter_map(|p| p.error.map(|e| (p.seconds.max(1e-6), e.max(1e-12))));
+            (s.name.clone(), points.collect())
+        })),
     }];
     write_plot_and_numbers(out, "fem-accuracy", &panels, 1, (820, 520), &sweeps)?;
     let mut md = String::new();
@@ -575,28 +563,28 @@ fn step_reference() -> crate::integrate::MechSettings {
     s
 }
 
-/// `STEPS` steps of `settings` from the cantilever's rest state: per step, the velocities
-/// and the tip's mean vertical position, and the counts and mean step time; or the
-/// failure of a step (the states before it kept).
+/// The counts, mean step time and failure of [`step_run`].
 struct StepRun {
-    velocities: Vec<Vec<f64>>,
-    tips: Vec<f64>,
+    steps: usize,
     newton: usize,
     pcg: usize,
     seconds: f64,
     failure: Option<String>,
 }
 
+/// `STEPS` steps of `settings` from the cantilever's rest state, `each(k, v, tip)`
+/// called after step k with the velocities and the tip's mean height (outside the
+/// timing); stops at a step that fails, with its error (the steps before it kept).
 fn step_run(
     fem: &crate::fem::Fem,
     state: &crate::integrate::MechState,
     tip: &[usize],
     settings: crate::integrate::MechSettings,
+    each: &mut dyn FnMut(usize, &[f64], f64),
 ) -> StepRun {
     use crate::simulation::{MechModel, MechSimulation};
     let mut run = StepRun {
-        velocities: Vec::with_capacity(STEPS),
-        tips: Vec::with_capacity(STEPS),
+        steps: 0,
         newton: 0,
         pcg: 0,
         seconds: 0.0,
@@ -611,12 +599,13 @@ fn step_run(
     };
     sim.set_step_control(None);
     let n = fem.vertex_count();
-    for _ in 0..STEPS {
+    for k in 0..STEPS {
         let t0 = Instant::now();
         let step = sim.step(1.0 / 60.0);
         run.seconds += t0.elapsed().as_secs_f64();
         match step {
             Ok(info) => {
+                run.steps += 1;
                 run.newton += info.newton_iterations;
                 run.pcg += info.linear_iterations;
             }
@@ -626,10 +615,9 @@ fn step_run(
             }
         }
         let s = sim.state();
-        run.velocities.push(s.v.as_slice().to_vec());
         let y = &s.x.as_slice()[n..2 * n];
-        run.tips
-            .push(tip.iter().map(|&i| y[i]).sum::<f64>() / tip.len() as f64);
+        let height = tip.iter().map(|&i| y[i]).sum::<f64>() / tip.len() as f64;
+        each(k, s.v.as_slice(), height);
     }
     run
 }
@@ -666,19 +654,23 @@ pub(super) fn steps(
     warped.warped_tangent = true;
     let (fem, state) = d.build().expect("the study's cantilever is valid");
     let (warped, _) = warped.build().expect("the study's cantilever is valid");
-    let reference = step_run(&fem, &state, &tip, step_reference());
+    // The reference's steps: velocities, their norm and the tip's height.
+    let mut reference: Vec<(Vec<f64>, f64, f64)> = Vec::with_capacity(STEPS);
+    let exact = step_run(&fem, &state, &tip, step_reference(), &mut |_, v, height| {
+        let norm = v.iter().map(|w| w * w).sum::<f64>().sqrt();
+        reference.push((v.to_vec(), norm, height));
+    });
     progress.tick("reference (Cholesky, Newton to 1e-10)");
-    if let Some(why) = &reference.failure {
+    if let Some(why) = &exact.failure {
         return Err(StudyError::Write {
             path: out.join("fem-steps.md").display().to_string(),
             message: format!("the reference run failed: {why}"),
         });
     }
     let swing = reference
-        .tips
         .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &t| {
-            (lo.min(t), hi.max(t))
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), r| {
+            (lo.min(r.2), hi.max(r.2))
         });
     let sweeps: Vec<StepSweep> = STEP_WAYS
         .iter()
@@ -689,28 +681,20 @@ pub(super) fn steps(
                 .iter()
                 .map(|&tol| {
                     let model = if way >= WARPED_WAY { &warped } else { &fem };
-                    let run = step_run(model, &state, &tip, step_settings(way, tol));
+                    // The worst velocity and tip differences from the reference's steps.
+                    let (mut dv, mut dtip) = (0.0f64, 0.0f64);
+                    let settings = step_settings(way, tol);
+                    let run = step_run(model, &state, &tip, settings, &mut |k, v, height| {
+                        let (w, norm, h) = &reference[k];
+                        let diff = v.iter().zip(w).map(|(v, w)| (v - w).powi(2));
+                        dv = dv.max(diff.sum::<f64>().sqrt() / (1.0 + norm));
+                        dtip = dtip.max((height - h).abs());
+                    });
                     progress.tick(&format!("{name}, Newton to {tol:.0e}"));
-                    let done = run.velocities.len().max(1) as f64;
+                    let done = run.steps.max(1) as f64;
                     let complete = run.failure.is_none();
-                    let velocity_error = complete.then(|| {
-                        run.velocities
-                            .iter()
-                            .zip(&reference.velocities)
-                            .map(|(v, w)| {
-                                let norm = w.iter().map(|w| w * w).sum::<f64>().sqrt();
-                                let diff = v.iter().zip(w).map(|(v, w)| (v - w).powi(2));
-                                diff.sum::<f64>().sqrt() / (1.0 + norm)
-                            })
-                            .fold(0.0, f64::max)
-                    });
-                    let tip_error = complete.then(|| {
-                        run.tips
-                            .iter()
-                            .zip(&reference.tips)
-                            .map(|(a, b)| (a - b).abs())
-                            .fold(0.0, f64::max)
-                    });
+                    let (velocity_error, tip_error) =
+                        (complete.then_some(dv), complete.then_some(dtip));
                     StepPoint {
                         tolerance: tol,
                         newton_per_step: run.newton as f64 / done,
@@ -725,24 +709,11 @@ pub(super) fn steps(
         })
         .collect();
     let curves = |y: &dyn Fn(&StepPoint) -> Option<f64>| {
-        sweeps
-            .iter()
-            .enumerate()
-            .map(|(i, s)| {
-                (
-                    i,
-                    Curve {
-                        label: s.name.clone(),
-                        points: s
-                            .points
-                            .iter()
-                            .filter_map(|p| y(p).map(|e| (p.seconds_per_step, e.max(1e-14))))
-                            .collect(),
-                        dashed: false,
-                    },
-                )
-            })
-            .collect()
+        solid_curves(sweeps.iter().map(|s| {
+            let points = s.points.iter();
+            let points = points.filter_map(|p| y(p).map(|e| (p.seconds_per_step, e.max(1e-14))));
+            (s.name.clone(), points.collect())
+        }))
     };
     let title = format!(
         "backward Euler, {} x {} x {} cubes: error against time a step",
@@ -777,7 +748,7 @@ pub(super) fn steps(
         swing.1 - swing.0,
         tols[0],
         tols[tols.len() - 1],
-        reference.seconds / STEPS as f64,
+        exact.seconds / STEPS as f64,
     );
     for s in &sweeps {
         let _ = writeln!(

@@ -163,6 +163,29 @@ pub(crate) fn write_plot_and_numbers(
     write_file(&out.join(format!("{name}.json")), &json)
 }
 
+/// One solid curve per `(label, points)`, its colour and marker by its position: a
+/// study's sweeps as a panel's curves.
+#[cfg(any(feature = "cloth", feature = "fem"))]
+pub(crate) fn solid_curves(
+    sweeps: impl IntoIterator<Item = (String, Vec<(f64, f64)>)>,
+) -> Vec<(usize, crate::plot::Curve)> {
+    sweeps
+        .into_iter()
+        .enumerate()
+        .map(|(i, (label, points))| {
+            let dashed = false;
+            (
+                i,
+                crate::plot::Curve {
+                    label,
+                    points,
+                    dashed,
+                },
+            )
+        })
+        .collect()
+}
+
 /// One log-log curve per name: the points `keep` gives it, through `f`, those with
 /// positive coordinates.
 #[cfg(any(feature = "rigid", feature = "anim"))]
