@@ -996,8 +996,19 @@ impl Fluid {
         m
     }
 
-    /// One step of `dt` (module docs), sub-stepped by the CFL condition.
+    /// One step of `dt` (module docs), sub-stepped by the CFL condition. Runs on a
+    /// thread of rayon's pool ([`largestep_kernels::par::on_pool`]).
     pub fn step(
+        &self,
+        s: &mut FluidState,
+        w: &mut FluidWork,
+        dt: f64,
+    ) -> Result<FluidStepInfo, FluidError> {
+        largestep_kernels::par::on_pool(|| self.step_here(s, w, dt))
+    }
+
+    /// [`Fluid::step`] on the calling thread.
+    fn step_here(
         &self,
         s: &mut FluidState,
         w: &mut FluidWork,

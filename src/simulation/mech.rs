@@ -782,8 +782,14 @@ impl<M: MechModel> MechSimulation<M> {
         self.impulses.as_ref().map(|r| &r.out)
     }
 
-    /// Advances by `dt` (s); see the module docs.
+    /// Advances by `dt` (s); see the module docs. Runs on a thread of rayon's pool
+    /// ([`largestep_kernels::par::on_pool`]).
     pub fn step(&mut self, dt: f64) -> Result<StepInfo, IntegrateError> {
+        largestep_kernels::par::on_pool(|| self.step_here(dt))
+    }
+
+    /// [`MechSimulation::step`] on the calling thread.
+    fn step_here(&mut self, dt: f64) -> Result<StepInfo, IntegrateError> {
         let t0 = self.t;
         self.self_stats = SelfStats::default();
         if let Some(r) = &mut self.impulses {
