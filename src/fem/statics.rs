@@ -182,8 +182,19 @@ impl Fem {
     /// Solves for static equilibrium under gravity from the positions in `x` (pinned
     /// vertices stay where `x` has them), in `load_steps` increments (>= 1), each to a
     /// residual `tolerance` times the load scale. Errors when the stiffness is not
-    /// definite (an unconstrained body: pin it) or Newton does not converge.
+    /// definite (an unconstrained body: pin it) or Newton does not converge. Runs on a
+    /// thread of rayon's pool ([`largestep_kernels::par::on_pool`]).
     pub fn solve_static(
+        &self,
+        x: &mut [f64],
+        load_steps: usize,
+        tolerance: f64,
+    ) -> Result<StaticInfo, SolveError> {
+        largestep_kernels::par::on_pool(|| self.solve_static_here(x, load_steps, tolerance))
+    }
+
+    /// [`Fem::solve_static`] on the calling thread.
+    fn solve_static_here(
         &self,
         x: &mut [f64],
         load_steps: usize,

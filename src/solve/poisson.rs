@@ -1076,8 +1076,19 @@ impl GridPoisson {
 
     /// Solves `A p = b` from the initial guess in `p` (values off the fluid cells are
     /// set to zero; `b` there is ignored). For a singular problem `b` is taken with its
-    /// mean over the fluid cells removed and `p` comes back with zero mean.
+    /// mean over the fluid cells removed and `p` comes back with zero mean. Runs on a
+    /// thread of rayon's pool ([`largestep_kernels::par::on_pool`]).
     pub fn solve(
+        &mut self,
+        p: &mut [f64],
+        b: &[f64],
+        params: &PoissonParams,
+    ) -> Result<SolveInfo, SolveError> {
+        largestep_kernels::par::on_pool(|| self.solve_here(p, b, params))
+    }
+
+    /// [`GridPoisson::solve`] on the calling thread.
+    fn solve_here(
         &mut self,
         p: &mut [f64],
         b: &[f64],
