@@ -379,14 +379,13 @@ fn the_ordered_gather_gives_the_same_bits_as_the_gather() {
     check(mesh.positions.len(), &tets, LocalLayout::symmetric(4));
     check(mesh.positions.len(), &tets, LocalLayout::dense(4));
     // The symmetric layout stores the blocks of slots on and above the diagonal only
-    // (10 of 16 a tetrahedron, plus a spare block a chunk) and mirrors the rest; the
-    // dense one, whose blocks need not be symmetric, stores all 16.
+    // (10 of 16 a tetrahedron) and mirrors the rest; the dense one, whose blocks need
+    // not be symmetric, stores all 16.
     let len = |layout| {
         let asm = ElementAssembly::new(mesh.positions.len(), &tets, layout).unwrap();
         asm.with_ordered().ordered_buffer_len() / 9
     };
-    let chunks = tets.len().div_ceil(largestep::sparse::ORDERED_CHUNK);
-    assert_eq!(len(LocalLayout::symmetric(4)), 10 * tets.len() + chunks);
+    assert_eq!(len(LocalLayout::symmetric(4)), 10 * tets.len());
     assert_eq!(len(LocalLayout::dense(4)), 16 * tets.len());
 }
 

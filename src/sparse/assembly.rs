@@ -185,8 +185,8 @@ struct Ordered {
     /// Where local block (p, q) of element e goes in the ordered buffer, at
     /// `e * K * K + p * K + q` (see [`OrderedChunk`]). Each chunk of [`ORDERED_CHUNK`]
     /// elements has its own part of the buffer, its blocks sorted by slot there (in
-    /// element order within a slot). Every place is one local block's, except each
-    /// chunk's spare block, where the chunk's blocks of mirrored slots go (unread).
+    /// element order within a slot). Every place is one local block's; the blocks of
+    /// mirrored slots are not stored ([`NOT_STORED`]).
     order: Vec<u32>,
     /// The runs of the ordered buffer each slot sums, `runs[run_ptr[s]..run_ptr[s + 1]]`
     /// (first block, blocks), in chunk order: one per chunk with elements at the slot.
@@ -194,11 +194,11 @@ struct Ordered {
     runs: Vec<(u32, u32)>,
     /// Blocks in the buffer.
     blocks: usize,
-    /// For a symmetric layout, each slot below the diagonal with the slot it mirrors
-    /// (lower, upper): the gather sums the upper slot's runs only and writes the lower
-    /// slot as its transpose. Empty otherwise.
-    mirror: Vec<(u32, u32)>,
-    /// Whether each slot is the lower one of a pair in `mirror` (empty without them).
+    /// For a symmetric layout, each slot's mirror below the diagonal ([`NO_MIRROR`] for
+    /// those on or below it): the gather sums an upper slot's runs only and writes its
+    /// mirror as the transpose in the same pass. Empty otherwise.
+    mirror_of: Vec<u32>,
+    /// Whether each slot is the mirror of one above the diagonal (empty without them).
     lower: Vec<bool>,
 }
 
@@ -206,6 +206,18 @@ struct Ordered {
 /// buffer: a chunk's 1,024 tetrahedra write 590 KB, which one core's L2 holds while the
 /// kernel fills it.
 pub const ORDERED_CHUNK: usize = 1024;
+
+/// [`Ordered::mirror_of`] of a slot that mirrors none.
+const NO_MIRROR: u32 = u32::MAX;
+
+/// [`Ordered::order`] of a local block whose slot is a mirror: the gather writes that
+/// slot as the transpose of the one above the diagonal, so the block is not stored.
+/// Skipping these stores (6 of a tetrahedron's 16; before, they went to a spare block a
+/// chunk, unread) took the issue-15 beam's `Fem::force_jacobians` on one thread from
+/// 14.2-14.7 to 12.4-13.2 ms (best of 200, three alternated rounds, 2026-12-07); writing
+/// the mirrors in the gather's pass (not a second pass over the pairs) had taken it from
+/// 14.7-15.9 ms.
+const NOT_STORED: u32 = u32::MAX;
 
 fn encode(global: usize, s: Src) -> u32 {
     let mut code = global as u32;
@@ -382,7 +394,7 @@ impl ElementAssembly {
 
     /// Length of the buffer of [`ElementAssembly::par_write_ordered`]: every local block
     /// (`elements * K * K * 9`), or with a symmetric layout those of the slots on and
-    /// above the diagonal and a spare block a chunk (see
+    /// above the diagonal (see
     /// [`ElementAssembly::with_ordered`]).
     ///
     /// # Panics
@@ -467,45 +479,45 @@ impl ElementAssembly {
         let Ordered {
             run_ptr: ptr,
             runs,
-            mirror,
+            mirror_of,
             lower,
             ..
         } = self.ordered();
-        for_each_block(out, |s, v| {
-            // A mirrored slot is written by the transposes below.
-            if lower.get(s) == Some(&true) {
-                return;
-            }
-            let mut acc = [0.0f64; 9];
-            for &(first, len) in &runs[ptr[s] as usize..ptr[s + 1] as usize] {
-                let run = &ordered[9 * first as usize..9 * (first + len) as usize];
-                for b in run.chunks_exact(9) {
-                    for (a, bb) in acc.iter_mut().zip(b) {
-                        *a += bb.get();
-                    }
+        let slots = self.pattern.nnz_blocks();
+        let vals = Disjoint::new(out.values_mut());
+        par_reduce::<0, _>(chunk_count(slots, GATHER_CHUNK), &|c| {
+            for s in chunk_range(c, slots, GATHER_CHUNK) {
+                // A mirrored slot is written with the slot above it.
+                if lower.get(s) == Some(&true) {
+                    continue;
                 }
-            }
-            for (v, a) in v.iter_mut().zip(acc) {
-                *v = scale * a;
-            }
-        });
-        if !mirror.is_empty() {
-            let vals = Disjoint::new(out.values_mut());
-            mirror.par_chunks(GATHER_CHUNK).for_each(|pairs| {
-                for &(l, u) in pairs {
-                    let (l, u) = (9 * l as usize, 9 * u as usize);
-                    // SAFETY: the pairs match each slot below the diagonal with its mirror
-                    // above it, so every slot is in one pair at most, once: no two slices
-                    // overlap.
-                    let (dst, src) = unsafe { (vals.slice(l..l + 9), vals.slice(u..u + 9)) };
-                    for r in 0..3 {
-                        for c in 0..3 {
-                            dst[3 * r + c] = src[3 * c + r];
+                let mut acc = [0.0f64; 9];
+                for &(first, len) in &runs[ptr[s] as usize..ptr[s + 1] as usize] {
+                    let run = &ordered[9 * first as usize..9 * (first + len) as usize];
+                    for b in run.chunks_exact(9) {
+                        for (a, bb) in acc.iter_mut().zip(b) {
+                            *a += bb.get();
                         }
                     }
                 }
-            });
-        }
+                let v = acc.map(|a| scale * a);
+                // SAFETY: slot s is in this chunk alone, and not a mirror (skipped above).
+                unsafe { vals.slice(9 * s..9 * s + 9) }.copy_from_slice(&v);
+                if let Some(&l) = mirror_of.get(s).filter(|&&l| l != NO_MIRROR) {
+                    let l = 9 * l as usize;
+                    // SAFETY: l is the mirror of s alone (`mirror_pairs` pairs each slot
+                    // below the diagonal with one above it), and no chunk writes a mirror
+                    // as its own slot.
+                    let dst = unsafe { vals.slice(l..l + 9) };
+                    for r in 0..3 {
+                        for c in 0..3 {
+                            dst[3 * r + c] = v[3 * c + r];
+                        }
+                    }
+                }
+            }
+            []
+        });
         if let Some(d) = diag {
             out.add_diagonal(d);
         }
@@ -559,12 +571,14 @@ impl ElementAssembly {
 /// element): each local block's position (`order`), and each slot's runs (CSR). Within a
 /// chunk of [`ORDERED_CHUNK`] elements the blocks are sorted by slot, stably, so a slot's
 /// runs in chunk order hold its sources in element order, as `block_src` does. The
-/// blocks of the lower slots of `mirror`'s pairs (lower, upper) go to their chunk's spare
-/// block after its sorted ones.
+/// blocks of the lower slots of `mirror`'s pairs (lower, upper) are not stored
+/// ([`NOT_STORED`]).
 fn ordered_runs(slots: usize, elem_slots: &[u32], kk: usize, mirror: Vec<(u32, u32)>) -> Ordered {
     let mut is_lower = vec![false; if mirror.is_empty() { 0 } else { slots }];
-    for &(l, _) in &mirror {
+    let mut mirror_of = vec![NO_MIRROR; if mirror.is_empty() { 0 } else { slots }];
+    for &(l, u) in &mirror {
         is_lower[l as usize] = true;
+        mirror_of[u as usize] = l;
     }
     let lower = |s: u32| is_lower.get(s as usize) == Some(&true);
     let mut order = vec![0u32; elem_slots.len()];
@@ -581,12 +595,9 @@ fn ordered_runs(slots: usize, elem_slots: &[u32], kk: usize, mirror: Vec<(u32, u
         );
         // Stable: equal slots keep element (and local block) order.
         local.sort_by_key(|&(s, _)| s);
-        let spare = base + local.len();
-        let mut spares = 0;
         for (g, &s) in chunk.iter().enumerate() {
             if lower(s) {
-                order[first + g] = spare as u32;
-                spares = 1;
+                order[first + g] = NOT_STORED;
             }
         }
         let mut start = 0;
@@ -598,7 +609,7 @@ fn ordered_runs(slots: usize, elem_slots: &[u32], kk: usize, mirror: Vec<(u32, u
                 start = rank + 1;
             }
         }
-        base = spare + spares;
+        base += local.len();
     }
     // Runs in chunk order within each slot (csr keeps the pairs' order).
     let (run_ptr, idx) = csr(
@@ -614,14 +625,14 @@ fn ordered_runs(slots: usize, elem_slots: &[u32], kk: usize, mirror: Vec<(u32, u
         run_ptr,
         runs,
         blocks: base,
-        mirror,
+        mirror_of,
         lower: is_lower,
     }
 }
 
 /// One chunk's view of [`ElementAssembly::par_write_ordered`]'s buffer: stores the blocks
 /// of the chunk's elements only, so concurrent chunks never write the same place (each
-/// element's positions are its own, and each chunk's spare block its own).
+/// element's positions are its own).
 pub struct OrderedChunk<'a, T> {
     asm: &'a ElementAssembly,
     order: &'a [u32],
@@ -632,7 +643,8 @@ pub struct OrderedChunk<'a, T> {
 impl<T> OrderedChunk<'_, T> {
     /// Stores element e's unique blocks (`blocks * 9` values, as for
     /// [`ElementAssembly::gather_blocks`]) as `store` rounds them, each local block at its
-    /// place in gather order, negated and transposed as the layout says.
+    /// place in gather order, negated and transposed as the layout says (those of
+    /// mirrored slots not at all: the gather writes them).
     ///
     /// # Panics
     /// When e is outside the chunk's elements, or `unique` is short.
@@ -646,11 +658,14 @@ impl<T> OrderedChunk<'_, T> {
         assert!(unique.len() >= 9 * self.asm.blocks_per_element);
         let order = &self.order[e * kk..(e + 1) * kk];
         for (src, &at) in self.asm.local_src.iter().zip(order) {
+            if at == NOT_STORED {
+                continue;
+            }
             let at = 9 * at as usize;
-            // SAFETY: `at` belongs to element e alone, or is the spare block of e's chunk
-            // (`ordered_runs`), and e to this chunk alone (asserted above; the chunks of
-            // par_write_ordered are disjoint), so no other live slice overlaps it (this
-            // loop's slices live one iteration each).
+            // SAFETY: `at` belongs to element e alone (`ordered_runs`), and e to this
+            // chunk alone (asserted above; the chunks of par_write_ordered are disjoint),
+            // so no other live slice overlaps it (this loop's slices live one iteration
+            // each).
             let dst = unsafe { self.out.slice(at..at + 9) };
             let b: &[f64; 9] = unique[9 * src.index as usize..][..9].try_into().expect("9");
             let sign = if src.negate { -1.0 } else { 1.0 };
