@@ -340,3 +340,20 @@ fn f32_block_residual_equals_the_f64_residual_of_the_widened_values() {
         4 * 9 * a32.nnz_blocks()
     );
 }
+
+/// `par::on_pool` runs its work on a thread of the current pool: from outside any pool on
+/// one of the global pool's, inside a pool on the calling thread itself (no hand-over).
+#[test]
+fn on_pool_runs_on_a_pool_thread() {
+    use largestep::kernels::par::on_pool;
+    assert_eq!(rayon::current_thread_index(), None, "the test's own thread");
+    let inside = on_pool(rayon::current_thread_index);
+    assert!(inside.is_some(), "on a thread of the global pool");
+    let same = in_pool(2, || {
+        let here = (rayon::current_thread_index(), std::thread::current().id());
+        let there = on_pool(|| (rayon::current_thread_index(), std::thread::current().id()));
+        here == there
+    });
+    assert!(same, "already on a pool thread: runs in place");
+    assert_eq!(on_pool(|| 6 * 7), 42);
+}
