@@ -1421,28 +1421,29 @@ fn gmsh_meshes_read_in_versions_2_2_and_4_1() {
     assert!(e.contains("quadratic"), "{e}");
 }
 
+/// Runs study `name` with `--quick` into a fresh temporary folder: the folder, the summary
+/// line, the report (`name.md`) and the numbers (`name.json`).
+#[cfg(feature = "cli")]
+fn quick_study(name: &str) -> (std::path::PathBuf, String, String, Vec<serde_json::Value>) {
+    let out = std::env::temp_dir().join(format!("largestep-{name}-{}", std::process::id()));
+    let progress = largestep::study::Progress::silent();
+    let summary = largestep::study::run(name, &out, true, &progress).unwrap();
+    let read = |ext: &str| std::fs::read_to_string(out.join(format!("{name}.{ext}"))).unwrap();
+    let (md, json) = (read("md"), serde_json::from_str(&read("json")).unwrap());
+    (out, summary, md, json)
+}
+
 /// The quick `fem-accuracy` study writes its report, says it was quick, and its error
 /// falls as the mesh is refined.
 #[cfg(feature = "cli")]
 #[test]
 fn the_quick_fem_accuracy_study_reports_convergence() {
-    let out = std::env::temp_dir().join(format!("largestep-fem-study-{}", std::process::id()));
-    let summary = largestep::study::run(
-        "fem-accuracy",
-        &out,
-        true,
-        &largestep::study::Progress::silent(),
-    )
-    .unwrap();
+    let (out, summary, md, json) = quick_study("fem-accuracy");
     assert!(summary.contains("fem-accuracy"));
-    let md = std::fs::read_to_string(out.join("fem-accuracy.md")).unwrap();
     assert!(
         md.contains("fem-accuracy --quick") && md.contains("1 to 4 cubes across"),
         "{md}"
     );
-    let json: Vec<serde_json::Value> =
-        serde_json::from_str(&std::fs::read_to_string(out.join("fem-accuracy.json")).unwrap())
-            .unwrap();
     let errors: Vec<f64> = json[0]["points"]
         .as_array()
         .unwrap()
@@ -1461,23 +1462,12 @@ fn the_quick_fem_accuracy_study_reports_convergence() {
 #[cfg(feature = "cli")]
 #[test]
 fn the_quick_fem_steps_study_reports_each_way_converging() {
-    let out = std::env::temp_dir().join(format!("largestep-fem-steps-{}", std::process::id()));
-    let summary = largestep::study::run(
-        "fem-steps",
-        &out,
-        true,
-        &largestep::study::Progress::silent(),
-    )
-    .unwrap();
+    let (out, summary, md, json) = quick_study("fem-steps");
     assert!(summary.contains("fem-steps"), "{summary}");
-    let md = std::fs::read_to_string(out.join("fem-steps.md")).unwrap();
     assert!(
         md.contains("fem-steps --quick") && md.contains("20 x 2 x 2 cubes"),
         "{md}"
     );
-    let json: Vec<serde_json::Value> =
-        serde_json::from_str(&std::fs::read_to_string(out.join("fem-steps.json")).unwrap())
-            .unwrap();
     assert_eq!(json.len(), 6);
     let errors = |way: usize| -> Vec<f64> {
         json[way]["points"]
@@ -1508,17 +1498,7 @@ fn the_quick_fem_steps_study_reports_each_way_converging() {
 #[cfg(feature = "cli")]
 #[test]
 fn the_explicit_step_limit_is_two_over_the_highest_frequency() {
-    let out = std::env::temp_dir().join(format!("largestep-fem-stab-{}", std::process::id()));
-    largestep::study::run(
-        "fem-stability",
-        &out,
-        true,
-        &largestep::study::Progress::silent(),
-    )
-    .unwrap();
-    let rows: Vec<serde_json::Value> =
-        serde_json::from_str(&std::fs::read_to_string(out.join("fem-stability.json")).unwrap())
-            .unwrap();
+    let (out, _, _, rows) = quick_study("fem-stability");
     for r in &rows {
         let ratio = r["measured_dt"].as_f64().unwrap() / r["predicted_dt"].as_f64().unwrap();
         if r["inverted_start"].as_bool().unwrap() {

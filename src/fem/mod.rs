@@ -905,8 +905,8 @@ impl Fem {
             // With the warped tangent, also the stiffness (`warped_group`).
             let mut kg: Option<&mut [f64; TET_K * GROUP]> =
                 k.map(|k| k.try_into().expect("90 stiffness values per element"));
+            let els = self.elements(x);
             if iso.material == Material::Corotational && iso.clamp.is_none() {
-                let els = self.elements(x);
                 let polar = match kg.as_deref_mut() {
                     None => polar_group(fg, &els, e0),
                     Some(kg) if iso.warped => warped_group(fg, kg, &els, e0),
@@ -916,7 +916,7 @@ impl Fem {
                     return e;
                 }
             }
-            return element_group(fg, kg, &self.elements(x), e0, iso);
+            return element_group(fg, kg, &els, e0, iso);
         }
         for q in (0..n).step_by(4) {
             let m = (n - q).min(4);

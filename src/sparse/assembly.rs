@@ -194,12 +194,12 @@ struct Ordered {
     runs: Vec<(u32, u32)>,
     /// Blocks in the buffer.
     blocks: usize,
-    /// For a symmetric layout, each slot's mirror below the diagonal ([`NO_MIRROR`] for
-    /// those on or below it): the gather sums an upper slot's runs only and writes its
-    /// mirror as the transpose in the same pass. Empty otherwise.
-    mirror_of: Vec<u32>,
-    /// Whether each slot is the mirror of one above the diagonal (empty without them).
-    lower: Vec<bool>,
+    /// For a symmetric layout, each slot's mirror across the diagonal ([`NO_MIRROR`] for
+    /// those on it): slots are numbered row by row, so a slot below the diagonal has the
+    /// smaller-numbered mirror. The gather sums the slots on and
+    /// above the diagonal only and writes each one's mirror as its transpose in the same
+    /// pass. Empty otherwise.
+    mirror: Vec<u32>,
 }
 
 /// Elements per chunk of [`ElementAssembly::par_write_ordered`], and so per part of its
@@ -207,7 +207,7 @@ struct Ordered {
 /// kernel fills it.
 pub const ORDERED_CHUNK: usize = 1024;
 
-/// [`Ordered::mirror_of`] of a slot that mirrors none.
+/// [`Ordered::mirror`] of a slot that mirrors none (one on the diagonal).
 const NO_MIRROR: u32 = u32::MAX;
 
 /// [`Ordered::order`] of a local block whose slot is a mirror: the gather writes that
@@ -479,16 +479,17 @@ impl ElementAssembly {
         let Ordered {
             run_ptr: ptr,
             runs,
-            mirror_of,
-            lower,
+            mirror,
             ..
         } = self.ordered();
         let slots = self.pattern.nnz_blocks();
         let vals = Disjoint::new(out.values_mut());
         par_reduce::<0, _>(chunk_count(slots, GATHER_CHUNK), &|c| {
             for s in chunk_range(c, slots, GATHER_CHUNK) {
-                // A mirrored slot is written with the slot above it.
-                if lower.get(s) == Some(&true) {
+                // A slot below the diagonal (its mirror numbered before it) is written
+                // with its mirror.
+                let m = mirror.get(s).copied().unwrap_or(NO_MIRROR);
+                if (m as usize) < s {
                     continue;
                 }
                 let mut acc = [0.0f64; 9];
@@ -501,13 +502,13 @@ impl ElementAssembly {
                     }
                 }
                 let v = acc.map(|a| scale * a);
-                // SAFETY: slot s is in this chunk alone, and not a mirror (skipped above).
+                // SAFETY: slot s is in this chunk alone, and on or above the diagonal (no mirror).
                 unsafe { vals.slice(9 * s..9 * s + 9) }.copy_from_slice(&v);
-                if let Some(&l) = mirror_of.get(s).filter(|&&l| l != NO_MIRROR) {
-                    let l = 9 * l as usize;
-                    // SAFETY: l is the mirror of s alone (`mirror_pairs` pairs each slot
-                    // below the diagonal with one above it), and no chunk writes a mirror
-                    // as its own slot.
+                if m != NO_MIRROR {
+                    let l = 9 * m as usize;
+                    // SAFETY: m is the mirror of s alone (`mirror_pairs` pairs each slot
+                    // below the diagonal with one above it), below the diagonal (s is
+                    // not), and no chunk writes such a slot as its own.
                     let dst = unsafe { vals.slice(l..l + 9) };
                     for r in 0..3 {
                         for c in 0..3 {
@@ -571,16 +572,15 @@ impl ElementAssembly {
 /// element): each local block's position (`order`), and each slot's runs (CSR). Within a
 /// chunk of [`ORDERED_CHUNK`] elements the blocks are sorted by slot, stably, so a slot's
 /// runs in chunk order hold its sources in element order, as `block_src` does. The
-/// blocks of the lower slots of `mirror`'s pairs (lower, upper) are not stored
+/// blocks of the lower slots of the `pairs` (lower, upper) are not stored
 /// ([`NOT_STORED`]).
-fn ordered_runs(slots: usize, elem_slots: &[u32], kk: usize, mirror: Vec<(u32, u32)>) -> Ordered {
-    let mut is_lower = vec![false; if mirror.is_empty() { 0 } else { slots }];
-    let mut mirror_of = vec![NO_MIRROR; if mirror.is_empty() { 0 } else { slots }];
-    for &(l, u) in &mirror {
-        is_lower[l as usize] = true;
-        mirror_of[u as usize] = l;
+fn ordered_runs(slots: usize, elem_slots: &[u32], kk: usize, pairs: Vec<(u32, u32)>) -> Ordered {
+    let mut across = vec![NO_MIRROR; if pairs.is_empty() { 0 } else { slots }];
+    for &(l, u) in &pairs {
+        across[l as usize] = u;
+        across[u as usize] = l;
     }
-    let lower = |s: u32| is_lower.get(s as usize) == Some(&true);
+    let lower = |s: u32| across.get(s as usize).is_some_and(|&m| m < s);
     let mut order = vec![0u32; elem_slots.len()];
     let mut run_pairs: Vec<(usize, (u32, u32))> = Vec::new();
     let mut local: Vec<(u32, u32)> = Vec::with_capacity(ORDERED_CHUNK * kk);
@@ -625,8 +625,7 @@ fn ordered_runs(slots: usize, elem_slots: &[u32], kk: usize, mirror: Vec<(u32, u
         run_ptr,
         runs,
         blocks: base,
-        mirror_of,
-        lower: is_lower,
+        mirror: across,
     }
 }
 
