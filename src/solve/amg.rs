@@ -33,11 +33,13 @@
 //!   order through slot maps made with the pattern (the same bits on any thread count).
 //!   `P^T Q` forms the blocks on and right of the diagonal only; those left of it are
 //!   copied as their transposes (half of the larger product's work).
-//! - **Smoother:** Chebyshev polynomials of degree 2 in `D^-1 A` on the interval
-//!   `[1.1 lambda / 30, 1.1 lambda]` (Adams, Brezina, Hu and Tuminaro, "Parallel
+//! - **Smoother:** Chebyshev polynomials of degree [`DEGREE`] (1) in `D^-1 A` on the
+//!   interval `[1.1 lambda / 30, 1.1 lambda]` (Adams, Brezina, Hu and Tuminaro, "Parallel
 //!   multigrid smoothing: polynomial versus Gauss-Seidel", J. Comput. Phys. 188, 2003):
-//!   as parallel as Jacobi, symmetric (so the V-cycle is, as CG needs), and on these
-//!   matrices as strong as pyamg's symmetric Gauss-Seidel within a few iterations.
+//!   as parallel as Jacobi, symmetric (so the V-cycle is, as CG needs). Each degree costs
+//!   two products with the level's matrix a cycle, and the cycle streams its matrices
+//!   from memory: degree 1 reads the fine matrix 3 times a PCG iteration (with PCG's own
+//!   product) instead of 5, for 15-25% more iterations (see [`DEGREE`]).
 //! - **The fine level's V-cycle products in `f32`**, as in [`super::Multigrid`]: the
 //!   cycle's residuals on the fine level read a copy of the fine matrix rounded to `f32`
 //!   (made by each setup and [`SmoothedAggregation::refresh_fine`]; the `f64` values when
@@ -81,7 +83,18 @@ const POWER_ITERATIONS: usize = 10;
 
 /// Chebyshev smoother: degree, the ratio of the interval's ends, and the factor on the
 /// power estimate (which approaches the largest eigenvalue from below).
-const DEGREE: usize = 2;
+///
+/// Degree 1 against 2, measured on the 100 x 10 x 10 beam of issue 15 (2 threads, six
+/// rounds alternating builds, 120 steps each, the bench's `-rate-f32-skip` settings):
+/// 3.97 PCG iterations a step instead of 3.91, mean step 16.2-21.1 ms instead of
+/// 17.9-25.1 (1.4-4.5 ms less in every round); with Newton's systems solved to 1e-6
+/// (`-keep-1e-3`), 31.2 PCG iterations a step instead of 27.2 and 55.6 ms instead of
+/// 69.1. Alone, a system `M - h^2 K` of that beam solved from zero to 1e-10: 23 iterations
+/// instead of 19 (h = 1/60 s), 28 instead of 24 (h = 1 s), each solve faster. Degree 1
+/// on a narrower interval (ratio 3, Jacobi's classic weight `4 / (3 lambda)`) took more
+/// iterations and time. The refinement test's counts stay flat (17, 15, 17 from 567 to
+/// 19,683 unknowns, against 12, 13, 14 at degree 2).
+const DEGREE: usize = 1;
 const RATIO: f64 = 30.0;
 const BOOST: f64 = 1.1;
 
@@ -1202,7 +1215,8 @@ fn coarse_residual(a: &Blocks, r: &mut [f64], x: &[f64], b: &[f64]) {
 
 /// Chebyshev smoothing of `A x = b` in `D^-1 A` with eigenvalues up to about `lambda`
 /// (the three-term recurrence of Saad, "Iterative methods for sparse linear systems",
-/// algorithm 12.1, preconditioned). From `x = 0` when `zero`. `r`, `d`: scratch.
+/// algorithm 12.1, preconditioned) of degree [`DEGREE`]. From `x = 0` when `zero`. `r`,
+/// `d`: scratch.
 fn chebyshev(
     op: &dyn Op,
     lambda: f64,
@@ -1225,6 +1239,8 @@ fn chebyshev(
         op.precondition(d, 0.0, 1.0 / theta, r);
         kv::axpy(x, 1.0, d);
     }
+    // Empty at degree 1 (one damped Jacobi sweep); kept for other degrees.
+    #[allow(clippy::reversed_empty_ranges)]
     for _ in 1..DEGREE {
         op.residual(r, x, b);
         let next = 1.0 / (2.0 * sigma - rho);
