@@ -207,7 +207,7 @@ fn main() {
 | mean step over the 360 steps | {ms:.3} ms (first 120: {:.3}, last 120: {:.3}) | {ratio} |\n\
 | the same with sleeping on (peer: sleeping on) | {:.3} ms, {} of 1,000 boxes asleep at the end | {ratio_sleeping} |\n\
 | whole runs alternated with the peer's (sleeping off) | {alternated} | |\n\
-| solver | {} sub-steps of sequential impulses, soft contacts (30 Hz, damping ratio 20), relax, manifold friction 0.5 (two tangent rows and a twist row), persistent manifolds, rows stored in f32 and solved in f64, contact margin 2% of the size plus the closing distance | 4 iterations, soft contacts (rapier's defaults), friction 0.5 (two tangent rows and a twist row), f32, prediction distance 0.02 m |\n\n\
+| solver | {} sub-steps of sequential impulses, soft contacts (30 Hz, damping ratio 20), relax, manifold friction 0.5 (two tangent rows and a twist row) in both passes, persistent manifolds (kept while the pair's pose moves less than 0.5% of the size and 0.005 rad), rows stored in f32 and solved in f64, contact margin 2% of the size plus the closing distance | 4 iterations, soft contacts (rapier's defaults), friction 0.5 (two tangent rows and a twist row) in the relax pass only (`friction_in_bias_pass` false), contact recycling (a pair whose pose moved less than 0.05 m keeps its points), f32, prediction distance 0.02 m |\n\n\
 {:.0} contact points in {:.0} manifolds a step on average, deepest {deepest:.4} m; at the end the lowest centre is at {lowest:.3} m and the fastest box moves {fastest:.3} m/s.\n\n\
 Machine: {:.1} GFLOP/s of solver work, {:.1}% of one thread's peak FMA rate ({per_thread:.1} GFLOP/s).\n\n\
 Peer output:\n\n```\n{}\n```\n",
