@@ -47,6 +47,14 @@ fn run(bodies: &[Body], sleep: bool) {
     let mut world = PhysicsWorld::new();
     world.gravity = Vector::new(0.0, -9.81, 0.0);
     world.integration_parameters.dt = 1.0 / 60.0;
+    // The work a step that largestep does (README): `RAPIER_PILE_RECYCLING=0` turns
+    // contact recycling off, `RAPIER_PILE_BIAS_FRICTION=1` solves friction in the biased
+    // pass too.
+    let env = |k: &str, v: &str| std::env::var(k).is_ok_and(|x| x == v);
+    let recycling = !env("RAPIER_PILE_RECYCLING", "0");
+    let bias_friction = env("RAPIER_PILE_BIAS_FRICTION", "1");
+    world.integration_parameters.contact_recycling = recycling;
+    world.integration_parameters.friction_in_bias_pass = bias_friction;
     let f = |x: f64| x as Real;
     let mut handles = Vec::new();
     for b in bodies {
@@ -81,7 +89,13 @@ fn run(bodies: &[Body], sleep: bool) {
         .map(|h| world.bodies[*h].linvel().length())
         .fold(0.0, Real::max);
     println!(
-        "rapier3d 0.36.1, {} boxes, sleeping {}: {:.3} ms per step over {STEPS} steps (first 120: {:.3}, last 120: {:.3}); lowest centre {lowest:.3} m, fastest {fastest:.3} m/s at the end",
+        "rapier3d 0.36.1{}, {} boxes, sleeping {}: {:.3} ms per step over {STEPS} steps (first 120: {:.3}, last 120: {:.3}); lowest centre {lowest:.3} m, fastest {fastest:.3} m/s at the end",
+        match (recycling, bias_friction) {
+            (true, false) => "",
+            (false, false) => " (contact recycling off)",
+            (true, true) => " (friction in both passes)",
+            (false, true) => " (contact recycling off, friction in both passes)",
+        },
         bodies.len() - 1,
         if sleep { "on" } else { "off" },
         mean(&times),
