@@ -64,7 +64,11 @@ fn run(bodies: &[Body], sleep: bool) {
             RigidBodyBuilder::dynamic().can_sleep(sleep)
         }
         .translation(Vector::new(f(b.center[0]), f(b.center[1]), f(b.center[2])))
-        .rotation(Vector::new(f(b.rotation[0]), f(b.rotation[1]), f(b.rotation[2])));
+        .rotation(Vector::new(
+            f(b.rotation[0]),
+            f(b.rotation[1]),
+            f(b.rotation[2]),
+        ));
         let col = ColliderBuilder::cuboid(f(b.half[0]), f(b.half[1]), f(b.half[2]))
             .density(f(b.density))
             .friction(0.5)
