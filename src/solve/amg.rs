@@ -39,7 +39,8 @@
 //!   as parallel as Jacobi, symmetric (so the V-cycle is, as CG needs). Each degree costs
 //!   two products with the level's matrix a cycle, and the cycle streams its matrices
 //!   from memory: degree 1 reads the fine matrix 3 times a PCG iteration (with PCG's own
-//!   product) instead of 5, for 15-25% more iterations (see [`DEGREE`]).
+//!   product) instead of 5, for about a fifth more iterations on tight solves and almost
+//!   none under inexact Newton (see [`DEGREE`]).
 //! - **The fine level's V-cycle products in `f32`**, as in [`super::Multigrid`]: the
 //!   cycle's residuals on the fine level read a copy of the fine matrix rounded to `f32`
 //!   (made by each setup and [`SmoothedAggregation::refresh_fine`]; the `f64` values when
@@ -90,10 +91,11 @@ const POWER_ITERATIONS: usize = 10;
 /// 17.9-25.1 (1.4-4.5 ms less in every round); with Newton's systems solved to 1e-6
 /// (`-keep-1e-3`), 31.2 PCG iterations a step instead of 27.2 and 55.6 ms instead of
 /// 69.1. Alone, a system `M - h^2 K` of that beam solved from zero to 1e-10: 23 iterations
-/// instead of 19 (h = 1/60 s), 28 instead of 24 (h = 1 s), each solve faster. Degree 1
-/// on a narrower interval (ratio 3, Jacobi's classic weight `4 / (3 lambda)`) took more
-/// iterations and time. The refinement test's counts stay flat (17, 15, 17 from 567 to
-/// 19,683 unknowns, against 12, 13, 14 at degree 2).
+/// instead of 19 (h = 1/60 s), 28 instead of 24 (h = 1 s), each solve faster (62 against
+/// 77 ms and 75 against 84, setup included). Degree 1 on a narrower interval (ratio 3,
+/// Jacobi's classic weight `4 / (3 lambda)`) took more iterations and time. The
+/// refinement test's counts stay flat (17, 15, 17 from 567 to 19,683 unknowns, against
+/// 12, 13, 14 at degree 2).
 const DEGREE: usize = 1;
 const RATIO: f64 = 30.0;
 const BOOST: f64 = 1.1;

@@ -173,15 +173,12 @@ pub(crate) fn solid_curves(
         .into_iter()
         .enumerate()
         .map(|(i, (label, points))| {
-            let dashed = false;
-            (
-                i,
-                crate::plot::Curve {
-                    label,
-                    points,
-                    dashed,
-                },
-            )
+            let curve = crate::plot::Curve {
+                label,
+                points,
+                dashed: false,
+            };
+            (i, curve)
         })
         .collect()
 }
