@@ -732,6 +732,9 @@ mod scenes {
             ("[[rigid.particle]]\nposition = [0.0, 0.0, 0.0]\n[[rigid.constraint]]\ntype = \"anchor\"\na = 2\npoint = [0.0, 1.0, 0.0]\n", "particle 2 does not exist"),
             ("[rigid]\nsleeping = true\n[[rigid.particle]]\nposition = [0.0, 0.0, 0.0]\n", "sleeping applies to rigid bodies"),
             ("[rigid]\nsleeping = 3\n[[rigid.body]]\nshape = { sphere = 1.0 }\n", "sleeping"),
+            ("[rigid]\ncontact_reuse = 2.0\n[[rigid.body]]\nshape = { sphere = 1.0 }\n", "contact_reuse must be in 0..=1"),
+            ("[rigid]\ncontact_reuse = -0.1\n[[rigid.body]]\nshape = { sphere = 1.0 }\n", "contact_reuse must be in 0..=1"),
+            ("[rigid]\ncontact_reuse = 0.1\n[[rigid.particle]]\nposition = [0.0, 0.0, 0.0]\n", "contact_reuse applies to rigid bodies"),
         ] {
             let text = format!("{base}{body}");
             let e = Scene::parse(&text, "bad.toml").unwrap_err();
@@ -757,6 +760,17 @@ mod scenes {
             rigid.model().desc().sleep,
             Some(largestep::rigid::sleep::Sleep::default())
         );
+        assert_eq!(rigid.model().desc().contact_reuse, 0.005, "the default");
+        // `contact_reuse` reaches the description.
+        let text = format!(
+            "{base}[rigid]\ncontact_reuse = 0.1\n[[rigid.body]]\nshape = {{ sphere = 1.0 }}\n"
+        );
+        let sim = Scene::parse(&text, "ok.toml")
+            .unwrap()
+            .into_simulation()
+            .unwrap();
+        let rigid: &largestep::rigid::scene::RigidSim = sim.downcast_ref().unwrap();
+        assert_eq!(rigid.model().desc().contact_reuse, 0.1);
     }
 }
 
@@ -1360,16 +1374,8 @@ fn a_resting_stack_sleeps_and_a_ball_dropped_on_it_wakes_it() {
     assert!(s.asleep.iter().all(|&a| !a));
 }
 
-/// Persistent manifolds: a pair whose relative pose has barely moved keeps its manifold
-/// (moved with the bodies) instead of running the narrow phase again. On a tumbling,
-/// settling pile of turned boxes, the kept manifolds match the narrow phase's, run afresh
-/// on the same state: the same pairs, with their deepest points within the solver's slop
-/// (0.5% of the size; seen: 7e-6 m, 0.002%). The normals agree to 0.05 rad but for rare near-ties
-/// of the separating axis test (under 1% of the pairs), where the fresh run takes
-/// another axis with the same penetration (the depths above include those pairs).
-#[test]
-fn kept_manifolds_match_the_narrow_phase_run_afresh() {
-    use largestep::kernels::v3::dot;
+/// 27 turned boxes in three layers over the ground, dropped: a tumbling, settling pile.
+fn settling_boxes() -> RigidDesc {
     let mut d = RigidDesc::default();
     d.bodies.push(ground());
     for k in 0..27 {
@@ -1386,6 +1392,64 @@ fn kept_manifolds_match_the_narrow_phase_run_afresh() {
             )
         });
     }
+    d
+}
+
+/// `contact_reuse` 0 finds every manifold afresh (no pair reused, the contacts those of
+/// the narrow phase run on the same state); a looser one reuses more; one out of 0..=1
+/// is refused by name.
+#[test]
+fn contact_reuse_sets_how_long_manifolds_are_kept() {
+    let dt = 1.0 / 60.0;
+    let reused = |reuse: f64| {
+        let d = RigidDesc {
+            contact_reuse: reuse,
+            ..settling_boxes()
+        };
+        let (m, mut s, mut w) = d.build().unwrap();
+        let fresh = w.clone();
+        let mut reused = 0;
+        for _ in 0..120 {
+            if reuse == 0.0 {
+                let mut again = fresh.clone();
+                m.find_contacts(&s, &mut again, dt).unwrap();
+                let mut kept = w.clone();
+                m.find_contacts(&s, &mut kept, dt).unwrap();
+                let key = |c: &largestep::rigid::ContactPoint| (c.a, c.b, c.point, c.depth);
+                let k: Vec<_> = kept.contacts().iter().map(key).collect();
+                let a: Vec<_> = again.contacts().iter().map(key).collect();
+                assert_eq!(k, a);
+            }
+            reused += m.step(&mut s, &mut w, dt).unwrap().reused;
+        }
+        reused
+    };
+    let (none, default, loose) = (reused(0.0), reused(0.005), reused(0.1));
+    eprintln!("pairs reused over 120 steps: {none} (0), {default} (0.005), {loose} (0.1)");
+    assert_eq!(none, 0);
+    assert!(default > 0 && loose > default, "{default} {loose}");
+    for bad in [-0.1, 1.5, f64::NAN] {
+        let d = RigidDesc {
+            contact_reuse: bad,
+            ..settling_boxes()
+        };
+        let e = d.build().unwrap_err().to_string();
+        assert!(e.contains("contact_reuse"), "{e}");
+    }
+}
+
+/// Persistent manifolds: a pair whose relative pose has barely moved keeps its manifold
+/// (moved with the bodies) instead of running the narrow phase again. On a tumbling,
+/// settling pile of turned boxes, the kept manifolds match the narrow phase's, run afresh
+/// on the same state: the same pairs, with their deepest points within the solver's slop
+/// (0.5% of the size; seen: 7e-6 m, 0.002%). The normals agree to 0.05 rad but for rare near-ties
+/// of the separating axis test (under 1% of the pairs), where the fresh run takes
+/// another axis with the same penetration (the depths above include those pairs).
+#[test]
+fn kept_manifolds_match_the_narrow_phase_run_afresh() {
+    use largestep::kernels::v3::dot;
+    let d = settling_boxes();
+    assert_eq!(d.contact_reuse, 0.005, "the default is tested here");
     let (m, mut s, mut w) = d.build().unwrap();
     let fresh = w.clone();
     let dt = 1.0 / 60.0;
@@ -1517,4 +1581,76 @@ fn a_spinning_box_stops_at_the_rate_of_friction_at_its_corners() {
     );
     assert!(rel(stopped, expect) < 0.05, "{stopped} against {expect}");
     assert!(s.w[1][1].abs() < 1e-3, "{:?}", s.w[1]);
+}
+
+/// Runs study `name` with `--quick` into a fresh temporary folder: the summary line, the
+/// report (`name.md`) and the numbers (`name.json`).
+#[cfg(feature = "cli")]
+fn quick_study(name: &str) -> (String, String, Vec<serde_json::Value>) {
+    let out = std::env::temp_dir().join(format!("largestep-{name}-{}", std::process::id()));
+    let progress = largestep::study::Progress::silent();
+    let summary = largestep::study::run(name, &out, true, &progress).unwrap();
+    let read = |ext: &str| std::fs::read_to_string(out.join(format!("{name}.{ext}"))).unwrap();
+    let (md, json) = (read("md"), serde_json::from_str(&read("json")).unwrap());
+    assert!(out.join(format!("{name}.png")).exists());
+    std::fs::remove_dir_all(&out).ok();
+    (summary, md, json)
+}
+
+/// The quick `rigid-reuse` study: with `contact_reuse` 0 nothing is kept and the
+/// contacts are the fresh narrow phase's exactly; the default keeps some pairs with
+/// their deepest points within the solver's slop of a fresh narrow phase (the 99th
+/// percentile); 0.1 keeps more, and staler.
+#[cfg(feature = "cli")]
+#[test]
+fn the_quick_contact_reuse_study_trades_staleness_for_kept_pairs() {
+    let (summary, md, json) = quick_study("rigid-reuse");
+    assert!(summary.starts_with("rigid-reuse:"), "{summary}");
+    assert!(
+        md.contains("rigid-reuse --quick") && md.contains("5 x 4 x 5"),
+        "{md}"
+    );
+    let at = |r: f64| json.iter().find(|p| p["reuse"] == r).unwrap();
+    let f = |p: &serde_json::Value, k: &str| p[k].as_f64().unwrap();
+    let (none, default, loose) = (at(0.0), at(0.005), at(0.1));
+    assert_eq!((f(none, "reused"), f(none, "gap_max")), (0.0, 0.0));
+    assert_eq!(none["unmatched"], 0);
+    assert!(f(none, "compared") > 1000.0);
+    assert!(f(default, "reused") > 0.1, "{default}");
+    assert!(f(default, "gap_p99") < 0.005 * 0.5, "{default}");
+    assert!(f(loose, "reused") > f(default, "reused"));
+    assert!(f(loose, "gap_p99") > f(default, "gap_p99"));
+    for p in &json {
+        assert!(
+            f(p, "step_ms") > 0.0 && f(p, "lowest") > 0.4,
+            "a stable pile: {p}"
+        );
+    }
+}
+
+/// The quick `rigid-contacts` and `rigid-integrators` studies write their reports: the
+/// default solver's stack stands, and Runge-Kutta is the most accurate integrator at the
+/// finest step.
+#[cfg(feature = "cli")]
+#[test]
+fn the_quick_rigid_studies_write_their_reports() {
+    let (summary, md, json) = quick_study("rigid-contacts");
+    assert!(
+        summary.contains("rigid-contacts") && md.contains("--quick"),
+        "{md}"
+    );
+    assert!(json
+        .iter()
+        .any(|p| p["solver"] == "sequential impulses, soft"
+            && p["iterations"] == 4
+            && p["stood"] == true));
+    let (_, md, json) = quick_study("rigid-integrators");
+    assert!(md.contains("rigid-integrators --quick"), "{md}");
+    let finest = |name: &str| {
+        json.iter().rfind(|p| p["integrator"] == name).unwrap()["orientation_error"]
+            .as_f64()
+            .unwrap()
+    };
+    assert!(finest("rk4") < finest("symplectic-euler"));
+    assert!(finest("rk4") < finest("explicit-euler"));
 }

@@ -153,7 +153,7 @@ enum Command {
     Study {
         /// Which study (integrators, jello-stability, jello-accuracy, cloth-accuracy, cloth-stability,
         /// fem-accuracy, fem-stability, fem-steps, modes, fluids, poisson, cavity, distance-fields,
-        /// rigid-integrators, rigid-contacts, anim-ik, anim-sampling).
+        /// rigid-integrators, rigid-contacts, rigid-reuse, anim-ik, anim-sampling).
         name: String,
         /// Output folder for the report (default: out/studies; `--out docs/studies`
         /// regenerates the committed reports).

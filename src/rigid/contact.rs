@@ -2,8 +2,8 @@
 //! each new contact point with last step's (for warm starting).
 //!
 //! Manifolds persist: a pair of polyhedra keeps its points in the two bodies' frames,
-//! with the relative pose they were found at, and while the pose stays within [`REUSE`]
-//! of it (a resting pair) the points are moved with the bodies and their depths measured
+//! with the relative pose they were found at, and while the pose stays within
+//! [`RigidDesc::contact_reuse`](super::RigidDesc::contact_reuse) of it (a resting pair) the points are moved with the bodies and their depths measured
 //! again instead of running the narrow phase (PhysX's persistent contact manifolds;
 //! Bullet's `refreshContactPoints`). The pose is measured against the one the manifold
 //! was found at, not last step's, so slow creep cannot carry a manifold further than that.
@@ -53,11 +53,13 @@ pub struct ContactPoint {
     pub(crate) pseudo: f64,
 }
 
-/// How far a pair's relative pose may move from the pose its manifold was found at
-/// before the narrow phase runs again: the offset by this fraction of the smaller body's
-/// feature size, the relative rotation by this angle (rad). Below it the kept points are
-/// moved with their bodies (a persistent manifold: PhysX's contact reuse, Bullet's
-/// `refreshContactPoints`).
+/// The default of [`RigidDesc::contact_reuse`](super::RigidDesc::contact_reuse): how far
+/// a pair's relative pose may move from the pose its manifold was found at before the
+/// narrow phase runs again, the offset by this fraction of the smaller body's feature
+/// size, the relative rotation by this angle (rad). Below it the kept points are moved
+/// with their bodies (a persistent manifold: PhysX's contact reuse, Bullet's
+/// `refreshContactPoints`). The solver's slop: the kept points' depths stay within it of
+/// a fresh narrow phase's (`kept_manifolds_match_the_narrow_phase_run_afresh`).
 pub(crate) const REUSE: f64 = 0.005;
 
 /// The most steps a manifold whose points are all apart is kept before the narrow phase
@@ -150,11 +152,12 @@ impl Kept {
     }
 
     /// Whether the pair's present pose is close enough to the kept one.
-    fn holds(&self, pose: ([f64; 3], Quat), size: f64) -> bool {
+    /// (`reuse`: [`RigidDesc::contact_reuse`](super::RigidDesc::contact_reuse).)
+    fn holds(&self, pose: ([f64; 3], Quat), size: f64, reuse: f64) -> bool {
         let d = sub(pose.0, self.offset);
         let c = rotation::dot4(pose.1, self.rel).abs();
         // cos(angle / 2) > 1 - angle^2 / 8 for the angle between the orientations.
-        dot(d, d) < (REUSE * size) * (REUSE * size) && c > 1.0 - REUSE * REUSE / 8.0
+        dot(d, d) < (reuse * size) * (reuse * size) && c > 1.0 - reuse * reuse / 8.0
     }
 
     /// The kept points at the bodies' present poses, less those now more than `margin`
@@ -387,6 +390,7 @@ fn narrow_phase(m: &Rigid, s: &RigidState, w: &mut RigidWork, dt: f64) -> RigidS
     let mut info = RigidStepInfo::default();
     w.kept_next.clear();
     let mut kept = 0;
+    let reuse = m.desc().contact_reuse;
     for &[a, b] in &w.pairs {
         let (i, j) = (a as usize, b as usize);
         if !m.is_dynamic(i) && !m.is_dynamic(j) {
@@ -422,7 +426,7 @@ fn narrow_phase(m: &Rigid, s: &RigidState, w: &mut RigidWork, dt: f64) -> RigidS
             pose = Some(relative_pose(s, &w.rot, i, j));
         }
         let reuse = match pose {
-            Some(pose) if w.kept.list[kept].holds(pose, size) => {
+            Some(pose) if w.kept.list[kept].holds(pose, size, reuse) => {
                 let k = &w.kept.list[kept];
                 let man = k.manifold(s, &w.rot, [i, j], margin);
                 let touching = man

@@ -17,6 +17,8 @@
 //! stiffness = 1e6               # penalty only (N/m per point; default from the masses)
 //! damping = 1e3                 # penalty only (N s/m)
 //! sleeping = false              # bodies at rest sleep until touched (Box2D's thresholds)
+//! contact_reuse = 0.005         # keep a pair's contacts while its pose moves less than
+//!                               # this fraction of the size (and rad); 0: never
 //!
 //! [[rigid.body]]
 //! shape = { box = [0.5, 0.5, 0.5] }  # half extents; or { sphere = r },
@@ -98,6 +100,8 @@ pub struct RigidTable {
     pub damping: Option<f64>,
     #[serde(default)]
     pub sleeping: Option<bool>,
+    #[serde(default)]
+    pub contact_reuse: Option<f64>,
     #[serde(default)]
     pub body: Vec<BodyTable>,
     #[serde(default)]
@@ -428,6 +432,7 @@ pub fn desc(ctx: &Context<'_>, t: &RigidTable) -> Result<(RigidDesc, Vec<String>
     };
     let restitution = unit(t.restitution, "restitution", 0.0, 1.0)?;
     let friction = unit(t.friction, "friction", 0.5, f64::INFINITY)?;
+    let contact_reuse = unit(t.contact_reuse, "contact_reuse", super::contact::REUSE, 1.0)?;
     let name = t.integrator.as_deref().unwrap_or("symplectic-euler");
     let integrator = RigidIntegrator::from_name(name).ok_or_else(|| {
         ctx.error(
@@ -621,6 +626,7 @@ pub fn desc(ctx: &Context<'_>, t: &RigidTable) -> Result<(RigidDesc, Vec<String>
             // About 2 kB a pair (contacts and solver rows): what the memory budget holds.
             max_pairs: ((ctx.limits.max_memory / 2048) as usize).max(1024),
             sleep: t.sleeping.unwrap_or(false).then(Sleep::default),
+            contact_reuse,
         },
         warnings,
     ))
@@ -668,6 +674,7 @@ fn witkin(ctx: &Context<'_>, t: &RigidTable) -> Result<WitkinSim, SceneError> {
         "friction",
         "iterations",
         "sleeping",
+        "contact_reuse",
     ] {
         let given = match k {
             "solver" => t.solver.is_some(),
@@ -677,6 +684,7 @@ fn witkin(ctx: &Context<'_>, t: &RigidTable) -> Result<WitkinSim, SceneError> {
             "restitution" => t.restitution.is_some(),
             "friction" => t.friction.is_some(),
             "sleeping" => t.sleeping.is_some(),
+            "contact_reuse" => t.contact_reuse.is_some(),
             _ => t.iterations.is_some(),
         };
         if given {
@@ -1214,7 +1222,10 @@ impl Simulation for RigidSim {
                 "collision structures",
                 collides,
                 if collides {
-                    "sweep and prune over body boxes, contact manifolds".to_string()
+                    format!(
+                        "sweep and prune over body boxes, contact manifolds (kept while a pair moves less than {} of its size)",
+                        d.contact_reuse
+                    )
                 } else {
                     "fewer than two bodies, or none that moves".to_string()
                 },

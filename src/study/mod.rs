@@ -115,6 +115,8 @@ const STUDIES: &[Study] = &[
     ("rigid-integrators", rigid::integrators),
     #[cfg(feature = "rigid")]
     ("rigid-contacts", rigid::contacts),
+    #[cfg(feature = "rigid")]
+    ("rigid-reuse", rigid::reuse),
     #[cfg(feature = "anim")]
     ("anim-ik", anim::ik),
     #[cfg(feature = "anim")]

@@ -339,3 +339,320 @@ pub(super) fn contacts(
         out.join("rigid-contacts.md").display()
     ))
 }
+
+#[derive(Serialize)]
+struct ReusePoint {
+    /// `RigidDesc::contact_reuse`: the pose tolerance, as a fraction of the size (and rad).
+    reuse: f64,
+    /// Mean step over the run (ms), the fastest of the timed runs.
+    step_ms: f64,
+    /// Pairs that kept their manifold, over all the broad phase's pairs.
+    reused: f64,
+    /// Contact points a step, on the average (the chaotic pile takes another course
+    /// with each setting, and its step time follows its contacts).
+    contacts: f64,
+    /// Pairs compared (with points in both the kept and the fresh contacts).
+    compared: usize,
+    /// Pairs with points in one of the two only.
+    unmatched: usize,
+    /// The deepest point's depth, kept against fresh (m): median, 99th and 99.9th
+    /// percentiles and the worst.
+    gap_median: f64,
+    gap_p99: f64,
+    gap_p999: f64,
+    gap_max: f64,
+    /// Pairs whose normals differ by more than 0.05 rad.
+    flipped: usize,
+    /// At the end: the lowest centre (m) and the fastest box (m/s).
+    lowest: f64,
+    fastest: f64,
+}
+
+/// The 1,000-box pile of `scenes/rigid-pile.toml` (the benchmark's), or a 5 x 4 x 5 block
+/// of it when `quick`.
+fn pile(quick: bool) -> RigidDesc {
+    use crate::rigid::scene::RigidSim;
+    let text = include_str!("../../scenes/rigid-pile.toml");
+    let text = if quick {
+        text.replace("count = [10, 10, 10]", "count = [5, 4, 5]")
+    } else {
+        text.to_string()
+    };
+    let sim = crate::scene::Scene::parse(&text, "scenes/rigid-pile.toml")
+        .expect("the shipped pile scene parses")
+        .into_simulation()
+        .expect("the shipped pile scene builds one system");
+    let sim: &RigidSim = sim.downcast_ref().expect("a rigid scene");
+    sim.model().desc().clone()
+}
+
+/// The value at fraction `q` of the sorted `v` (0 when empty).
+fn quantile(v: &[f64], q: f64) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    v[((v.len() - 1) as f64 * q).round() as usize]
+}
+
+/// `largestep study rigid-reuse`: the benchmark's pile with persistent manifolds kept
+/// over a range of pose tolerances (`RigidDesc::contact_reuse`): the mean step against
+/// how stale the kept contacts are, measured against the narrow phase run afresh on the
+/// same state.
+pub(super) fn reuse(
+    out: &Path,
+    quick: bool,
+    progress: &Progress<'_>,
+) -> Result<String, StudyError> {
+    let tolerances: Vec<f64> = if quick {
+        vec![0.0, 0.005, 0.1]
+    } else {
+        vec![0.0, 0.0025, 0.005, 0.01, 0.02, 0.05, 0.1]
+    };
+    let (steps, rounds) = if quick { (150, 1) } else { (360, 5) };
+    let dt = 1.0 / 60.0;
+    let base = pile(quick);
+    progress.expect(tolerances.len() + rounds);
+    let built: Vec<_> = tolerances
+        .iter()
+        .map(|&reuse| {
+            RigidDesc {
+                contact_reuse: reuse,
+                ..base.clone()
+            }
+            .build()
+            .expect("the pile builds")
+        })
+        .collect();
+    // The timed runs: whole runs from the start, every tolerance once a round (so that a
+    // busy spell of the machine slows all alike), the fastest mean step of each.
+    let mut step_ms = vec![f64::INFINITY; built.len()];
+    for round in 0..rounds {
+        for ((m, s0, w0), best) in built.iter().zip(step_ms.iter_mut()) {
+            let (mut s, mut w) = (s0.clone(), w0.clone());
+            let t0 = Instant::now();
+            for _ in 0..steps {
+                if m.step(&mut s, &mut w, dt).is_err() {
+                    break;
+                }
+            }
+            *best = best.min(t0.elapsed().as_secs_f64() * 1e3 / steps as f64);
+        }
+        progress.tick(&format!("timed round {}", round + 1));
+    }
+    let mut points = Vec::new();
+    for ((&reuse, (m, s0, w0)), &step_ms) in tolerances.iter().zip(&built).zip(&step_ms) {
+        // The staleness run: every third step from the first contacts, the contacts
+        // found with the kept manifolds against those of a fresh work (nothing kept).
+        let (mut s, mut w) = (s0.clone(), w0.clone());
+        let fresh = w0.clone();
+        let (mut gaps, mut flipped, mut unmatched) = (Vec::new(), 0, 0);
+        let (mut reused, mut pairs, mut contacts) = (0usize, 0usize, 0usize);
+        for step in 0..steps {
+            if step >= 30 && step % 3 == 0 {
+                let mut kept = w.clone();
+                let mut again = fresh.clone();
+                if m.find_contacts(&s, &mut kept, dt).is_ok()
+                    && m.find_contacts(&s, &mut again, dt).is_ok()
+                {
+                    compare(
+                        kept.contacts(),
+                        again.contacts(),
+                        &mut gaps,
+                        &mut flipped,
+                        &mut unmatched,
+                    );
+                }
+            }
+            match m.step(&mut s, &mut w, dt) {
+                Ok(info) => {
+                    reused += info.reused;
+                    pairs += info.pairs;
+                    contacts += info.contacts;
+                }
+                Err(_) => break,
+            }
+        }
+        gaps.sort_by(f64::total_cmp);
+        let lowest = (0..m.len())
+            .filter(|&i| m.is_dynamic(i))
+            .map(|i| s.x[i][1])
+            .fold(f64::INFINITY, f64::min);
+        let fastest = (0..m.len())
+            .map(|i| crate::kernels::v3::dot(s.v[i], s.v[i]).sqrt())
+            .fold(0.0, f64::max);
+        points.push(ReusePoint {
+            reuse,
+            step_ms,
+            reused: reused as f64 / pairs.max(1) as f64,
+            contacts: contacts as f64 / steps as f64,
+            compared: gaps.len(),
+            unmatched,
+            gap_median: quantile(&gaps, 0.5),
+            gap_p99: quantile(&gaps, 0.99),
+            gap_p999: quantile(&gaps, 0.999),
+            gap_max: gaps.last().copied().unwrap_or(0.0),
+            flipped,
+            lowest,
+            fastest,
+        });
+        progress.tick(&format!("contact_reuse = {reuse}"));
+    }
+    let series = |label: &str, f: &dyn Fn(&ReusePoint) -> f64| crate::plot::Curve {
+        label: label.into(),
+        points: points.iter().map(|p| (p.step_ms, f(p))).collect(),
+        dashed: false,
+    };
+    // The run without kept manifolds, level across the tolerances on the log axis.
+    let afresh: Vec<(f64, f64)> = points
+        .iter()
+        .find(|p| p.reuse == 0.0)
+        .map(|z| {
+            points
+                .iter()
+                .filter(|p| p.reuse > 0.0)
+                .map(|p| (p.reuse, z.step_ms))
+                .collect()
+        })
+        .unwrap_or_default();
+    let panels = vec![
+        Panel {
+            title: "stale contacts against run time".into(),
+            x_label: "mean step (ms)".into(),
+            y_label: "deepest point, kept - fresh (m)".into(),
+            scale: Scale::LogLog,
+            curves: vec![
+                (0, series("99th percentile", &|p| p.gap_p99)),
+                (1, series("99.9th percentile", &|p| p.gap_p999)),
+                (2, series("worst", &|p| p.gap_max)),
+            ],
+        },
+        Panel {
+            title: "mean step against the tolerance".into(),
+            x_label: "contact_reuse (fraction of the size, rad)".into(),
+            y_label: "mean step (ms)".into(),
+            scale: Scale::LogLog,
+            curves: vec![
+                (
+                    3,
+                    crate::plot::Curve {
+                        label: "manifolds kept within it".into(),
+                        points: points.iter().map(|p| (p.reuse, p.step_ms)).collect(),
+                        dashed: false,
+                    },
+                ),
+                (
+                    4,
+                    crate::plot::Curve {
+                        label: "every manifold afresh (0)".into(),
+                        points: afresh,
+                        dashed: true,
+                    },
+                ),
+            ],
+        },
+    ];
+    write_plot_and_numbers(out, "rigid-reuse", &panels, 2, (560, 420), &points)?;
+    let boxes = m_count(&base);
+    let mut md = String::new();
+    let _ = writeln!(
+        md,
+        "# Persistent manifolds: how long to keep a pair's contacts\n\nGenerated by `largestep study rigid-reuse{}`. Plot: [rigid-reuse.svg](rigid-reuse.svg) ([PNG](rigid-reuse.png)); numbers: [rigid-reuse.json](rigid-reuse.json).\n\nThe benchmark's pile (`scenes/rigid-pile.toml`{}: {boxes} boxes of half extent 0.5 m dropped on a slab), dt = 1/60 s, {steps} steps, one thread, for each `contact_reuse` ([rigid] `contact_reuse`, `RigidDesc::contact_reuse`): a pair of boxes keeps its manifold, moved with the bodies and its depths measured again, while the pair's relative pose stays within that fraction of the smaller half extent and that angle in radians of the pose it was found at. 0 runs the narrow phase on every pair every step; 0.005 (the default) is the solver's slop, 2.5 mm here; rapier3d's contact recycling keeps a pair's points while it moves less than 5 cm (its `contact_recycle_distance`, on by default), about 0.1 here.\n\nStep: the mean over the run, the fastest of {rounds} whole runs (one of each tolerance a round, so that a busy spell of the machine slows all alike). Staleness: every third step from step 30, the contacts found with the kept manifolds against those of the narrow phase run afresh on the same state, pair by pair: the deepest point's depth, kept minus fresh (m), and the normals more than 0.05 rad apart (another separating axis, or a face turned away). Unmatched: pairs with points in one of the two only. The pile is chaotic: each setting sends it another way, so its end state (lowest centre, fastest box) differs with every setting (it shows the pile stayed stable), and so does the work a step: its step time follows its contact points, and differences of a few per cent between settings are the course the pile took as much as the kept manifolds.\n\n| contact_reuse | mean step (ms) | contact points a step | pairs kept | pairs compared | unmatched | gap median (m) | 99th | 99.9th | worst | normals apart | lowest centre (m) | fastest (m/s) |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        if quick { " --quick" } else { "" },
+        if quick { ", a 5 x 4 x 5 block of it with --quick" } else { "" },
+    );
+    for p in &points {
+        let _ = writeln!(
+            md,
+            "| {} | {:.3} | {:.0} | {:.0}% | {} | {} | {:.1e} | {:.1e} | {:.1e} | {:.1e} | {} | {:.3} | {:.2} |",
+            p.reuse,
+            p.step_ms,
+            p.contacts,
+            100.0 * p.reused,
+            p.compared,
+            p.unmatched,
+            p.gap_median,
+            p.gap_p99,
+            p.gap_p999,
+            p.gap_max,
+            p.flipped,
+            p.lowest,
+            p.fastest
+        );
+    }
+    write_file(&out.join("rigid-reuse.md"), &md)?;
+    let at = |r: f64| points.iter().find(|p| p.reuse == r);
+    let line = |p: Option<&ReusePoint>| {
+        p.map_or("-".into(), |p| {
+            format!(
+                "{:.3} ms a step, 99th percentile gap {:.1e} m",
+                p.step_ms, p.gap_p99
+            )
+        })
+    };
+    Ok(format!(
+        "rigid-reuse: afresh {}; default (0.005) {}; 0.1 {}; report: {}",
+        line(at(0.0)),
+        line(at(0.005)),
+        line(at(0.1)),
+        out.join("rigid-reuse.md").display()
+    ))
+}
+
+fn m_count(d: &RigidDesc) -> usize {
+    d.bodies
+        .iter()
+        .filter(|b| b.motion == crate::rigid::Motion::Dynamic)
+        .count()
+}
+
+/// Compares two contact lists sorted by pair (`kept`, `fresh`): for each pair in both,
+/// the gap between their deepest points (into `gaps`) and whether their normals differ
+/// by more than 0.05 rad; pairs in one list only are counted in `unmatched`.
+fn compare(
+    kept: &[crate::rigid::ContactPoint],
+    fresh: &[crate::rigid::ContactPoint],
+    gaps: &mut Vec<f64>,
+    flipped: &mut usize,
+    unmatched: &mut usize,
+) {
+    use crate::kernels::v3::dot;
+    // Each pair's deepest depth and first normal, in pair order.
+    let summarise = |c: &[crate::rigid::ContactPoint]| {
+        let mut out: Vec<((u32, u32), f64, [f64; 3])> = Vec::new();
+        for p in c {
+            match out.last_mut() {
+                Some((pair, deepest, _)) if *pair == (p.a, p.b) => {
+                    *deepest = deepest.max(p.depth);
+                }
+                _ => out.push(((p.a, p.b), p.depth, p.normal)),
+            }
+        }
+        out
+    };
+    let (a, b) = (summarise(kept), summarise(fresh));
+    let (mut i, mut j) = (0, 0);
+    while i < a.len() || j < b.len() {
+        match (a.get(i), b.get(j)) {
+            (Some(x), Some(y)) if x.0 == y.0 => {
+                gaps.push((x.1 - y.1).abs());
+                if dot(x.2, y.2).clamp(-1.0, 1.0).acos() > 0.05 {
+                    *flipped += 1;
+                }
+                i += 1;
+                j += 1;
+            }
+            (Some(x), Some(y)) if x.0 < y.0 => {
+                *unmatched += 1;
+                i += 1;
+            }
+            (Some(_), None) => {
+                *unmatched += 1;
+                i += 1;
+            }
+            _ => {
+                *unmatched += 1;
+                j += 1;
+            }
+        }
+    }
+}
