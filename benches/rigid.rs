@@ -10,7 +10,10 @@
 //! - The whole run again with sleeping on (`RigidDesc::sleep`, Box2D's thresholds),
 //!   beside the peer's run with sleeping on.
 //! - The whole runs of both (sleeping off) alternated five times: the ratio a round and
-//!   fastest against fastest (on a shared machine single runs move by up to 30%).
+//!   fastest against fastest (on a shared machine single runs move by up to 30%); in the
+//!   same rounds ours with `contact_reuse` 0.1 (kept manifolds while a pair moves less
+//!   than 5 cm, about rapier's contact recycling distance; `largestep study rigid-reuse`
+//!   says how stale that lets the contacts get).
 //! - Machine fraction: the solver's floating-point work counted from the contacts (a
 //!   point's normal row and a manifold's two tangent rows cost 24 multiply-adds a visit,
 //!   its twist row 12; two visits a sub-step, four sub-steps) over one thread's share of
@@ -86,6 +89,10 @@ fn peer_ms(line: &str) -> Option<f64> {
     let at = line.find(" ms per step")?;
     line[..at].rsplit(' ').next()?.parse().ok()
 }
+
+/// `contact_reuse` for the rounds beside rapier's contact recycling: 5 cm on these
+/// half-metre boxes, rapier's `contact_recycle_distance`.
+const LOOSE: f64 = 0.1;
 
 fn main() {
     // Single-threaded, as the peer.
@@ -169,15 +176,36 @@ fn main() {
     // Ours and the peer's whole runs alternated: on a shared machine single runs moved by
     // up to 30% within minutes, so the ratio is read round by round, and fastest against
     // fastest.
+    let (loose, loose0, loose_w0) = largestep::rigid::RigidDesc {
+        contact_reuse: LOOSE,
+        ..m.desc().clone()
+    }
+    .build()
+    .expect("builds");
+    let mut loose_ms = Vec::new();
     let rounds: Vec<(f64, f64)> = if peer_off.is_some() {
         (0..5)
             .filter_map(|_| {
                 let (ours, _) = whole_run(&m, &s0, &w0);
+                loose_ms.push(whole_run(&loose, &loose0, &loose_w0).0);
                 Some((ours, peer_line_ms(&run_peer()?, "sleeping off")?))
             })
             .collect()
     } else {
         Vec::new()
+    };
+    let loosened = if rounds.len() == loose_ms.len() && !rounds.is_empty() {
+        let mut r: Vec<f64> = loose_ms.iter().zip(&rounds).map(|(l, r)| l / r.1).collect();
+        r.sort_by(f64::total_cmp);
+        let fastest = loose_ms.iter().copied().fold(f64::INFINITY, f64::min);
+        format!(
+            "{fastest:.3} ms fastest; over rapier's {:.2}-{:.2}x a round (median {:.2}x)",
+            r[0],
+            r[r.len() - 1],
+            r[r.len() / 2]
+        )
+    } else {
+        "not run (the peer is not built)".to_string()
     };
     let alternated = if rounds.is_empty() {
         "not run (the peer is not built)".to_string()
@@ -207,7 +235,8 @@ fn main() {
 | mean step over the 360 steps | {ms:.3} ms (first 120: {:.3}, last 120: {:.3}) | {ratio} |\n\
 | the same with sleeping on (peer: sleeping on) | {:.3} ms, {} of 1,000 boxes asleep at the end | {ratio_sleeping} |\n\
 | whole runs alternated with the peer's (sleeping off) | {alternated} | |\n\
-| solver | {} sub-steps of sequential impulses, soft contacts (30 Hz, damping ratio 20), relax, manifold friction 0.5 (two tangent rows and a twist row) in both passes, persistent manifolds (kept while the pair's pose moves less than 0.5% of the size and 0.005 rad), rows stored in f32 and solved in f64, contact margin 2% of the size plus the closing distance | 4 iterations, soft contacts (rapier's defaults), friction 0.5 (two tangent rows and a twist row) in the relax pass only (`friction_in_bias_pass` false), contact recycling (a pair whose pose moved less than 0.05 m keeps its points), f32, prediction distance 0.02 m |\n\n\
+| in the same rounds, ours with `contact_reuse` {LOOSE} (about rapier's recycling distance) | {loosened} | |\n\
+| solver | {} sub-steps of sequential impulses, soft contacts (30 Hz, damping ratio 20), relax, manifold friction 0.5 (two tangent rows and a twist row) in both passes, persistent manifolds (`contact_reuse` 0.005: kept while the pair's pose moves less than 0.5% of the size and 0.005 rad), rows stored in f32 and solved in f64, contact margin 2% of the size plus the closing distance | 4 iterations, soft contacts (rapier's defaults), friction 0.5 (two tangent rows and a twist row) in the relax pass only (`friction_in_bias_pass` false), contact recycling (a pair whose pose moved less than 0.05 m keeps its points), f32, prediction distance 0.02 m |\n\n\
 {:.0} contact points in {:.0} manifolds a step on average, deepest {deepest:.4} m; at the end the lowest centre is at {lowest:.3} m and the fastest box moves {fastest:.3} m/s.\n\n\
 Machine: {:.1} GFLOP/s of solver work, {:.1}% of one thread's peak FMA rate ({per_thread:.1} GFLOP/s).\n\n\
 Peer output:\n\n```\n{}\n```\n",
