@@ -1002,7 +1002,7 @@ fn a_kinematic_paddle_pushes_a_box() {
 
 /// Runs `scenes/<name>` for `frames` frames with the frames kept: the runner, its
 /// summary and the output folder (for the caller to remove).
-#[cfg(any(feature = "cloth", feature = "mass-spring"))]
+#[cfg(any(feature = "cloth", feature = "mass-spring", feature = "fem"))]
 fn run_kept(
     name: &str,
     frames: usize,
@@ -1020,6 +1020,42 @@ fn run_kept(
     runner.keep_frames(true);
     let summary = runner.run(Some(frames), &mut |_| {}).unwrap();
     (runner, summary, out)
+}
+
+/// One-way coupling into the FEM: the ball of `rigid-fem.toml` rising under a rubber mat
+/// lifts it (the mat's top above the ball's starting height by most of the rise), and
+/// no vertex of the mat enters the ball (its vertex contacts hold them outside the body
+/// where it is at the end of the step).
+#[cfg(feature = "fem")]
+#[test]
+fn a_rising_ball_lifts_the_fem_mat_and_no_vertex_enters_it() {
+    let (runner, _, out) = run_kept("rigid-fem.toml", 36);
+    // The mat: 12 x 1 x 12 cubes, 13 x 2 x 13 vertices, first in the frame.
+    let mat = 13 * 2 * 13;
+    let (mut deepest, mut top, mut frames) = (0.0f64, f64::NEG_INFINITY, 0);
+    for (frame, record) in runner.kept_frames().iter().zip(runner.records()) {
+        let n = frame.positions.len() / 3;
+        assert!(n > mat);
+        // The ball: radius 0.35 m, centre rising from -0.37 m at 0.25 m/s.
+        let cy = -0.37 + 0.25 * record.time;
+        for i in 0..mat {
+            let p = [
+                frame.positions[i],
+                frame.positions[n + i] - cy,
+                frame.positions[2 * n + i],
+            ];
+            let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+            deepest = deepest.max(0.35 - r);
+            top = top.max(frame.positions[n + i]);
+        }
+        frames += 1;
+    }
+    eprintln!("rising ball: deepest mat vertex inside {deepest:.2e} m, highest mat point {top:.3} m over {frames} frames");
+    assert!(frames >= 36);
+    assert!(deepest < 1e-4, "{deepest}");
+    // After 36 frames of 4 steps (2.4 s) the ball's top is at 0.58 m: the mat was lifted.
+    assert!(top > 0.55, "{top}");
+    std::fs::remove_dir_all(&out).ok();
 }
 
 /// One-way coupling: rigid bodies as moving obstacles of the cloth.
