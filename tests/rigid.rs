@@ -1643,7 +1643,7 @@ fn the_quick_contact_reuse_study_trades_staleness_for_kept_pairs() {
     let (summary, md, json) = quick_study("rigid-reuse");
     assert!(summary.starts_with("rigid-reuse:"), "{summary}");
     assert!(
-        md.contains("rigid-reuse --quick") && md.contains("5 x 4 x 5"),
+        md.contains("rigid-reuse --quick") && md.contains("100 boxes"),
         "{md}"
     );
     let at = |r: f64| json.iter().find(|p| p["reuse"] == r).unwrap();

@@ -3,7 +3,8 @@
 //!
 //! Manifolds persist: a pair of polyhedra keeps its points in the two bodies' frames,
 //! with the relative pose they were found at, and while the pose stays within
-//! [`RigidDesc::contact_reuse`](super::RigidDesc::contact_reuse) of it (a resting pair) the points are moved with the bodies and their depths measured
+//! [`RigidDesc::contact_reuse`](super::RigidDesc::contact_reuse) of it (a resting pair)
+//! the points are moved with the bodies and their depths measured
 //! again instead of running the narrow phase (PhysX's persistent contact manifolds;
 //! Bullet's `refreshContactPoints`). The pose is measured against the one the manifold
 //! was found at, not last step's, so slow creep cannot carry a manifold further than that.
@@ -390,7 +391,7 @@ fn narrow_phase(m: &Rigid, s: &RigidState, w: &mut RigidWork, dt: f64) -> RigidS
     let mut info = RigidStepInfo::default();
     w.kept_next.clear();
     let mut kept = 0;
-    let reuse = m.desc().contact_reuse;
+    let tolerance = m.desc().contact_reuse;
     for &[a, b] in &w.pairs {
         let (i, j) = (a as usize, b as usize);
         if !m.is_dynamic(i) && !m.is_dynamic(j) {
@@ -426,7 +427,7 @@ fn narrow_phase(m: &Rigid, s: &RigidState, w: &mut RigidWork, dt: f64) -> RigidS
             pose = Some(relative_pose(s, &w.rot, i, j));
         }
         let reuse = match pose {
-            Some(pose) if w.kept.list[kept].holds(pose, size, reuse) => {
+            Some(pose) if w.kept.list[kept].holds(pose, size, tolerance) => {
                 let k = &w.kept.list[kept];
                 let man = k.manifold(s, &w.rot, [i, j], margin);
                 let touching = man
