@@ -18,6 +18,8 @@ use largestep_kernels::fem_diag::{
     evaluate, Elements, Iso,
 };
 use proptest::prelude::*;
+
+mod common;
 use std::path::{Path, PathBuf};
 
 const NONLINEAR: [Material; 4] = [
@@ -1421,24 +1423,12 @@ fn gmsh_meshes_read_in_versions_2_2_and_4_1() {
     assert!(e.contains("quadratic"), "{e}");
 }
 
-/// Runs study `name` with `--quick` into a fresh temporary folder: the folder, the summary
-/// line, the report (`name.md`) and the numbers (`name.json`).
-#[cfg(feature = "cli")]
-fn quick_study(name: &str) -> (std::path::PathBuf, String, String, Vec<serde_json::Value>) {
-    let out = std::env::temp_dir().join(format!("largestep-{name}-{}", std::process::id()));
-    let progress = largestep::study::Progress::silent();
-    let summary = largestep::study::run(name, &out, true, &progress).unwrap();
-    let read = |ext: &str| std::fs::read_to_string(out.join(format!("{name}.{ext}"))).unwrap();
-    let (md, json) = (read("md"), serde_json::from_str(&read("json")).unwrap());
-    (out, summary, md, json)
-}
-
 /// The quick `fem-accuracy` study writes its report, says it was quick, and its error
 /// falls as the mesh is refined.
 #[cfg(feature = "cli")]
 #[test]
 fn the_quick_fem_accuracy_study_reports_convergence() {
-    let (out, summary, md, json) = quick_study("fem-accuracy");
+    let (out, summary, md, json) = common::quick_study("fem-accuracy");
     assert!(summary.contains("fem-accuracy"));
     assert!(
         md.contains("fem-accuracy --quick") && md.contains("1 to 4 cubes across"),
@@ -1462,7 +1452,7 @@ fn the_quick_fem_accuracy_study_reports_convergence() {
 #[cfg(feature = "cli")]
 #[test]
 fn the_quick_fem_steps_study_reports_each_way_converging() {
-    let (out, summary, md, json) = quick_study("fem-steps");
+    let (out, summary, md, json) = common::quick_study("fem-steps");
     assert!(summary.contains("fem-steps"), "{summary}");
     assert!(
         md.contains("fem-steps --quick") && md.contains("20 x 2 x 2 cubes"),
@@ -1498,7 +1488,7 @@ fn the_quick_fem_steps_study_reports_each_way_converging() {
 #[cfg(feature = "cli")]
 #[test]
 fn the_explicit_step_limit_is_two_over_the_highest_frequency() {
-    let (out, _, _, rows) = quick_study("fem-stability");
+    let (out, _, _, rows) = common::quick_study("fem-stability");
     for r in &rows {
         let ratio = r["measured_dt"].as_f64().unwrap() / r["predicted_dt"].as_f64().unwrap();
         if r["inverted_start"].as_bool().unwrap() {

@@ -10,6 +10,8 @@ use largestep::rigid::{
 };
 use std::sync::Arc;
 
+mod common;
+
 fn rel(a: f64, b: f64) -> f64 {
     (a - b).abs() / b.abs().max(1e-300)
 }
@@ -1483,14 +1485,13 @@ fn contact_reuse_sets_how_long_manifolds_are_kept() {
 /// another axis with the same penetration (the depths above include those pairs).
 #[test]
 fn kept_manifolds_match_the_narrow_phase_run_afresh() {
-    use largestep::kernels::v3::dot;
     let d = settling_boxes();
     assert_eq!(d.contact_reuse, 0.005, "the default is tested here");
     let (m, mut s, mut w) = d.build().unwrap();
     let fresh = w.clone();
     let dt = 1.0 / 60.0;
-    let (mut reused, mut compared) = (0, 0);
-    let (mut worst_depth, mut flips) = (0.0f64, 0);
+    let mut reused = 0;
+    let mut diff = largestep::rigid::ContactDiff::default();
     for step in 0..240 {
         if step >= 30 {
             let mut kept = w.clone();
@@ -1505,25 +1506,13 @@ fn kept_manifolds_match_the_narrow_phase_run_afresh() {
             };
             let (a, b) = (kept.contacts(), again.contacts());
             assert_eq!(pairs(a), pairs(b), "step {step}");
-            for (pa, pb) in pairs(a).iter().zip(pairs(b)) {
-                let of = |c: &[largestep::rigid::ContactPoint], p: (u32, u32)| {
-                    let v: Vec<_> = c.iter().filter(|c| (c.a, c.b) == p).copied().collect();
-                    v
-                };
-                let (ka, kb) = (of(a, *pa), of(b, pb));
-                let deepest = |v: &[largestep::rigid::ContactPoint]| {
-                    v.iter().map(|c| c.depth).fold(f64::NEG_INFINITY, f64::max)
-                };
-                worst_depth = worst_depth.max((deepest(&ka) - deepest(&kb)).abs());
-                let c = dot(ka[0].normal, kb[0].normal).clamp(-1.0, 1.0);
-                if c.acos() > 0.05 {
-                    flips += 1;
-                }
-                compared += 1;
-            }
+            diff.add(a, b);
         }
         m.step(&mut s, &mut w, dt).unwrap();
     }
+    let compared = diff.gaps.len();
+    let worst_depth = diff.gaps.iter().copied().fold(0.0f64, f64::max);
+    let flips = diff.flipped;
     eprintln!(
         "kept manifolds: {reused} reused of {compared} compared; deepest point within {worst_depth:.2e} m; {flips} other axes"
     );
@@ -1619,15 +1608,11 @@ fn a_spinning_box_stops_at_the_rate_of_friction_at_its_corners() {
     assert!(s.w[1][1].abs() < 1e-3, "{:?}", s.w[1]);
 }
 
-/// Runs study `name` with `--quick` into a fresh temporary folder: the summary line, the
-/// report (`name.md`) and the numbers (`name.json`).
+/// Runs study `name` with `--quick` (`common::quick_study`): the summary line, the report
+/// and the numbers; its plot is written, and the folder removed.
 #[cfg(feature = "cli")]
 fn quick_study(name: &str) -> (String, String, Vec<serde_json::Value>) {
-    let out = std::env::temp_dir().join(format!("largestep-{name}-{}", std::process::id()));
-    let progress = largestep::study::Progress::silent();
-    let summary = largestep::study::run(name, &out, true, &progress).unwrap();
-    let read = |ext: &str| std::fs::read_to_string(out.join(format!("{name}.{ext}"))).unwrap();
-    let (md, json) = (read("md"), serde_json::from_str(&read("json")).unwrap());
+    let (out, summary, md, json) = common::quick_study(name);
     assert!(out.join(format!("{name}.png")).exists());
     std::fs::remove_dir_all(&out).ok();
     (summary, md, json)

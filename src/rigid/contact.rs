@@ -54,6 +54,58 @@ pub struct ContactPoint {
     pub(crate) pseudo: f64,
 }
 
+/// How far one contact list stands from another found on the same state (kept manifolds
+/// against the narrow phase run afresh, say), pair by pair: both sorted by pair, as
+/// [`RigidWork::contacts`](super::RigidWork::contacts) are. Accumulates over calls.
+#[derive(Clone, Debug, Default)]
+pub struct ContactDiff {
+    /// For each pair with points in both: the gap between their deepest points' depths
+    /// (m, absolute).
+    pub gaps: Vec<f64>,
+    /// Pairs in both whose normals differ by more than [`ContactDiff::APART`] (another
+    /// separating axis, or a face turned away).
+    pub flipped: usize,
+    /// Pairs with points in one list only.
+    pub unmatched: usize,
+}
+
+impl ContactDiff {
+    /// The angle between two pairs' normals counted as flipped (rad).
+    pub const APART: f64 = 0.05;
+
+    /// Adds the comparison of `a` with `b` (each sorted by pair).
+    pub fn add(&mut self, a: &[ContactPoint], b: &[ContactPoint]) {
+        // Each pair's deepest depth and normal, in pair order.
+        let summary = |c: &[ContactPoint]| {
+            c.chunk_by(|p, q| (p.a, p.b) == (q.a, q.b))
+                .map(|g| {
+                    let deepest = g.iter().map(|p| p.depth).fold(f64::NEG_INFINITY, f64::max);
+                    ((g[0].a, g[0].b), deepest, g[0].normal)
+                })
+                .collect::<Vec<_>>()
+        };
+        let (a, b) = (summary(a), summary(b));
+        let (mut i, mut j) = (0, 0);
+        while i < a.len() && j < b.len() {
+            match a[i].0.cmp(&b[j].0) {
+                std::cmp::Ordering::Less => i += 1,
+                std::cmp::Ordering::Greater => j += 1,
+                std::cmp::Ordering::Equal => {
+                    self.gaps.push((a[i].1 - b[j].1).abs());
+                    if dot(a[i].2, b[j].2).clamp(-1.0, 1.0).acos() > Self::APART {
+                        self.flipped += 1;
+                    }
+                    i += 1;
+                    j += 1;
+                    continue;
+                }
+            }
+            self.unmatched += 1;
+        }
+        self.unmatched += (a.len() - i) + (b.len() - j);
+    }
+}
+
 /// The default of [`RigidDesc::contact_reuse`](super::RigidDesc::contact_reuse): how far
 /// a pair's relative pose may move from the pose its manifold was found at before the
 /// narrow phase runs again, the offset by this fraction of the smaller body's feature

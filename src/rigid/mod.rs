@@ -69,7 +69,7 @@ pub(crate) use largestep_kernels::rigid::{inertia_times, mat_t_vec, mat_vec};
 use largestep_kernels::v3::{add, cross, dot, scale, sub};
 use std::sync::Arc;
 
-pub use contact::ContactPoint;
+pub use contact::{ContactDiff, ContactPoint};
 pub use mass::MassProperties;
 
 /// A body's shape, in its own frame.

@@ -361,7 +361,7 @@ struct ReusePoint {
     gap_p99: f64,
     gap_p999: f64,
     gap_max: f64,
-    /// Pairs whose normals differ by more than 0.05 rad.
+    /// Pairs whose normals differ by more than `ContactDiff::APART` (0.05 rad).
     flipped: usize,
     /// At the end: the lowest centre (m) and the fastest box (m/s).
     lowest: f64,
@@ -445,7 +445,7 @@ pub(super) fn reuse(
         // found with the kept manifolds against those of a fresh work (nothing kept).
         let (mut s, mut w) = (s0.clone(), w0.clone());
         let fresh = w0.clone();
-        let (mut gaps, mut flipped, mut unmatched) = (Vec::new(), 0, 0);
+        let mut diff = crate::rigid::ContactDiff::default();
         let (mut reused, mut pairs, mut contacts) = (0usize, 0usize, 0usize);
         for step in 0..steps {
             if step >= 30 && step % 3 == 0 {
@@ -454,13 +454,7 @@ pub(super) fn reuse(
                 if m.find_contacts(&s, &mut kept, dt).is_ok()
                     && m.find_contacts(&s, &mut again, dt).is_ok()
                 {
-                    compare(
-                        kept.contacts(),
-                        again.contacts(),
-                        &mut gaps,
-                        &mut flipped,
-                        &mut unmatched,
-                    );
+                    diff.add(kept.contacts(), again.contacts());
                 }
             }
             match m.step(&mut s, &mut w, dt) {
@@ -472,7 +466,8 @@ pub(super) fn reuse(
                 Err(_) => break,
             }
         }
-        gaps.sort_by(f64::total_cmp);
+        diff.gaps.sort_by(f64::total_cmp);
+        let gaps = &diff.gaps;
         let lowest = (0..m.len())
             .filter(|&i| m.is_dynamic(i))
             .map(|i| s.x[i][1])
@@ -486,12 +481,12 @@ pub(super) fn reuse(
             reused: reused as f64 / pairs.max(1) as f64,
             contacts: contacts as f64 / steps as f64,
             compared: gaps.len(),
-            unmatched,
-            gap_median: quantile(&gaps, 0.5),
-            gap_p99: quantile(&gaps, 0.99),
-            gap_p999: quantile(&gaps, 0.999),
+            unmatched: diff.unmatched,
+            gap_median: quantile(gaps, 0.5),
+            gap_p99: quantile(gaps, 0.99),
+            gap_p999: quantile(gaps, 0.999),
             gap_max: gaps.last().copied().unwrap_or(0.0),
-            flipped,
+            flipped: diff.flipped,
             lowest,
             fastest,
         });
@@ -604,56 +599,4 @@ fn dynamic_bodies(d: &RigidDesc) -> usize {
         .iter()
         .filter(|b| b.motion == crate::rigid::Motion::Dynamic)
         .count()
-}
-
-/// Compares two contact lists sorted by pair (`kept`, `fresh`): for each pair in both,
-/// the gap between their deepest points (into `gaps`) and whether their normals differ
-/// by more than 0.05 rad; pairs in one list only are counted in `unmatched`.
-fn compare(
-    kept: &[crate::rigid::ContactPoint],
-    fresh: &[crate::rigid::ContactPoint],
-    gaps: &mut Vec<f64>,
-    flipped: &mut usize,
-    unmatched: &mut usize,
-) {
-    use crate::kernels::v3::dot;
-    // Each pair's deepest depth and first normal, in pair order.
-    let summarise = |c: &[crate::rigid::ContactPoint]| {
-        let mut out: Vec<((u32, u32), f64, [f64; 3])> = Vec::new();
-        for p in c {
-            match out.last_mut() {
-                Some((pair, deepest, _)) if *pair == (p.a, p.b) => {
-                    *deepest = deepest.max(p.depth);
-                }
-                _ => out.push(((p.a, p.b), p.depth, p.normal)),
-            }
-        }
-        out
-    };
-    let (a, b) = (summarise(kept), summarise(fresh));
-    let (mut i, mut j) = (0, 0);
-    while i < a.len() || j < b.len() {
-        match (a.get(i), b.get(j)) {
-            (Some(x), Some(y)) if x.0 == y.0 => {
-                gaps.push((x.1 - y.1).abs());
-                if dot(x.2, y.2).clamp(-1.0, 1.0).acos() > 0.05 {
-                    *flipped += 1;
-                }
-                i += 1;
-                j += 1;
-            }
-            (Some(x), Some(y)) if x.0 < y.0 => {
-                *unmatched += 1;
-                i += 1;
-            }
-            (Some(_), None) => {
-                *unmatched += 1;
-                i += 1;
-            }
-            _ => {
-                *unmatched += 1;
-                j += 1;
-            }
-        }
-    }
 }
