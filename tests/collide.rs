@@ -1646,3 +1646,105 @@ mod six_dof {
         assert!(csv.lines().all(|l| l.split(',').count() == 24));
     }
 }
+
+/// A moving obstacle taken back in time (the pose a sub-step meets): a point of the body
+/// keeps its distance to it when moved back with the rigid motion, two steps back are
+/// one step of their sum back, and a point of the surface moves back at the velocity
+/// the contacts use (`velocity_at`), to first order.
+#[test]
+fn moving_obstacles_go_back_along_their_motion() {
+    use largestep::collide::{MovingObstacle, Obstacle};
+    use largestep::kernels::rotation::exp_matrix;
+    let center = [0.3, 1.1, -0.4];
+    let axes = {
+        let r = exp_matrix([0.3, -0.7, 0.2]);
+        [0, 1, 2].map(|c| [r[0][c], r[1][c], r[2][c]])
+    };
+    let shapes = [
+        Obstacle::Oriented {
+            center,
+            axes,
+            half: [0.5, 0.2, 0.3],
+        },
+        Obstacle::Sphere {
+            center,
+            radius: 0.4,
+        },
+        Obstacle::Capsule {
+            a: [0.1, 1.0, -0.4],
+            b: [0.6, 1.3, -0.2],
+            radius: 0.15,
+        },
+        Obstacle::Hull {
+            points: std::sync::Arc::from(
+                &[
+                    [0.0, 0.0, 0.0],
+                    [0.4, 0.0, 0.0],
+                    [0.0, 0.5, 0.0],
+                    [0.0, 0.0, 0.3],
+                ][..],
+            ),
+            center,
+            axes,
+        },
+        Obstacle::plane_through([0.2, 0.9, -0.3], [0.1, 1.0, 0.2]).unwrap(),
+    ];
+    let (v, w) = ([0.4, -1.2, 0.7], [2.0, -0.5, 1.5]);
+    // The rigid motion back by s (rad/s and m/s constant), independently of `earlier`.
+    let back = |p: [f64; 3], s: f64| -> [f64; 3] {
+        let r = exp_matrix(w.map(|c| -s * c));
+        let d: [f64; 3] = std::array::from_fn(|k| p[k] - center[k]);
+        std::array::from_fn(|k| {
+            center[k] - s * v[k] + r[k][0] * d[0] + r[k][1] * d[1] + r[k][2] * d[2]
+        })
+    };
+    let probes: Vec<[f64; 3]> = (0..40)
+        .map(|k| {
+            let t = k as f64;
+            [
+                0.3 + 0.7 * (1.3 * t).sin(),
+                1.1 + 0.6 * (0.7 * t).cos(),
+                -0.4 + 0.5 * (2.1 * t).sin(),
+            ]
+        })
+        .collect();
+    for shape in shapes {
+        let now = MovingObstacle {
+            shape: shape.clone(),
+            center,
+            velocity: v,
+            angular_velocity: w,
+        };
+        let same = now.earlier(0.0);
+        let s = 0.013;
+        let then = now.earlier(s);
+        let twice = now.earlier(0.005).earlier(0.008);
+        for &p in &probes {
+            let (Some((d, _)), Some((z, _)), Some((e, _)), Some((f, _))) = (
+                shape.distance(p),
+                same.shape.distance(p),
+                then.shape.distance(back(p, s)),
+                twice.shape.distance(back(p, s)),
+            ) else {
+                continue;
+            };
+            assert!(
+                (d - z).abs() < 1e-12,
+                "{shape:?}: {d} against {z} not moved"
+            );
+            assert!((d - e).abs() < 1e-9, "{shape:?}: {d} against {e}");
+            assert!(
+                (d - f).abs() < 1e-9,
+                "{shape:?}: {d} against {f} in two steps"
+            );
+            // First order: the point moved back by s times the surface's velocity.
+            let u = now.velocity_at(p);
+            let q: [f64; 3] = std::array::from_fn(|k| p[k] - s * u[k]);
+            let g = then.shape.distance(q).unwrap().0;
+            assert!(
+                (d - g).abs() < 2.0 * s * s * 4.0,
+                "{shape:?}: {d} against {g}"
+            );
+        }
+    }
+}

@@ -130,6 +130,71 @@ impl MovingObstacle {
         ];
         [0, 1, 2].map(|k| self.velocity[k] + c[k])
     }
+
+    /// The obstacle `s` seconds earlier, its motion taken back at constant velocity and
+    /// angular velocity (the pose a sub-step ending within a rigid step meets: the rigid
+    /// bodies hand over their poses at the step's end). An axis-aligned box is translated
+    /// only and a distance grid stays where it is: neither can turn.
+    pub fn earlier(&self, s: f64) -> MovingObstacle {
+        let r = largestep_kernels::rotation::exp_matrix(self.angular_velocity.map(|c| -s * c));
+        let turn = |d: [f64; 3]| -> [f64; 3] {
+            std::array::from_fn(|k| r[k][0] * d[0] + r[k][1] * d[1] + r[k][2] * d[2])
+        };
+        let center: [f64; 3] = std::array::from_fn(|k| self.center[k] - s * self.velocity[k]);
+        let place = |p: [f64; 3]| -> [f64; 3] {
+            let d = turn(sub(p, self.center));
+            std::array::from_fn(|k| center[k] + d[k])
+        };
+        let back = self.velocity.map(|c| -s * c);
+        let shape = match &self.shape {
+            Obstacle::Plane { normal, offset } => {
+                let on = place(normal.map(|c| -c * offset));
+                let normal = turn(*normal);
+                Obstacle::Plane {
+                    normal,
+                    offset: -dot(normal, on),
+                }
+            }
+            Obstacle::Sphere { center: c, radius } => Obstacle::Sphere {
+                center: place(*c),
+                radius: *radius,
+            },
+            Obstacle::Box { min, max } => Obstacle::Box {
+                min: std::array::from_fn(|k| min[k] + back[k]),
+                max: std::array::from_fn(|k| max[k] + back[k]),
+            },
+            Obstacle::Capsule { a, b, radius } => Obstacle::Capsule {
+                a: place(*a),
+                b: place(*b),
+                radius: *radius,
+            },
+            Obstacle::Sdf(g) => Obstacle::Sdf(g.clone()),
+            Obstacle::Oriented {
+                center: c,
+                axes,
+                half,
+            } => Obstacle::Oriented {
+                center: place(*c),
+                axes: axes.map(turn),
+                half: *half,
+            },
+            Obstacle::Hull {
+                points,
+                center: c,
+                axes,
+            } => Obstacle::Hull {
+                points: points.clone(),
+                center: place(*c),
+                axes: axes.map(turn),
+            },
+        };
+        MovingObstacle {
+            shape,
+            center,
+            velocity: self.velocity,
+            angular_velocity: self.angular_velocity,
+        }
+    }
 }
 
 impl Obstacle {

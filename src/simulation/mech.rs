@@ -412,9 +412,13 @@ pub struct MechSimulation<M: MechModel> {
     /// vertices), when the model asks for it; with what it did over the last step.
     self_collision: Option<(Box<SelfCollision>, Vec<f64>)>,
     self_stats: SelfStats,
-    /// Obstacles of other systems (rigid bodies) at their present poses, with their
-    /// motion: the contacts take them with the model's own (one-way coupling).
+    /// Obstacles of other systems (rigid bodies) at the poses of the present sub-step's
+    /// end, with their motion: the contacts take them with the model's own (one-way
+    /// coupling).
     moving: Vec<MovingObstacle>,
+    /// The same at the end of the step they were handed over for ([`Self::moving`] is
+    /// them taken back to each sub-step's end).
+    moving_end: Vec<MovingObstacle>,
 }
 
 /// What recording contact impulses needs (see [`MechSimulation::record_contact_impulses`]).
@@ -544,6 +548,7 @@ impl<M: MechModel> MechSimulation<M> {
             self_collision,
             self_stats: SelfStats::default(),
             moving: Vec::new(),
+            moving_end: Vec::new(),
         })
     }
 
@@ -875,6 +880,15 @@ impl<M: MechModel> MechSimulation<M> {
             } else {
                 self.sub_dt
             };
+            // Moving obstacles where they are at the sub-step's end: a halved step then
+            // meets half their motion, so that halving shrinks what the contacts must
+            // move as well as what the solve does.
+            if !self.moving_end.is_empty() {
+                let back = end - (self.t + h);
+                self.moving.clear();
+                self.moving
+                    .extend(self.moving_end.iter().map(|m| m.earlier(back.max(0.0))));
+            }
             self.saved.0.copy_from_slice(self.state.x.as_slice());
             self.saved.1.copy_from_slice(self.state.v.as_slice());
             self.saved_contacts.clone_from(&self.contacts);
@@ -1072,6 +1086,8 @@ impl<M: MechModel> Simulation for MechSimulation<M> {
     fn set_moving_obstacles(&mut self, obstacles: &[MovingObstacle]) {
         self.moving.clear();
         self.moving.extend_from_slice(obstacles);
+        self.moving_end.clear();
+        self.moving_end.extend_from_slice(obstacles);
     }
 
     fn record_contact_impulses(&mut self, on: bool) {
