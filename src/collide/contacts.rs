@@ -37,10 +37,13 @@
 //! leaves the rest to position correction.
 //!
 //! Vertices alone would let an obstacle's sharp edge pass between them: a table's edges
-//! showed through the tablecloth draped over it. After the vertex contacts, every triangle
-//! of the model that a sharp edge of an obstacle comes through (or within the thickness
-//! of) is moved out along its normal and held there for the next solve
-//! (`VertexContacts::resolve_edges`; the geometry is in [`super::edge_through_triangle`]).
+//! showed through the tablecloth draped over it, and a rising box's through the sheet it
+//! lifted (by up to 2 cm). After the vertex contacts, every triangle of the model that a
+//! sharp edge of an obstacle, fixed or moving, comes through (or within the thickness of)
+//! is moved out along its normal and held there for the next solve
+//! (`VertexContacts::resolve_edges`; the geometry is in [`super::edge_through_triangle`]);
+//! a moving obstacle carries the vertices its edge holds along within the solve (the
+//! filter's prescribed velocity).
 //!
 //! A vertex that went inside is moved out through the surface it came in by (its path
 //! over the step, `x - h v` to `x`, crosses it), not the nearest one: a vertex that went
@@ -69,6 +72,12 @@ struct Contact {
     vertex: u32,
     /// Outward unit normal.
     normal: [f64; 3],
+    /// Which obstacle: the static ones first, then the moving ones.
+    obstacle: u32,
+    /// The obstacle's velocity at the vertex (m/s; zero for a static one).
+    velocity: [f64; 3],
+    /// Held by an obstacle's edge ([`VertexContacts::resolve_edges`]), not a face.
+    edge: bool,
     /// The normal component of the force on the vertex at the last force evaluation (N):
     /// positive means the model pulls it off the surface.
     pull: f64,
@@ -152,7 +161,11 @@ impl VertexContacts {
             let mut pulled = false;
             // Normal force pressing it onto the surface during the step (N, >= 0).
             let mut press = 0.0f64;
+            let mut was = prev..prev; // its contacts at the last step
             while prev < self.prev.len() && self.prev[prev].vertex as usize <= i {
+                if (self.prev[prev].vertex as usize) < i {
+                    was.start = prev + 1;
+                }
                 if self.prev[prev].vertex as usize == i {
                     let pull = self.prev[prev].pull;
                     pulled |= pull > 0.0;
@@ -160,13 +173,26 @@ impl VertexContacts {
                 }
                 prev += 1;
             }
+            was.end = prev;
             self.released[i] = pulled;
-            for (o, mv) in all() {
+            for (which, (o, mv)) in (0u32..).zip(all()) {
                 let p = get3(x, n, i);
                 let Some((d, nrm)) = o.distance(p) else {
                     continue;
                 };
-                if d.is_nan() || d >= REACH || (pulled && d >= 0.0) {
+                // A vertex held against a moving obstacle at the last step stays held
+                // within twice the thickness (and is not pulled in): one its edge carried
+                // along (see `constraints`) can end a little off the face, and dropped
+                // there it met the obstacle again the step after, and so on; the sheet
+                // on the rising box then failed the step control at step 284.
+                let carried =
+                    mv.is_some() && self.prev[was.clone()].iter().any(|c| c.obstacle == which);
+                let reach = if carried {
+                    2.0 * CONTACT_THICKNESS
+                } else {
+                    REACH
+                };
+                if d.is_nan() || d >= reach || (pulled && d >= 0.0) {
                     continue;
                 }
                 let ov = mv.map_or([0.0; 3], |m| m.velocity_at(p));
@@ -180,8 +206,9 @@ impl VertexContacts {
                 } else {
                     (d, nrm)
                 };
+                let out = (CONTACT_THICKNESS - d).max(if carried { 0.0 } else { f64::MIN });
                 for k in 0..3 {
-                    x[k * n + i] = p[k] + (CONTACT_THICKNESS - d) * nrm[k];
+                    x[k * n + i] = p[k] + out * nrm[k];
                 }
                 let vel = sub(get3(v, n, i), ov);
                 let vn = dot(vel, nrm);
@@ -204,6 +231,9 @@ impl VertexContacts {
                 }
                 self.contacts.push(Contact {
                     vertex: i as u32,
+                    obstacle: which,
+                    velocity: ov,
+                    edge: false,
                     normal: nrm,
                     pull: 0.0,
                 });
@@ -235,7 +265,7 @@ impl VertexContacts {
             }
         }
         let before = self.contacts.len();
-        self.edge_contacts = self.resolve_edges(obstacles, triangles, fixed, x, v);
+        self.edge_contacts = self.resolve_edges(obstacles, moving, triangles, fixed, x, v);
         if self.contacts.len() > before {
             // Back into vertex order (unstable: a vertex's normals may come in any order).
             self.contacts.sort_unstable_by_key(|c| c.vertex);
@@ -246,20 +276,22 @@ impl VertexContacts {
     /// Moves every triangle that an obstacle's sharp edge comes through, or within the
     /// thickness of, out along its normal n (see [`super::edge_through_triangle`]): vertex
     /// k moves by `c w_k d_k`, with w the barycentric coordinates of the edge's deepest
-    /// point, `d_k = S_k n` the part of n its face contacts let it move along (n for a
-    /// free vertex, within the face for one lying on the table's top, zero for a fixed
-    /// one) and c chosen so that the point itself moves out to the thickness (Bridson,
-    /// Fedkiw and Anderson 2002 distribute corrections over a triangle so). Moving a vertex
-    /// that lies on a face off it would let it fall back the next step and ratchet the
-    /// cloth outwards. The velocity into the triangle at the point is removed the same
-    /// way, and the vertices are held against n in the next solve like vertex contacts
-    /// (one normal per vertex and obstacle: the weighted mean of its triangles'). The
-    /// outward side of a triangle is the one its vertices' obstacle normals point to. A
-    /// triangle whose vertices the model pulled off at the last step is let go unless the
-    /// edge is through it. Returns the number of triangles moved.
+    /// point, `d_k = S_k n` the part of n its face contacts with the same obstacle let it
+    /// move along (n for a free vertex, within the face for one lying on the table's top,
+    /// zero for a fixed one) and c chosen so that the point itself moves out to the
+    /// thickness (Bridson, Fedkiw and Anderson 2002 distribute corrections over a triangle
+    /// so). Moving a vertex that lies on a face off it would let it fall back the next step
+    /// and ratchet the cloth outwards. The velocity into the triangle at the point
+    /// (relative to a moving obstacle's) is removed the same way, and the vertices on the
+    /// obstacle's faces are held against n in the next solve like vertex contacts (one
+    /// normal per vertex and obstacle: the weighted mean of its triangles'), moving with a
+    /// moving obstacle. The outward side of a triangle is the one its vertices' obstacle
+    /// normals point to. A triangle whose vertices the model pulled off at the last step is
+    /// let go unless the edge is through it. Returns the number of triangles moved.
     fn resolve_edges(
         &mut self,
         obstacles: &[Obstacle],
+        moving: &[MovingObstacle],
         triangles: &[[u32; 3]],
         fixed: &[u32],
         x: &mut [f64],
@@ -268,7 +300,11 @@ impl VertexContacts {
         let n = x.len() / 3;
         let mut moved = 0;
         let vertex_end = self.contacts.len();
-        for o in obstacles {
+        let all = obstacles
+            .iter()
+            .map(|o| (o, None))
+            .chain(moving.iter().map(|m| (&m.shape, Some(m))));
+        for (which, (o, mv)) in (0u32..).zip(all) {
             let Some((lo, hi)) = o.sharp_edge_bounds() else {
                 continue;
             };
@@ -332,27 +368,40 @@ impl VertexContacts {
                 if need.is_nan() || need <= -(REACH - CONTACT_THICKNESS) || let_go {
                     continue;
                 }
-                // Each vertex moves along the normal as far as its face contacts let it:
-                // d_k = S_k n (S_k the projection of its face contacts), zero when fixed.
+                // Vertex k's face contacts with this obstacle (a vertex resting on the
+                // floor may be lifted off it by a box's edge rising under its triangle).
+                let faces = |k: usize| {
+                    let faces = &self.contacts[..vertex_end];
+                    let at = faces.partition_point(|c| c.vertex < tri[k]);
+                    faces[at..]
+                        .iter()
+                        .take_while(move |c| c.vertex == tri[k])
+                        .filter(move |c| c.obstacle == which)
+                };
+                // Each vertex moves along the normal as far as those let it: d_k = S_k n
+                // (S_k the projection of its face contacts), zero when fixed.
                 let dirs: [[f64; 3]; 3] = std::array::from_fn(|k| {
                     if fixed.binary_search(&tri[k]).is_ok() {
                         return [0.0; 3];
                     }
-                    let faces = &self.contacts[..vertex_end];
-                    let at = faces.partition_point(|c| c.vertex < tri[k]);
-                    let mut d = nrm;
-                    for c in faces[at..].iter().take_while(|c| c.vertex == tri[k]) {
+                    faces(k).fold(nrm, |d, c| {
                         let dn = dot(d, c.normal);
-                        d = std::array::from_fn(|j| d[j] - dn * c.normal[j]);
-                    }
-                    d
+                        std::array::from_fn(|j| d[j] - dn * c.normal[j])
+                    })
                 });
+                let on_face: [bool; 3] = std::array::from_fn(|k| faces(k).next().is_some());
                 // Moving vertex k by c w_k d_k moves the point by c sum w_k^2 (n . d_k).
                 let denom: f64 = (0..3).map(|k| w[k] * w[k] * dot(nrm, dirs[k])).sum();
                 if denom.is_nan() || denom <= 1e-6 {
                     continue;
                 }
-                let vel = (0..3).fold(0.0, |s, k| s + w[k] * dot(get3(v, n, tri[k] as usize), nrm));
+                // The velocity into the triangle at the point, relative to the obstacle's.
+                let point: [f64; 3] =
+                    std::array::from_fn(|c| (0..3).map(|k| w[k] * t[k][c]).sum::<f64>());
+                let along = mv.map_or(0.0, |m| dot(m.velocity_at(point), nrm));
+                let vel = (0..3).fold(-along, |s, k| {
+                    s + w[k] * dot(get3(v, n, tri[k] as usize), nrm)
+                });
                 for k in 0..3 {
                     let i = tri[k] as usize;
                     let dx = w[k] * need.max(0.0) / denom;
@@ -361,9 +410,17 @@ impl VertexContacts {
                         x[c * n + i] += dx * dirs[k][c];
                         v[c * n + i] += dv * dirs[k][c];
                     }
-                    if w[k] > 0.0 && dirs[k] != [0.0; 3] {
+                    // Held in the next solve: the vertices on the obstacle's faces, which
+                    // then keep to the line along the edge. One beyond the edge is left
+                    // free to swing down about it: held against n (the filter holds
+                    // single vertices, not the contact point) it stood out from a rising
+                    // box like a stiff skirt instead of hanging.
+                    if w[k] > 0.0 && dirs[k] != [0.0; 3] && on_face[k] {
                         self.contacts.push(Contact {
                             vertex: i as u32,
+                            obstacle: which,
+                            velocity: mv.map_or([0.0; 3], |m| m.velocity_at(get3(x, n, i))),
+                            edge: true,
                             normal: nrm.map(|c| c * w[k]),
                             pull: 0.0,
                         });
@@ -379,6 +436,7 @@ impl VertexContacts {
             while k < self.contacts.len() {
                 let vertex = self.contacts[k].vertex;
                 let mut sum = [0.0; 3];
+                let velocity = self.contacts[k].velocity;
                 while k < self.contacts.len() && self.contacts[k].vertex == vertex {
                     let m = self.contacts[k].normal;
                     sum = std::array::from_fn(|c| sum[c] + m[c]);
@@ -387,6 +445,9 @@ impl VertexContacts {
                 if let Some((_, normal)) = unit(sum) {
                     self.contacts[kept] = Contact {
                         vertex,
+                        obstacle: which,
+                        velocity,
+                        edge: true,
                         normal,
                         pull: 0.0,
                     };
@@ -415,33 +476,77 @@ impl VertexContacts {
     }
 
     /// Writes the contacts into the constraint filter: one normal constrains a vertex to
-    /// the tangent plane, two independent ones to their common line, three or more fix it.
+    /// the tangent plane, two independent ones to their common line, three or more fix it;
+    /// a vertex held at a moving obstacle's edge moves out with it.
     /// Speculative contacts constrain the normal with its prescribed velocity.
     pub fn constraints(&self, filter: &mut Filter) {
         for group in self.contacts.chunk_by(|a, b| a.vertex == b.vertex) {
             let i = group[0].vertex as usize;
-            let p = group[0].normal;
-            let mut line: Option<[f64; 3]> = None;
-            let mut fixed = false;
-            for q in group[1..].iter().map(|c| c.normal) {
-                let c = cross(p, q);
-                if dot(c, c) < 1e-12 {
-                    continue; // (anti)parallel: the same plane
-                }
-                match line {
-                    None => line = Some(c),
-                    Some(l) => {
-                        if dot(l, q).abs() > 1e-6 * dot(l, l).sqrt() {
-                            fixed = true;
-                        }
+            // The independent normals (up to three), each with the speed at which its
+            // obstacle pushes out along it (m/s, >= 0).
+            let mut picked = [([0.0; 3], 0.0); 3];
+            let mut count = 0;
+            for c in group {
+                let q = c.normal;
+                let independent = match count {
+                    0 => true,
+                    1 => {
+                        let x = cross(picked[0].0, q);
+                        dot(x, x) >= 1e-12
                     }
+                    2 => {
+                        let l = cross(picked[0].0, picked[1].0);
+                        dot(l, q).abs() > 1e-6 * dot(l, l).sqrt()
+                    }
+                    _ => false,
+                };
+                if independent {
+                    picked[count] = (q, dot(c.velocity, q).max(0.0));
+                    count += 1;
                 }
             }
-            match (fixed, line) {
-                (true, _) => filter.fix(i),
-                (false, Some(l)) => filter.constrain_line(i, l),
-                (false, None) => filter.constrain_normal(i, p),
+            let [(p, sp), (q, sq), (r, sr)] = picked;
+            match count {
+                3 => filter.fix(i),
+                2 => filter.constrain_line(i, cross(p, q)),
+                _ => filter.constrain_normal(i, p),
             }
+            if !group.iter().any(|c| c.edge) || sp == 0.0 && sq == 0.0 && sr == 0.0 {
+                continue;
+            }
+            // A vertex held at a moving obstacle's edge moves out with it in the solve
+            // (the paper's z: z . n_k = s_k). Left still, the rising box's edge came
+            // through the sheet again every step and the corrections after it stretched
+            // the sheet past the step control's limit however far the step was halved.
+            // Vertex contacts alone are not carried: carried, the FEM mat on the rising
+            // ball of `rigid-fem.toml` shook (kinetic energy 16 J where 1 J is right)
+            // and their corrections after the step are small anyway. Only the speed
+            // pushing out counts: a surface moving away lets the vertex go rather than
+            // drag it along. Normals less than 30 degrees apart (or three nearly in a
+            // plane) would ask for a velocity far from any of them: the fastest alone
+            // decides.
+            let (c, d) = (cross(p, q), dot(p, cross(q, r)));
+            let z: [f64; 3] = match count {
+                3 if d.abs() >= 0.25 => {
+                    let t = [(sp, cross(q, r)), (sq, cross(r, p)), (sr, c)];
+                    std::array::from_fn(|k| t.iter().map(|(s, x)| s * x[k]).sum::<f64>() / d)
+                }
+                2 if dot(c, c) >= 0.25 => {
+                    let (a, b) = (cross(q, c), cross(c, p));
+                    std::array::from_fn(|k| (sp * a[k] + sq * b[k]) / dot(c, c))
+                }
+                _ => {
+                    let (n, s) = picked[..count].iter().fold(([0.0; 3], 0.0), |f, &(n, s)| {
+                        if s > f.1 {
+                            (n, s)
+                        } else {
+                            f
+                        }
+                    });
+                    n.map(|x| x * s)
+                }
+            };
+            filter.prescribe(i, z);
         }
         // A vertex an edge contact took after its speculative one keeps the contact.
         let mut held = self.contacts.iter().map(|c| c.vertex).peekable();
