@@ -1684,6 +1684,7 @@ fn moving_obstacles_go_back_along_their_motion() {
                     [0.0, 0.0, 0.3],
                 ][..],
             ),
+            edges: std::sync::Arc::from(&[[[0.0, 0.0, 0.0], [0.4, 0.0, 0.0]]][..]),
             center,
             axes,
         },

@@ -15,10 +15,10 @@ use super::Obstacle;
 use largestep_kernels::v3::{cross, dot, sub};
 
 impl Obstacle {
-    /// The sharp edges of the obstacle's surface as segments (a box's twelve); smooth
-    /// shapes, half-spaces and distance grids have none.
-    pub fn sharp_edges(&self) -> impl Iterator<Item = ([f64; 3], [f64; 3])> {
-        let edges = match self {
+    /// The sharp edges of the obstacle's surface as segments (a box's twelve, a hull's
+    /// listed ones); smooth shapes, half-spaces and distance grids have none.
+    pub fn sharp_edges(&self) -> impl Iterator<Item = ([f64; 3], [f64; 3])> + '_ {
+        let boxes = match self {
             Obstacle::Box { min, max } => Some(box_edges(|c| {
                 std::array::from_fn(|a| if c >> a & 1 == 1 { max[a] } else { min[a] })
             })),
@@ -27,23 +27,39 @@ impl Obstacle {
             }
             _ => None,
         };
-        edges.into_iter().flatten()
+        let hull = match self {
+            Obstacle::Hull {
+                edges,
+                center,
+                axes,
+                ..
+            } => Some((edges, *center, *axes)),
+            _ => None,
+        };
+        let hull_edges = hull.into_iter().flat_map(|(edges, center, axes)| {
+            let place = move |p: [f64; 3]| -> [f64; 3] {
+                std::array::from_fn(|k| {
+                    center[k] + p[0] * axes[0][k] + p[1] * axes[1][k] + p[2] * axes[2][k]
+                })
+            };
+            edges.iter().map(move |[a, b]| (place(*a), place(*b)))
+        });
+        boxes.into_iter().flatten().chain(hull_edges)
     }
 
     /// The axis-aligned bounds of the obstacle's sharp edges, `None` without any.
     pub fn sharp_edge_bounds(&self) -> Option<([f64; 3], [f64; 3])> {
         match self {
             Obstacle::Box { min, max } => Some((*min, *max)),
-            Obstacle::Oriented { center, axes, half } => {
+            Obstacle::Oriented { .. } | Obstacle::Hull { .. } => {
                 let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-                for c in 0..8 {
-                    let p = oriented_corner(*center, axes, *half, c);
-                    for a in 0..3 {
-                        lo[a] = lo[a].min(p[a]);
-                        hi[a] = hi[a].max(p[a]);
+                for (a, b) in self.sharp_edges() {
+                    for k in 0..3 {
+                        lo[k] = lo[k].min(a[k]).min(b[k]);
+                        hi[k] = hi[k].max(a[k]).max(b[k]);
                     }
                 }
-                Some((lo, hi))
+                (lo[0] <= hi[0]).then_some((lo, hi))
             }
             _ => None,
         }

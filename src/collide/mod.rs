@@ -93,6 +93,8 @@ pub enum Obstacle {
     Hull {
         /// The hull's points in its frame.
         points: Arc<[[f64; 3]]>,
+        /// Its sharp edges in its frame (may be empty): see [`Obstacle::sharp_edges`].
+        edges: Arc<[[[f64; 3]; 2]]>,
         /// Where the frame's origin is (m).
         center: [f64; 3],
         /// The frame's orthonormal axes (world).
@@ -180,10 +182,12 @@ impl MovingObstacle {
             },
             Obstacle::Hull {
                 points,
+                edges,
                 center: c,
                 axes,
             } => Obstacle::Hull {
                 points: points.clone(),
+                edges: edges.clone(),
                 center: place(*c),
                 axes: axes.map(turn),
             },
@@ -320,6 +324,7 @@ impl Obstacle {
             }
             Obstacle::Hull {
                 points,
+                edges,
                 center,
                 axes,
             } => {
@@ -328,6 +333,10 @@ impl Obstacle {
                 let why = "needs at least one point";
                 require("points", points.len() as f64, !points.is_empty(), why)?;
                 points.iter().try_for_each(|p| finite3("points", *p))?;
+                edges
+                    .iter()
+                    .flatten()
+                    .try_for_each(|p| finite3("edges", *p))?;
             }
             Obstacle::Sdf(s) => {
                 let g = &s.grid;
@@ -437,6 +446,7 @@ impl Obstacle {
                 points,
                 center,
                 axes,
+                ..
             } => {
                 // In the hull's frame: GJK's distance outside, EPA's depth inside; the
                 // contact's normal runs from the point into the hull, so the outward

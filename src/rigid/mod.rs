@@ -446,6 +446,9 @@ pub struct Rigid {
     pub(crate) inv_inertia: Vec<[f64; 3]>,
     pub(crate) mass: Vec<f64>,
     pub(crate) colliders: Vec<Collider>,
+    /// A mesh body's sharp hull edges in its body frame (empty for the others): what
+    /// other systems' triangles must not let through ([`Rigid::obstacles`]).
+    hull_edges: Vec<Arc<[[[f64; 3]; 2]]>>,
     /// Radius of a ball about the centre holding the collider (m).
     pub(crate) bound: Vec<f64>,
     /// A length typical of the body's smallest feature (m): margins and slop scale by it.
@@ -628,6 +631,7 @@ impl RigidDesc {
             inv_inertia: Vec::with_capacity(n),
             mass: Vec::with_capacity(n),
             colliders: Vec::with_capacity(n),
+            hull_edges: Vec::with_capacity(n),
             bound: Vec::with_capacity(n),
             size: Vec::with_capacity(n),
             frame_origin: Vec::with_capacity(n),
@@ -734,6 +738,12 @@ impl RigidDesc {
             if !(size > 0.0 && bound.is_finite()) {
                 return Err(bad("the shape has no extent".into()));
             }
+            m.hull_edges.push(match (&b.shape, &collider) {
+                (Shape::Mesh(mesh), Collider::Hull(points)) => {
+                    Arc::from(hull_edges(points, &mesh.triangles))
+                }
+                _ => Arc::from([]),
+            });
             m.colliders.push(collider);
             m.bound.push(bound);
             m.size.push(size);
@@ -1107,6 +1117,7 @@ impl Rigid {
                     let r = quat::to_matrix(s.q[i]);
                     Obstacle::Hull {
                         points: points.clone(),
+                        edges: self.hull_edges[i].clone(),
                         center: s.x[i],
                         axes: columns(&r),
                     }
@@ -1326,4 +1337,89 @@ fn rk4(
     // Constant acceleration: exact.
     let xn = add(add(x, scale(v, dt)), scale(g, 0.5 * dt * dt));
     (xn, qn, add(v, scale(g, dt)))
+}
+
+/// The sharp edges of a closed mesh's convex hull (`points`: the mesh's vertices, in
+/// order): the mesh edges whose two triangles both lie on the hull (every point behind
+/// their planes) and meet at more than 20 degrees (a cube's twelve edges, not its faces'
+/// diagonals). Left empty for meshes of more than 5e7 point-triangle pairs, whose test
+/// would take seconds at build.
+fn hull_edges(points: &[[f64; 3]], triangles: &[[u32; 3]]) -> Vec<[[f64; 3]; 2]> {
+    if (points.len() as f64) * (triangles.len() as f64) > 5e7 {
+        return Vec::new();
+    }
+    let size = points
+        .iter()
+        .map(|p| dot(*p, *p))
+        .fold(0.0, f64::max)
+        .sqrt();
+    let at = |i: u32| points.get(i as usize).copied();
+    // Each triangle's unit normal, when every point lies behind its plane.
+    let on_hull: Vec<Option<[f64; 3]>> = triangles
+        .iter()
+        .map(|t| {
+            let [a, b, c] = [at(t[0])?, at(t[1])?, at(t[2])?];
+            let (_, n) = largestep_kernels::v3::length_and_unit(largestep_kernels::v3::cross(
+                sub(b, a),
+                sub(c, a),
+            ))?;
+            points
+                .iter()
+                .all(|p| dot(n, sub(*p, a)) <= 1e-9 * size)
+                .then_some(n)
+        })
+        .collect();
+    // Each edge with the triangles that hold it.
+    let mut sides: Vec<([u32; 2], usize)> = Vec::with_capacity(3 * triangles.len());
+    for (f, t) in triangles.iter().enumerate() {
+        for k in 0..3 {
+            let (i, j) = (t[k], t[(k + 1) % 3]);
+            sides.push(([i.min(j), i.max(j)], f));
+        }
+    }
+    sides.sort_unstable();
+    let cos_20 = 20f64.to_radians().cos();
+    let mut edges = Vec::new();
+    for pair in sides.chunk_by(|a, b| a.0 == b.0) {
+        let [(e, f), (_, g)] = pair else {
+            continue; // an open or non-manifold edge: the mesh check reports those
+        };
+        if let (Some(m), Some(n), Some(p), Some(q)) = (on_hull[*f], on_hull[*g], at(e[0]), at(e[1]))
+        {
+            if dot(m, n) < cos_20 {
+                edges.push([p, q]);
+            }
+        }
+    }
+    edges
+}
+
+#[cfg(test)]
+mod tests {
+    use super::hull_edges;
+
+    /// A cube meshed with two triangles a face has its twelve edges as sharp hull edges
+    /// (not the faces' diagonals); a dent in a face (a vertex pushed in, off the hull)
+    /// takes that face's triangles, and the edges they held, off the hull.
+    #[test]
+    fn a_cube_mesh_has_twelve_sharp_hull_edges() {
+        let cube = crate::shapes::cuboid([-0.3; 3], [0.3; 3]);
+        let points: Vec<[f64; 3]> = (0..cube.positions.len() / 3)
+            .map(|v| cube.as_ref().vertex(v))
+            .collect();
+        let edges = hull_edges(&points, &cube.triangles);
+        assert_eq!(edges.len(), 12);
+        for [a, b] in &edges {
+            let d: Vec<f64> = (0..3).map(|k| (b[k] - a[k]).abs()).collect();
+            // Along one axis, the cube's side long.
+            assert_eq!(d.iter().filter(|&&c| c > 1e-12).count(), 1, "{a:?} {b:?}");
+            assert!(d.iter().any(|&c| (c - 0.6).abs() < 1e-12));
+        }
+        // The dent: one corner pulled in to the centre. Its three faces' triangles that
+        // use it leave the hull.
+        let mut dented = points.clone();
+        dented[0] = [0.0; 3];
+        let fewer = hull_edges(&dented, &cube.triangles);
+        assert!(fewer.len() < 12, "{}", fewer.len());
+    }
 }
