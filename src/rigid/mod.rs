@@ -66,7 +66,7 @@ use largestep_kernels::collide::grid::SweepAndPrune;
 use largestep_kernels::quat::{self, Quat};
 use largestep_kernels::rigid;
 pub(crate) use largestep_kernels::rigid::{inertia_times, mat_t_vec, mat_vec};
-use largestep_kernels::v3::{add, cross, dot, scale, sub};
+use largestep_kernels::v3::{add, cross, dot, length_and_unit, scale, sub};
 use std::sync::Arc;
 
 pub use contact::{ContactDiff, ContactPoint};
@@ -931,8 +931,7 @@ fn joint(k: usize, j: &JointDesc, m: &Rigid, s: &RigidState) -> Result<Joint, Ri
             out.lb = local(b, anchor);
         }
         JointKind::Hinge { anchor, axis } => {
-            let Some((_, u)) = largestep_kernels::v3::length_and_unit(axis)
-                .filter(|_| finite(anchor) && finite(axis))
+            let Some((_, u)) = length_and_unit(axis).filter(|_| finite(anchor) && finite(axis))
             else {
                 return Err(bad(format!(
                     "needs a finite anchor and a non-zero axis, not {anchor:?} and {axis:?}"
@@ -1354,19 +1353,17 @@ fn hull_edges(points: &[[f64; 3]], triangles: &[[u32; 3]]) -> Vec<[[f64; 3]; 2]>
         .fold(0.0, f64::max)
         .sqrt();
     let at = |i: u32| points.get(i as usize).copied();
-    // Each triangle's unit normal, when every point lies behind its plane.
+    // Each triangle's unit normal, when every point lies on one side of its plane (on
+    // the side its normal points away from, for an outward wound mesh; either side
+    // serves, as long as the winding is consistent).
     let on_hull: Vec<Option<[f64; 3]>> = triangles
         .iter()
         .map(|t| {
             let [a, b, c] = [at(t[0])?, at(t[1])?, at(t[2])?];
-            let (_, n) = largestep_kernels::v3::length_and_unit(largestep_kernels::v3::cross(
-                sub(b, a),
-                sub(c, a),
-            ))?;
-            points
-                .iter()
-                .all(|p| dot(n, sub(*p, a)) <= 1e-9 * size)
-                .then_some(n)
+            let (_, n) = length_and_unit(cross(sub(b, a), sub(c, a)))?;
+            let tol = 1e-9 * size;
+            let side = |sign: f64| points.iter().all(|p| sign * dot(n, sub(*p, a)) <= tol);
+            (side(1.0) || side(-1.0)).then_some(n)
         })
         .collect();
     // Each edge with the triangles that hold it.
@@ -1415,6 +1412,9 @@ mod tests {
             assert_eq!(d.iter().filter(|&&c| c > 1e-12).count(), 1, "{a:?} {b:?}");
             assert!(d.iter().any(|&c| (c - 0.6).abs() < 1e-12));
         }
+        // Wound the other way round: the same edges.
+        let inward: Vec<[u32; 3]> = cube.triangles.iter().map(|t| [t[0], t[2], t[1]]).collect();
+        assert_eq!(hull_edges(&points, &inward).len(), 12);
         // The dent: one corner pulled in to the centre. Its three faces' triangles that
         // use it leave the hull.
         let mut dented = points.clone();
