@@ -1119,6 +1119,12 @@ mod coupling {
     #[test]
     fn a_rising_box_lifts_the_cloth_and_no_vertex_or_edge_enters_it() {
         let (runner, _, out) = super::run_kept("rigid-cloth.toml", 40);
+        // `--explain` says who meets whom.
+        let text = runner.explain();
+        assert!(
+            text.contains("coupling: [cloth] meets [rigid]'s 1 body as moving obstacles"),
+            "{text}"
+        );
         let (deepest, through, top) = sheet_in_the_box(&runner);
         eprintln!("rising box: deepest cloth vertex inside {deepest:.2e} m, deepest point of a triangle {through:.2e} m, highest cloth point {top:.3} m");
         // The contacts hold vertices at their thickness outside the box where it is at

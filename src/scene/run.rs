@@ -777,6 +777,37 @@ impl Runner {
                 ));
             }
         }
+        if self.coupled {
+            // Which systems' bodies the others meet (one-way, see `Simulation::moving_obstacles`).
+            let mut bodies = Vec::new();
+            let givers: Vec<String> = self
+                .systems
+                .iter()
+                .zip(&self.providers)
+                .filter(|(_, &p)| p)
+                .map(|(g, _)| {
+                    bodies.clear();
+                    g.sim.moving_obstacles(&mut bodies);
+                    let n = bodies.len();
+                    format!(
+                        "[{}]'s {n} {}",
+                        g.table,
+                        if n == 1 { "body" } else { "bodies" }
+                    )
+                })
+                .collect();
+            for t in self
+                .systems
+                .iter()
+                .filter(|t| t.sim.takes_moving_obstacles())
+            {
+                s.push_str(&format!(
+                    "  coupling: [{}] meets {} as moving obstacles (one-way, through its own contacts, at their poses of each of its sub-steps)\n",
+                    t.table,
+                    givers.join(" and ")
+                ));
+            }
+        }
         let every = format!(
             "every {} steps ({} s)",
             self.output.every,
