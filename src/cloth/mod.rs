@@ -43,7 +43,6 @@ use largestep_kernels::cloth::{
 use largestep_kernels::v3::dot;
 use largestep_kernels::{four, gather_nodes};
 use rayon::prelude::*;
-use std::collections::HashMap;
 use std::sync::Arc;
 
 /// Material constants. Stretch and shear are per unit (u, v) area: a triangle of rest
@@ -387,36 +386,34 @@ impl ClothDesc {
     }
 }
 
-/// A triangle using an edge: (triangle, edge start, edge end, opposite vertex), the edge
-/// in the triangle's winding.
-type EdgeUse = (usize, u32, u32, u32);
-
 /// Hinges `[x0, x1, x2, x3]` of every edge shared by two triangles (x0-x1 the edge, x2 and
 /// x3 the opposite vertices), with their rest angles at `positions`.
 fn hinges_of(
     triangles: &[[u32; 3]],
     positions: &[[f64; 3]],
 ) -> Result<(Vec<[u32; 4]>, Vec<f64>), ModelError> {
-    let mut edges: HashMap<(u32, u32), Vec<EdgeUse>> = HashMap::new();
-    for (t, tri) in triangles.iter().enumerate() {
-        for k in 0..3 {
-            let (a, b, opp) = (tri[k], tri[(k + 1) % 3], tri[(k + 2) % 3]);
-            edges
-                .entry((a.min(b), a.max(b)))
-                .or_default()
-                .push((t, a, b, opp));
-        }
-    }
-    let mut list: Vec<((u32, u32), Vec<EdgeUse>)> = edges.into_iter().collect();
-    list.sort_unstable_by_key(|(k, _)| *k);
+    // A triangle's use of edge e: (edge start, edge end, opposite vertex), the edge in
+    // the triangle's winding.
+    let used = |e: [u32; 2], t: usize| {
+        let tri = triangles[t];
+        let k = (0..3)
+            .find(|&k| {
+                let (p, q) = (tri[k], tri[(k + 1) % 3]);
+                [p.min(q), p.max(q)] == e
+            })
+            .unwrap_or(0); // edge_uses found e in tri
+
+        (tri[k], tri[(k + 1) % 3], tri[(k + 2) % 3])
+    };
     let mut hinges = Vec::new();
     let mut theta0 = Vec::new();
-    for ((a, b), ts) in list {
-        match ts.len() {
-            1 => {}
-            2 => {
-                let (_, x0, x1, x2) = ts[0];
-                let x3 = ts[1].3;
+    for uses in crate::io::edge_uses(triangles).chunk_by(|a, b| a.0 == b.0) {
+        let [a, b] = uses[0].0;
+        match uses {
+            [_] => {}
+            [(e, s), (_, t)] => {
+                let (x0, x1, x2) = used(*e, *s);
+                let x3 = used(*e, *t).2;
                 let h = [x0, x1, x2, x3];
                 let theta = dihedral_angle(&h.map(|v| positions[v as usize]));
                 if !theta.is_finite() {
@@ -428,7 +425,7 @@ fn hinges_of(
                 theta0.push(theta);
             }
             _ => {
-                let triangles: Vec<usize> = ts.iter().map(|t| t.0).collect();
+                let triangles: Vec<usize> = uses.iter().map(|u| u.1).collect();
                 return Err(ModelError::Connectivity(format!(
                     "edge ({a}, {b}) is shared by triangles {triangles:?}: bending needs every edge in at most two triangles"
                 )));

@@ -100,6 +100,8 @@ pub struct VertexContacts {
     released: Vec<bool>,
     /// Triangles an obstacle edge was pushed out of at the last resolve.
     edge_contacts: usize,
+    /// Scratch: the sharp edges of the obstacle being resolved.
+    edges: Vec<([f64; 3], [f64; 3])>,
 }
 
 impl VertexContacts {
@@ -141,14 +143,7 @@ impl VertexContacts {
         if obstacles.is_empty() && moving.is_empty() {
             return 0;
         }
-        // Fixed obstacles move with no velocity; moving ones with their rigid motion, and
-        // velocities are taken relative to it.
-        let all = || {
-            obstacles
-                .iter()
-                .map(|o| (o, None))
-                .chain(moving.iter().map(|m| (&m.shape, Some(m))))
-        };
+        let all = || with_motion(obstacles, moving);
         let n = mass.len();
         self.released.clear();
         self.released.resize(n, false);
@@ -157,23 +152,19 @@ impl VertexContacts {
             if fixed.binary_search(&(i as u32)).is_ok() {
                 continue;
             }
-            // Was it held by a contact the model is pulling it away from?
-            let mut pulled = false;
-            // Normal force pressing it onto the surface during the step (N, >= 0).
-            let mut press = 0.0f64;
-            let mut was = prev..prev; // its contacts at the last step
-            while prev < self.prev.len() && self.prev[prev].vertex as usize <= i {
-                if (self.prev[prev].vertex as usize) < i {
-                    was.start = prev + 1;
-                }
-                if self.prev[prev].vertex as usize == i {
-                    let pull = self.prev[prev].pull;
-                    pulled |= pull > 0.0;
-                    press = press.max(-pull);
-                }
+            // Its contacts at the last step.
+            while self.prev.get(prev).is_some_and(|c| (c.vertex as usize) < i) {
                 prev += 1;
             }
-            was.end = prev;
+            let start = prev;
+            while self.prev.get(prev).is_some_and(|c| c.vertex as usize == i) {
+                prev += 1;
+            }
+            let was = &self.prev[start..prev];
+            // Was it held by a contact the model is pulling it away from?
+            let pulled = was.iter().any(|c| c.pull > 0.0);
+            // Normal force pressing it onto the surface during the step (N, >= 0).
+            let press = was.iter().fold(0.0f64, |m, c| m.max(-c.pull));
             self.released[i] = pulled;
             for (which, (o, mv)) in (0u32..).zip(all()) {
                 let p = get3(x, n, i);
@@ -185,8 +176,7 @@ impl VertexContacts {
                 // along (see `constraints`) can end a little off the face, and dropped
                 // there it met the obstacle again the step after, and so on; the sheet
                 // on the rising box then failed the step control at step 284.
-                let carried =
-                    mv.is_some() && self.prev[was.clone()].iter().any(|c| c.obstacle == which);
+                let carried = mv.is_some() && was.iter().any(|c| c.obstacle == which);
                 let reach = if carried {
                     2.0 * CONTACT_THICKNESS
                 } else {
@@ -206,7 +196,11 @@ impl VertexContacts {
                 } else {
                     (d, nrm)
                 };
-                let out = (CONTACT_THICKNESS - d).max(if carried { 0.0 } else { f64::MIN });
+                let out = if carried {
+                    (CONTACT_THICKNESS - d).max(0.0)
+                } else {
+                    CONTACT_THICKNESS - d
+                };
                 for k in 0..3 {
                     x[k * n + i] = p[k] + out * nrm[k];
                 }
@@ -300,12 +294,12 @@ impl VertexContacts {
         let n = x.len() / 3;
         let mut moved = 0;
         let vertex_end = self.contacts.len();
-        let all = obstacles
-            .iter()
-            .map(|o| (o, None))
-            .chain(moving.iter().map(|m| (&m.shape, Some(m))));
-        for (which, (o, mv)) in (0u32..).zip(all) {
-            let Some((lo, hi)) = o.sharp_edge_bounds() else {
+        let mut edges = std::mem::take(&mut self.edges);
+        for (which, (o, mv)) in (0u32..).zip(with_motion(obstacles, moving)) {
+            // The obstacle's sharp edges, placed once for all its triangles.
+            edges.clear();
+            edges.extend(o.sharp_edges());
+            let Some((lo, hi)) = bounds(&edges) else {
                 continue;
             };
             let first_new = self.contacts.len();
@@ -339,7 +333,7 @@ impl VertexContacts {
                     m.max(dot(e, e).sqrt())
                 });
                 let mut deepest: Option<(f64, [f64; 3])> = None;
-                for (a, b) in o.sharp_edges() {
+                for &(a, b) in &edges {
                     let slo: [f64; 3] = std::array::from_fn(|k| a[k].min(b[k]));
                     let shi: [f64; 3] = std::array::from_fn(|k| a[k].max(b[k]));
                     if !overlap((slo, shi), (tlo, thi)) {
@@ -434,28 +428,22 @@ impl VertexContacts {
             let mut kept = first_new;
             let mut k = first_new;
             while k < self.contacts.len() {
-                let vertex = self.contacts[k].vertex;
+                let first = self.contacts[k];
+                let vertex = first.vertex;
                 let mut sum = [0.0; 3];
-                let velocity = self.contacts[k].velocity;
                 while k < self.contacts.len() && self.contacts[k].vertex == vertex {
                     let m = self.contacts[k].normal;
                     sum = std::array::from_fn(|c| sum[c] + m[c]);
                     k += 1;
                 }
                 if let Some((_, normal)) = unit(sum) {
-                    self.contacts[kept] = Contact {
-                        vertex,
-                        obstacle: which,
-                        velocity,
-                        edge: true,
-                        normal,
-                        pull: 0.0,
-                    };
+                    self.contacts[kept] = Contact { normal, ..first };
                     kept += 1;
                 }
             }
             self.contacts.truncate(kept);
         }
+        self.edges = edges;
         moved
     }
 
@@ -535,16 +523,10 @@ impl VertexContacts {
                     let (a, b) = (cross(q, c), cross(c, p));
                     std::array::from_fn(|k| (sp * a[k] + sq * b[k]) / dot(c, c))
                 }
-                _ => {
-                    let (n, s) = picked[..count].iter().fold(([0.0; 3], 0.0), |f, &(n, s)| {
-                        if s > f.1 {
-                            (n, s)
-                        } else {
-                            f
-                        }
-                    });
-                    n.map(|x| x * s)
-                }
+                _ => picked[..count]
+                    .iter()
+                    .max_by(|a, b| a.1.total_cmp(&b.1))
+                    .map_or([0.0; 3], |&(n, s)| n.map(|x| x * s)),
             };
             filter.prescribe(i, z);
         }
@@ -563,6 +545,32 @@ impl VertexContacts {
     pub fn approaching(&self) -> usize {
         self.approach.len()
     }
+}
+
+/// The fixed obstacles (no motion) and then the moving ones (velocities are taken
+/// relative to theirs): the order that numbers them in [`Contact::obstacle`].
+fn with_motion<'a>(
+    obstacles: &'a [Obstacle],
+    moving: &'a [MovingObstacle],
+) -> impl Iterator<Item = (&'a Obstacle, Option<&'a MovingObstacle>)> {
+    obstacles
+        .iter()
+        .map(|o| (o, None))
+        .chain(moving.iter().map(|m| (&m.shape, Some(m))))
+}
+
+/// The axis-aligned bounds of segments, `None` without any.
+fn bounds(segments: &[([f64; 3], [f64; 3])]) -> Option<([f64; 3], [f64; 3])> {
+    let (lo, hi) = segments.iter().flat_map(|(a, b)| [a, b]).fold(
+        ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
+        |(lo, hi), p| {
+            (
+                std::array::from_fn(|k| lo[k].min(p[k])),
+                std::array::from_fn(|k| hi[k].max(p[k])),
+            )
+        },
+    );
+    (!segments.is_empty()).then_some((lo, hi))
 }
 
 /// Whether two boxes `(lo, hi)` come within the contact thickness of each other.

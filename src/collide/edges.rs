@@ -12,7 +12,8 @@
 //! [`crate::collide::VertexContacts`]).
 
 use super::Obstacle;
-use largestep_kernels::v3::{cross, dot, sub};
+use largestep_kernels::rigid::mat_t_vec;
+use largestep_kernels::v3::{add, cross, dot, sub};
 
 impl Obstacle {
     /// The sharp edges of the obstacle's surface as segments (a box's twelve, a hull's
@@ -37,46 +38,17 @@ impl Obstacle {
             _ => None,
         };
         let hull_edges = hull.into_iter().flat_map(|(edges, center, axes)| {
-            let place = move |p: [f64; 3]| -> [f64; 3] {
-                std::array::from_fn(|k| {
-                    center[k] + p[0] * axes[0][k] + p[1] * axes[1][k] + p[2] * axes[2][k]
-                })
-            };
+            let place = move |p: [f64; 3]| add(center, mat_t_vec(&axes, p));
             edges.iter().map(move |[a, b]| (place(*a), place(*b)))
         });
         boxes.into_iter().flatten().chain(hull_edges)
-    }
-
-    /// The axis-aligned bounds of the obstacle's sharp edges, `None` without any.
-    pub fn sharp_edge_bounds(&self) -> Option<([f64; 3], [f64; 3])> {
-        match self {
-            Obstacle::Box { min, max } => Some((*min, *max)),
-            Obstacle::Oriented { .. } | Obstacle::Hull { .. } => {
-                let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-                for (a, b) in self.sharp_edges() {
-                    for k in 0..3 {
-                        lo[k] = lo[k].min(a[k]).min(b[k]);
-                        hi[k] = hi[k].max(a[k]).max(b[k]);
-                    }
-                }
-                (lo[0] <= hi[0]).then_some((lo, hi))
-            }
-            _ => None,
-        }
     }
 }
 
 /// Corner `c` (bit k: the + side of axis k) of an oriented box.
 fn oriented_corner(center: [f64; 3], axes: &[[f64; 3]; 3], half: [f64; 3], c: usize) -> [f64; 3] {
-    std::array::from_fn(|k| {
-        center[k]
-            + (0..3)
-                .map(|a| {
-                    let s = if c >> a & 1 == 1 { half[a] } else { -half[a] };
-                    s * axes[a][k]
-                })
-                .sum::<f64>()
-    })
+    let signed = std::array::from_fn(|a| if c >> a & 1 == 1 { half[a] } else { -half[a] });
+    add(center, mat_t_vec(axes, signed))
 }
 
 /// The twelve edges of a box with corners `corner(c)` (bit a of `c`: the upper side of

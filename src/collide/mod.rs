@@ -37,7 +37,8 @@ use crate::validate::{check, require, ModelError, Rule};
 use largestep_kernels::collide::narrow::{gjk_epa, Convex};
 use largestep_kernels::collide::sdf::{box_distance, Shape};
 use largestep_kernels::interp::sample3_grad;
-use largestep_kernels::v3::{dot, length_and_unit as unit, sub};
+use largestep_kernels::rigid::{mat_t_vec, mat_vec};
+use largestep_kernels::v3::{add, dot, length_and_unit as unit, sub};
 use std::sync::Arc;
 
 /// A rigid, fixed collision obstacle: a solid the model stays out of.
@@ -139,15 +140,10 @@ impl MovingObstacle {
     /// only and a distance grid stays where it is: neither can turn.
     pub fn earlier(&self, s: f64) -> MovingObstacle {
         let r = largestep_kernels::rotation::exp_matrix(self.angular_velocity.map(|c| -s * c));
-        let turn = |d: [f64; 3]| -> [f64; 3] {
-            std::array::from_fn(|k| r[k][0] * d[0] + r[k][1] * d[1] + r[k][2] * d[2])
-        };
-        let center: [f64; 3] = std::array::from_fn(|k| self.center[k] - s * self.velocity[k]);
-        let place = |p: [f64; 3]| -> [f64; 3] {
-            let d = turn(sub(p, self.center));
-            std::array::from_fn(|k| center[k] + d[k])
-        };
+        let turn = |d: [f64; 3]| mat_vec(r, d);
         let back = self.velocity.map(|c| -s * c);
+        let center = add(self.center, back);
+        let place = |p: [f64; 3]| add(center, turn(sub(p, self.center)));
         let shape = match &self.shape {
             Obstacle::Plane { normal, offset } => {
                 let on = place(normal.map(|c| -c * offset));
@@ -162,8 +158,8 @@ impl MovingObstacle {
                 radius: *radius,
             },
             Obstacle::Box { min, max } => Obstacle::Box {
-                min: std::array::from_fn(|k| min[k] + back[k]),
-                max: std::array::from_fn(|k| max[k] + back[k]),
+                min: add(*min, back),
+                max: add(*max, back),
             },
             Obstacle::Capsule { a, b, radius } => Obstacle::Capsule {
                 a: place(*a),
@@ -371,9 +367,9 @@ impl Obstacle {
                 let n = m.positions.len() / 3;
                 for i in 0..n {
                     let l = [m.positions[i], m.positions[n + i], m.positions[2 * n + i]];
-                    for k in 0..3 {
-                        m.positions[k * n + i] =
-                            center[k] + axes[0][k] * l[0] + axes[1][k] * l[1] + axes[2][k] * l[2];
+                    let p = add(*center, mat_t_vec(axes, l));
+                    for (k, c) in p.into_iter().enumerate() {
+                        m.positions[k * n + i] = c;
                     }
                 }
                 Some(m)
@@ -438,9 +434,7 @@ impl Obstacle {
                 let r = sub(p, *center);
                 let local = [dot(r, axes[0]), dot(r, axes[1]), dot(r, axes[2])];
                 let (d, g) = box_distance(local, *half);
-                let world =
-                    [0, 1, 2].map(|k| axes[0][k] * g[0] + axes[1][k] * g[1] + axes[2][k] * g[2]);
-                nonzero((d, world))
+                nonzero((d, mat_t_vec(axes, g)))
             }
             Obstacle::Hull {
                 points,
@@ -458,10 +452,7 @@ impl Obstacle {
                     radius: 0.0,
                 };
                 let c = gjk_epa(&point, &Convex::Hull(points))?;
-                let n = c.normal.map(|x| -x);
-                let world =
-                    [0, 1, 2].map(|k| axes[0][k] * n[0] + axes[1][k] * n[1] + axes[2][k] * n[2]);
-                nonzero((-c.depth, world))
+                nonzero((-c.depth, mat_t_vec(axes, c.normal.map(|x| -x))))
             }
             Obstacle::Sdf(s) => {
                 if !s.grid.contains(p) {

@@ -146,6 +146,21 @@ impl Mesh {
     }
 }
 
+/// Every use of an edge by a triangle: `([a, b], triangle)` with `a < b`, sorted by edge
+/// and then triangle, so that one edge's uses stand together (`chunk_by` on the edge):
+/// two for an edge inside a closed or manifold surface, one on a border.
+pub fn edge_uses(triangles: &[[u32; 3]]) -> Vec<([u32; 2], usize)> {
+    let mut uses: Vec<([u32; 2], usize)> = Vec::with_capacity(3 * triangles.len());
+    for (t, tri) in triangles.iter().enumerate() {
+        for k in 0..3 {
+            let (a, b) = (tri[k], tri[(k + 1) % 3]);
+            uses.push(([a.min(b), a.max(b)], t));
+        }
+    }
+    uses.sort_unstable();
+    uses
+}
+
 /// The 1-based line of the `i`-th (0-based) `v` statement of OBJ text: where a vertex an
 /// error names was defined.
 pub fn obj_vertex_line(text: &str, i: usize) -> Option<usize> {

@@ -11,8 +11,8 @@
 mod mesh;
 
 pub use mesh::{
-    is_surface_file, obj_vertex_line, parse_obj, parse_obj_uv, parse_off, read_obj, read_obj_uv,
-    read_off, read_surface, write_obj, write_ply, Mesh, MeshRef, ReadError,
+    edge_uses, is_surface_file, obj_vertex_line, parse_obj, parse_obj_uv, parse_off, read_obj,
+    read_obj_uv, read_off, read_surface, write_obj, write_ply, Mesh, MeshRef, ReadError,
 };
 mod image;
 pub use image::{read_png, write_gif, write_png, Image};

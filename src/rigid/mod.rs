@@ -1339,8 +1339,8 @@ fn rk4(
 }
 
 /// The sharp edges of a closed mesh's convex hull (`points`: the mesh's vertices, in
-/// order): the mesh edges whose two triangles both lie on the hull (every point behind
-/// their planes) and meet at more than 20 degrees (a cube's twelve edges, not its faces'
+/// order): the mesh edges whose two triangles both lie on the hull (every point on one
+/// side of their planes) and meet at more than 20 degrees (a cube's twelve edges, not its faces'
 /// diagonals). Left empty for meshes of more than 5e7 point-triangle pairs, whose test
 /// would take seconds at build.
 fn hull_edges(points: &[[f64; 3]], triangles: &[[u32; 3]]) -> Vec<[[f64; 3]; 2]> {
@@ -1366,18 +1366,9 @@ fn hull_edges(points: &[[f64; 3]], triangles: &[[u32; 3]]) -> Vec<[[f64; 3]; 2]>
             (side(1.0) || side(-1.0)).then_some(n)
         })
         .collect();
-    // Each edge with the triangles that hold it.
-    let mut sides: Vec<([u32; 2], usize)> = Vec::with_capacity(3 * triangles.len());
-    for (f, t) in triangles.iter().enumerate() {
-        for k in 0..3 {
-            let (i, j) = (t[k], t[(k + 1) % 3]);
-            sides.push(([i.min(j), i.max(j)], f));
-        }
-    }
-    sides.sort_unstable();
     let cos_20 = 20f64.to_radians().cos();
     let mut edges = Vec::new();
-    for pair in sides.chunk_by(|a, b| a.0 == b.0) {
+    for pair in crate::io::edge_uses(triangles).chunk_by(|a, b| a.0 == b.0) {
         let [(e, f), (_, g)] = pair else {
             continue; // an open or non-manifold edge: the mesh check reports those
         };
